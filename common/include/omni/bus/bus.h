@@ -1,0 +1,110 @@
+// Typed publish/subscribe over LCM, with the counters every process reports in its heartbeat.
+//
+// A Bus owns one lcm::LCM. Subscriptions decode into the generated message type; a message
+// that fails to decode (wrong fingerprint: another type on the channel; truncated bytes) is
+// counted in decode_errors and never reaches the handler. URLs: "" uses LCM_DEFAULT_URL or
+// LCM's default multicast; "memq://" for one process; "file:///path?speed=0" to read a log.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <lcm/lcm-cpp.hpp>
+
+#include "omni/common/result.h"
+
+namespace omni::bus {
+
+struct BusCounters {
+  std::atomic<int64_t> msgs_in{0};         // decoded and handed to a handler
+  std::atomic<int64_t> msgs_out{0};        // published successfully
+  std::atomic<int64_t> decode_errors{0};   // received but undecodable
+  std::atomic<int64_t> publish_errors{0};  // lcm publish returned an error
+  std::atomic<int64_t> drops{0};           // discarded by the process (invalid, late, queue full)
+};
+
+class Bus {
+ public:
+  // Opens LCM on `url`. Fails with a message naming the URL when LCM cannot start
+  // (e.g. no multicast route: see README "Networking").
+  static Result<std::unique_ptr<Bus>> Create(const std::string& url);
+  ~Bus();
+  Bus(const Bus&) = delete;
+  Bus& operator=(const Bus&) = delete;
+
+  template <class Msg>
+  void Subscribe(const std::string& channel,
+                 std::function<void(const Msg& msg, int64_t recv_utime)> handler);
+
+  template <class Msg>
+  bool Publish(const std::string& channel, const Msg& msg) {
+    const int size = msg.getEncodedSize();
+    std::vector<uint8_t> buf(static_cast<size_t>(size));
+    if (msg.encode(buf.data(), 0, size) != size) {
+      ++counters_.publish_errors;
+      return false;
+    }
+    return PublishRaw(channel, buf.data(), size);
+  }
+  bool PublishRaw(const std::string& channel, const void* data, int size);
+
+  // Dispatches at most one message. Returns 1 if a message was handled, 0 on timeout,
+  // -1 when LCM failed (or the log being read ended).
+  int HandleTimeout(int timeout_ms);
+  int fd();
+  const std::string& url() const { return url_; }
+  BusCounters& counters() { return counters_; }
+  // The channel of the most recent decode failure ("" if none), for status texts.
+  std::string last_decode_error() const;
+
+ private:
+  struct SubscriptionBase {
+    virtual ~SubscriptionBase() = default;
+    virtual void Handle(const lcm::ReceiveBuffer* rbuf, const std::string& channel) = 0;
+  };
+  template <class Msg>
+  struct TypedSubscription;
+
+  Bus(std::unique_ptr<lcm::LCM> lcm, std::string url);
+  void NoteDecodeError(const std::string& channel, int size);
+
+  std::unique_ptr<lcm::LCM> lcm_;
+  std::string url_;
+  BusCounters counters_;
+  std::vector<std::unique_ptr<SubscriptionBase>> subs_;
+  mutable std::mutex mu_;
+  std::string last_decode_error_;
+};
+
+template <class Msg>
+struct Bus::TypedSubscription final : Bus::SubscriptionBase {
+  Bus* bus;
+  std::function<void(const Msg&, int64_t)> handler;
+  void Handle(const lcm::ReceiveBuffer* rbuf, const std::string& channel) override {
+    Msg msg;
+    const int n = msg.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size));
+    if (n < 0) {
+      bus->NoteDecodeError(channel, static_cast<int>(rbuf->data_size));
+      return;
+    }
+    ++bus->counters_.msgs_in;
+    handler(msg, rbuf->recv_utime);
+  }
+};
+
+template <class Msg>
+void Bus::Subscribe(const std::string& channel,
+                    std::function<void(const Msg& msg, int64_t recv_utime)> handler) {
+  auto sub = std::make_unique<TypedSubscription<Msg>>();
+  sub->bus = this;
+  sub->handler = std::move(handler);
+  lcm_->subscribe(channel, &SubscriptionBase::Handle, static_cast<SubscriptionBase*>(sub.get()));
+  subs_.push_back(std::move(sub));
+}
+
+}  // namespace omni::bus

@@ -1,0 +1,52 @@
+// Time as passed into algorithms: a Clock interface so replays and tests control time.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+
+namespace omni {
+
+// Microseconds since the Unix epoch, the unit of every `utime` on the bus.
+using Utime = int64_t;
+
+inline double UtimeToSeconds(Utime t) { return static_cast<double>(t) * 1e-6; }
+inline Utime SecondsToUtime(double s) {
+  return static_cast<Utime>(s * 1e6 + (s >= 0 ? 0.5 : -0.5));
+}
+
+class Clock {
+ public:
+  virtual ~Clock() = default;
+  virtual Utime NowUtime() const = 0;
+};
+
+// Wall clock (system_clock), for processes talking to real devices.
+class SystemClock final : public Clock {
+ public:
+  Utime NowUtime() const override {
+    return std::chrono::duration_cast<std::chrono::microseconds>(
+               std::chrono::system_clock::now().time_since_epoch())
+        .count();
+  }
+};
+
+// Monotonic clock in microseconds, for measuring durations.
+inline int64_t MonotonicMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+// A clock that moves only when told: tests and log replay.
+class ManualClock final : public Clock {
+ public:
+  explicit ManualClock(Utime start = 0) : now_(start) {}
+  Utime NowUtime() const override { return now_; }
+  void Set(Utime t) { now_ = t; }
+  void Advance(Utime dt) { now_ += dt; }
+
+ private:
+  Utime now_;
+};
+
+}  // namespace omni

@@ -1,0 +1,73 @@
+// Evaluation: trajectory error (ATE after least-squares rigid alignment, RPE) and map error
+// (the SLAMfusion metric of paper 003: sqrt of the sum of squared cell differences with cells
+// normalised to -1 unknown / 0 free / 1 occupied, after a translation + rotation alignment).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "omni/common/result.h"
+#include "omni/io/grid.h"
+#include "omni/io/trajectory_io.h"
+
+namespace omni::eval {
+
+struct Association {
+  std::vector<size_t> ref_index;
+  std::vector<size_t> est_index;
+};
+// Pairs entries: by scan index when both files are in the indexed form, otherwise by the
+// nearest timestamp within max_dt_s (TUM). Errors when nothing matches.
+Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& est,
+                              double max_dt_s = 0.02);
+
+struct AteResult {
+  size_t matched = 0;
+  double rmse_m = 0;
+  double mean_m = 0;
+  double max_m = 0;
+  double rot_rmse_rad = 0;
+  Eigen::Isometry3d alignment = Eigen::Isometry3d::Identity();  // applied to the estimate
+};
+// Rigid alignment: SE(2) (rotation about z + planar translation) when `se3` is false,
+// otherwise SE(3); both least squares (Umeyama without scale).
+Result<AteResult> ComputeAte(const io::Trajectory& ref, const io::Trajectory& est, bool se3 = false,
+                             double max_dt_s = 0.02);
+
+struct RpeResult {
+  size_t pairs = 0;
+  double trans_rmse_m = 0;
+  double trans_max_m = 0;
+  double rot_rmse_rad = 0;
+  double rot_max_rad = 0;
+};
+// Relative pose error between consecutive matched poses (`delta` matched steps apart).
+Result<RpeResult> ComputeRpe(const io::Trajectory& ref, const io::Trajectory& est, int delta = 1,
+                             double max_dt_s = 0.02);
+
+struct MapCompareOptions {
+  double max_rotation_rad = 0.35;  // search range for the rotation of the estimate
+  double max_shift_m = 2.0;        // search range for the translation
+  int match_tolerance_cells = 1;   // occupied-cell precision/recall tolerance
+  bool align = true;               // false: compare in the maps' own frames
+};
+
+struct MapCompareResult {
+  double error = 0;  // SLAMfusion error over the reference grid
+  size_t cells = 0;  // reference cells compared
+  size_t differing_cells = 0;
+  double precision = 0;  // occupied cells of the estimate near an occupied reference cell
+  double recall = 0;     // occupied reference cells near an occupied estimate cell
+  double dx_m = 0, dy_m = 0, rotation_rad = 0;  // alignment applied to the estimate
+};
+// Aligns `est` onto `ref` (coarse-to-fine search over rotation and translation maximising the
+// overlap of occupied cells), then scores it on the reference grid.
+MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
+                             const MapCompareOptions& options = {});
+
+// -1 unknown, 0 free, 1 occupied (> 50 %), as in SLAMfusion's normalisation.
+int NormalizedCell(int8_t v);
+
+}  // namespace omni::eval

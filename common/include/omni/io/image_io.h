@@ -1,0 +1,41 @@
+// Small image files: binary PGM (8- and 16-bit) read/write and PNG write (gray or RGB, 8-bit),
+// enough for map_server maps, rendered views and plots without an imaging library.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "omni/common/result.h"
+
+namespace omni::io {
+
+struct Image {
+  int width = 0;
+  int height = 0;
+  int channels = 1;              // 1 gray, 3 RGB
+  int max_value = 255;           // PGM maxval: 255 (8-bit) or up to 65535 (16-bit samples)
+  std::vector<uint16_t> pixels;  // row-major, row 0 at the top, channels interleaved
+  uint16_t at(int x, int y, int c = 0) const {
+    return pixels[(static_cast<size_t>(y) * width + x) * channels + c];
+  }
+  uint16_t& at(int x, int y, int c = 0) {
+    return pixels[(static_cast<size_t>(y) * width + x) * channels + c];
+  }
+  static Image Make(int w, int h, int channels, uint16_t fill = 0) {
+    Image im;
+    im.width = w;
+    im.height = h;
+    im.channels = channels;
+    im.pixels.assign(static_cast<size_t>(w) * h * channels, fill);
+    return im;
+  }
+};
+
+// P5 (gray) and P6 (RGB) binary forms; 16-bit samples are big-endian (Netpbm).
+Result<Image> ReadPnm(const std::string& path);
+Status WritePgm(const std::string& path, const Image& image);
+// 8-bit PNG (values above 255 are clamped). Written atomically (temp file + rename).
+Status WritePng(const std::string& path, const Image& image);
+
+}  // namespace omni::io

@@ -1,0 +1,64 @@
+// LCM log files (the format of lcm-logger), read and written without the LCM library so
+// corrupt files get precise errors. Each event: sync word 0xEDA1DA01, event number (int64),
+// timestamp (int64, microseconds), channel length (int32), data length (int32), channel, data;
+// all integers big-endian.
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "omni/common/result.h"
+
+namespace omni::io {
+
+struct LcmLogEvent {
+  int64_t event_number = 0;
+  int64_t utime = 0;  // log timestamp, microseconds
+  std::string channel;
+  std::vector<uint8_t> data;
+  uint64_t offset = 0;  // byte offset of the event in the file
+};
+
+class LcmLogReader {
+ public:
+  static Result<LcmLogReader> Open(const std::string& path);
+  LcmLogReader(LcmLogReader&&) noexcept;
+  LcmLogReader& operator=(LcmLogReader&&) noexcept;
+  ~LcmLogReader();
+  // Reads the next event. Returns true with an event, false at a clean end of file, or an
+  // error naming the file and byte offset for a corrupt or truncated event. With
+  // `resync` set, a corrupt region is skipped to the next sync word instead (counted in
+  // skipped_bytes()) and only a truncated final event is an error.
+  Result<bool> Next(LcmLogEvent* event, bool resync = false);
+  uint64_t skipped_bytes() const { return skipped_bytes_; }
+  const std::string& path() const { return path_; }
+
+ private:
+  LcmLogReader(std::FILE* f, std::string path) : f_(f), path_(std::move(path)) {}
+  std::FILE* f_ = nullptr;
+  std::string path_;
+  uint64_t offset_ = 0;
+  uint64_t skipped_bytes_ = 0;
+};
+
+class LcmLogWriter {
+ public:
+  static Result<LcmLogWriter> Open(const std::string& path);
+  LcmLogWriter(LcmLogWriter&&) noexcept;
+  LcmLogWriter& operator=(LcmLogWriter&&) noexcept;
+  ~LcmLogWriter();
+  Status Write(int64_t utime, const std::string& channel, const void* data, size_t size);
+  Status Close();
+  int64_t events_written() const { return next_event_; }
+
+ private:
+  LcmLogWriter(std::FILE* f, std::string path) : f_(f), path_(std::move(path)) {}
+  std::FILE* f_ = nullptr;
+  std::string path_;
+  int64_t next_event_ = 0;
+};
+
+}  // namespace omni::io

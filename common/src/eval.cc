@@ -1,0 +1,285 @@
+#include "omni/eval/eval.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+
+#include <Eigen/Geometry>
+
+namespace omni::eval {
+
+int NormalizedCell(int8_t v) {
+  if (v < 0) return -1;
+  return v > 50 ? 1 : 0;
+}
+
+Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& est,
+                              double max_dt_s) {
+  Association a;
+  if (ref.format == io::Trajectory::Format::kIndexed2D &&
+      est.format == io::Trajectory::Format::kIndexed2D) {
+    std::unordered_map<int64_t, size_t> by_index;
+    for (size_t i = 0; i < est.entries.size(); ++i) by_index[est.entries[i].index] = i;
+    for (size_t i = 0; i < ref.entries.size(); ++i) {
+      auto it = by_index.find(ref.entries[i].index);
+      if (it == by_index.end()) continue;
+      a.ref_index.push_back(i);
+      a.est_index.push_back(it->second);
+    }
+  } else {
+    std::vector<size_t> order(est.entries.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [&](size_t x, size_t y) {
+      return est.entries[x].timestamp_s < est.entries[y].timestamp_s;
+    });
+    for (size_t i = 0; i < ref.entries.size(); ++i) {
+      const double t = ref.entries[i].timestamp_s;
+      auto it = std::lower_bound(order.begin(), order.end(), t, [&](size_t k, double v) {
+        return est.entries[k].timestamp_s < v;
+      });
+      size_t best = SIZE_MAX;
+      double best_dt = max_dt_s;
+      for (auto c : {it, it == order.begin() ? it : it - 1}) {
+        if (c == order.end()) continue;
+        const double dt = std::fabs(est.entries[*c].timestamp_s - t);
+        if (dt <= best_dt) {
+          best_dt = dt;
+          best = *c;
+        }
+      }
+      if (best == SIZE_MAX) continue;
+      a.ref_index.push_back(i);
+      a.est_index.push_back(best);
+    }
+  }
+  if (a.ref_index.empty())
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "no pose of the estimate matches a pose of the reference (by index, or by "
+                     "timestamp within " +
+                         std::to_string(max_dt_s) + " s)");
+  return a;
+}
+
+Result<AteResult> ComputeAte(const io::Trajectory& ref, const io::Trajectory& est, bool se3,
+                             double max_dt_s) {
+  auto assoc = Associate(ref, est, max_dt_s);
+  if (!assoc.ok()) return assoc.error();
+  const size_t n = assoc->ref_index.size();
+  const int dim = se3 ? 3 : 2;
+  Eigen::MatrixXd src(dim, n), dst(dim, n);
+  for (size_t k = 0; k < n; ++k) {
+    src.col(static_cast<Eigen::Index>(k)) = est.entries[assoc->est_index[k]].position.head(dim);
+    dst.col(static_cast<Eigen::Index>(k)) = ref.entries[assoc->ref_index[k]].position.head(dim);
+  }
+  AteResult r;
+  r.matched = n;
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  if (n >= 2) {
+    const Eigen::MatrixXd m = Eigen::umeyama(src, dst, /*with_scaling=*/false);
+    T.linear().topLeftCorner(dim, dim) = m.topLeftCorner(dim, dim);
+    T.translation().head(dim) = m.topRightCorner(dim, 1);
+  } else {
+    T.translation().head(dim) = dst.col(0) - src.col(0);
+  }
+  r.alignment = T;
+  double sum2 = 0, sum = 0, rot2 = 0;
+  for (size_t k = 0; k < n; ++k) {
+    const auto& e = est.entries[assoc->est_index[k]];
+    const auto& g = ref.entries[assoc->ref_index[k]];
+    Eigen::Vector3d p = T * e.position;
+    if (!se3) p.z() = g.position.z();
+    const double d = (p - g.position).norm();
+    sum2 += d * d;
+    sum += d;
+    r.max_m = std::max(r.max_m, d);
+    const Eigen::Quaterniond q(T.linear() * e.orientation.toRotationMatrix());
+    const double ang = q.angularDistance(g.orientation);
+    rot2 += ang * ang;
+  }
+  r.rmse_m = std::sqrt(sum2 / static_cast<double>(n));
+  r.mean_m = sum / static_cast<double>(n);
+  r.rot_rmse_rad = std::sqrt(rot2 / static_cast<double>(n));
+  return r;
+}
+
+Result<RpeResult> ComputeRpe(const io::Trajectory& ref, const io::Trajectory& est, int delta,
+                             double max_dt_s) {
+  if (delta < 1) return MakeError(ErrorCode::kInvalidArgument, "RPE delta must be >= 1");
+  auto assoc = Associate(ref, est, max_dt_s);
+  if (!assoc.ok()) return assoc.error();
+  auto iso = [](const io::TrajectoryEntry& e) {
+    Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+    t.linear() = e.orientation.toRotationMatrix();
+    t.translation() = e.position;
+    return t;
+  };
+  RpeResult r;
+  double t2 = 0, r2 = 0;
+  const size_t n = assoc->ref_index.size();
+  for (size_t k = 0; k + static_cast<size_t>(delta) < n; ++k) {
+    const size_t j = k + static_cast<size_t>(delta);
+    const Eigen::Isometry3d dr =
+        iso(ref.entries[assoc->ref_index[k]]).inverse() * iso(ref.entries[assoc->ref_index[j]]);
+    const Eigen::Isometry3d de =
+        iso(est.entries[assoc->est_index[k]]).inverse() * iso(est.entries[assoc->est_index[j]]);
+    const Eigen::Isometry3d err = dr.inverse() * de;
+    const double te = err.translation().norm();
+    const double re = Eigen::AngleAxisd(err.linear()).angle();
+    t2 += te * te;
+    r2 += re * re;
+    r.trans_max_m = std::max(r.trans_max_m, te);
+    r.rot_max_rad = std::max(r.rot_max_rad, re);
+    ++r.pairs;
+  }
+  if (r.pairs == 0) return MakeError(ErrorCode::kInvalidArgument, "too few matched poses for RPE");
+  r.trans_rmse_m = std::sqrt(t2 / static_cast<double>(r.pairs));
+  r.rot_rmse_rad = std::sqrt(r2 / static_cast<double>(r.pairs));
+  return r;
+}
+
+namespace {
+
+struct Cell {
+  double x, y;  // world coordinates of the cell centre
+};
+
+std::vector<Cell> OccupiedCells(const io::GridMap& m) {
+  std::vector<Cell> out;
+  for (int row = 0; row < m.height; ++row)
+    for (int col = 0; col < m.width; ++col)
+      if (NormalizedCell(m.at(col, row)) == 1)
+        out.push_back({m.origin_x_m + (col + 0.5) * m.resolution_m,
+                       m.origin_y_m + (row + 0.5) * m.resolution_m});
+  return out;
+}
+
+// Reference cells within `tol` of an occupied cell, as a mask over the reference grid.
+std::vector<uint8_t> DilatedOccupied(const io::GridMap& m, int tol) {
+  std::vector<uint8_t> mask(m.cells.size(), 0);
+  for (int row = 0; row < m.height; ++row)
+    for (int col = 0; col < m.width; ++col) {
+      if (NormalizedCell(m.at(col, row)) != 1) continue;
+      for (int dy = -tol; dy <= tol; ++dy)
+        for (int dx = -tol; dx <= tol; ++dx)
+          if (m.Contains(col + dx, row + dy))
+            mask[static_cast<size_t>(row + dy) * m.width + col + dx] = 1;
+    }
+  return mask;
+}
+
+// Maps est world coordinates through (rotation about the estimate's map centre, shift).
+struct Transform2 {
+  double c, s, cx, cy, dx, dy;
+  void Apply(double x, double y, double* ox, double* oy) const {
+    const double rx = x - cx, ry = y - cy;
+    *ox = cx + c * rx - s * ry + dx;
+    *oy = cy + s * rx + c * ry + dy;
+  }
+};
+
+}  // namespace
+
+MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
+                             const MapCompareOptions& opt) {
+  MapCompareResult res;
+  const double cx = est.origin_x_m + est.width * est.resolution_m / 2;
+  const double cy = est.origin_y_m + est.height * est.resolution_m / 2;
+  Transform2 best{1, 0, cx, cy, 0, 0};
+  const auto occ = OccupiedCells(est);
+  if (opt.align && !occ.empty() && ref.width > 0) {
+    const auto mask = DilatedOccupied(ref, 1);
+    auto score = [&](const Transform2& t) {
+      size_t hits = 0;
+      for (const auto& c : occ) {
+        double x, y;
+        t.Apply(c.x, c.y, &x, &y);
+        const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
+        const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
+        if (ref.Contains(col, row) && mask[static_cast<size_t>(row) * ref.width + col]) ++hits;
+      }
+      return hits;
+    };
+    // Coarse to fine: each level searches a window around the best so far with a finer step.
+    double rot = 0, dx = 0, dy = 0;
+    double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
+    double rot_step = std::max(opt.max_rotation_rad / 8, 1e-3);
+    double shift_step = std::max(opt.max_shift_m / 8, ref.resolution_m);
+    size_t best_score = score(best);
+    for (int level = 0; level < 6; ++level) {
+      double br = rot, bx = dx, by = dy;
+      for (double r = rot - rot_range; r <= rot + rot_range + 1e-12; r += rot_step)
+        for (double x = dx - shift_range; x <= dx + shift_range + 1e-12; x += shift_step)
+          for (double y = dy - shift_range; y <= dy + shift_range + 1e-12; y += shift_step) {
+            const Transform2 t{std::cos(r), std::sin(r), cx, cy, x, y};
+            const size_t s = score(t);
+            if (s > best_score) {
+              best_score = s;
+              br = r;
+              bx = x;
+              by = y;
+            }
+          }
+      rot = br;
+      dx = bx;
+      dy = by;
+      rot_range = rot_step;
+      shift_range = shift_step;
+      rot_step = std::max(rot_step / 4, 1e-4);
+      shift_step = std::max(shift_step / 4, ref.resolution_m / 4);
+    }
+    best = Transform2{std::cos(rot), std::sin(rot), cx, cy, dx, dy};
+    res.rotation_rad = rot;
+    res.dx_m = dx;
+    res.dy_m = dy;
+  }
+  // Inverse transform: for each reference cell, the estimate cell that lands on it.
+  const Transform2 inv{best.c, -best.s, cx, cy, 0, 0};
+  double sum2 = 0;
+  for (int row = 0; row < ref.height; ++row)
+    for (int col = 0; col < ref.width; ++col) {
+      const double wx = ref.origin_x_m + (col + 0.5) * ref.resolution_m - best.dx;
+      const double wy = ref.origin_y_m + (row + 0.5) * ref.resolution_m - best.dy;
+      double ex, ey;
+      inv.Apply(wx, wy, &ex, &ey);
+      const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
+      const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
+      const int m = est.Contains(ec, er) ? NormalizedCell(est.at(ec, er)) : -1;
+      const int t = NormalizedCell(ref.at(col, row));
+      const double d = static_cast<double>(t - m);
+      sum2 += d * d;
+      if (t != m) ++res.differing_cells;
+      ++res.cells;
+    }
+  res.error = std::sqrt(sum2);
+  // Precision / recall of occupied cells with a tolerance.
+  const int tol = opt.match_tolerance_cells;
+  const auto ref_mask = DilatedOccupied(ref, tol);
+  size_t tp_est = 0;
+  for (const auto& c : occ) {
+    double x, y;
+    best.Apply(c.x, c.y, &x, &y);
+    const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
+    const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
+    if (ref.Contains(col, row) && ref_mask[static_cast<size_t>(row) * ref.width + col]) ++tp_est;
+  }
+  res.precision = occ.empty() ? 0 : static_cast<double>(tp_est) / static_cast<double>(occ.size());
+  const auto ref_occ = OccupiedCells(ref);
+  size_t tp_ref = 0;
+  for (const auto& c : ref_occ) {
+    double ex, ey;
+    inv.Apply(c.x - best.dx, c.y - best.dy, &ex, &ey);
+    const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
+    const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
+    bool found = false;
+    for (int dy = -tol; dy <= tol && !found; ++dy)
+      for (int dx = -tol; dx <= tol && !found; ++dx)
+        if (est.Contains(ec + dx, er + dy) && NormalizedCell(est.at(ec + dx, er + dy)) == 1)
+          found = true;
+    if (found) ++tp_ref;
+  }
+  res.recall =
+      ref_occ.empty() ? 0 : static_cast<double>(tp_ref) / static_cast<double>(ref_occ.size());
+  return res;
+}
+
+}  // namespace omni::eval

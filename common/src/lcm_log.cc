@@ -1,0 +1,173 @@
+#include "omni/io/lcm_log.h"
+
+#include <cerrno>
+#include <cstring>
+
+namespace omni::io {
+namespace {
+
+constexpr uint32_t kSync = 0xEDA1DA01u;
+constexpr int32_t kMaxChannel = 255;
+constexpr int32_t kMaxData = 256 * 1024 * 1024;
+
+uint64_t Be(const uint8_t* p, int n) {
+  uint64_t v = 0;
+  for (int i = 0; i < n; ++i) v = (v << 8) | p[i];
+  return v;
+}
+void PutBe(uint8_t* p, uint64_t v, int n) {
+  for (int i = n - 1; i >= 0; --i) {
+    p[i] = static_cast<uint8_t>(v & 0xff);
+    v >>= 8;
+  }
+}
+
+}  // namespace
+
+Result<LcmLogReader> LcmLogReader::Open(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f)
+    return MakeError(ErrorCode::kNotFound,
+                     "cannot open LCM log '" + path + "': " + std::strerror(errno));
+  return LcmLogReader(f, path);
+}
+
+LcmLogReader::LcmLogReader(LcmLogReader&& o) noexcept
+    : f_(o.f_), path_(std::move(o.path_)), offset_(o.offset_), skipped_bytes_(o.skipped_bytes_) {
+  o.f_ = nullptr;
+}
+LcmLogReader& LcmLogReader::operator=(LcmLogReader&& o) noexcept {
+  if (this != &o) {
+    if (f_) std::fclose(f_);
+    f_ = o.f_;
+    path_ = std::move(o.path_);
+    offset_ = o.offset_;
+    skipped_bytes_ = o.skipped_bytes_;
+    o.f_ = nullptr;
+  }
+  return *this;
+}
+LcmLogReader::~LcmLogReader() {
+  if (f_) std::fclose(f_);
+}
+
+Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
+  for (;;) {
+    const uint64_t start = offset_;
+    uint8_t hdr[28];
+    const size_t n = std::fread(hdr, 1, sizeof(hdr), f_);
+    if (n == 0) return false;
+    auto where = [&](uint64_t off) {
+      return path_ + ": byte offset " + std::to_string(off) + ": ";
+    };
+    if (n < sizeof(hdr)) {
+      return MakeError(ErrorCode::kParse, where(start) + "truncated event header (" +
+                                              std::to_string(n) + " of 28 bytes)");
+    }
+    const uint32_t sync = static_cast<uint32_t>(Be(hdr, 4));
+    const int32_t chan_len = static_cast<int32_t>(Be(hdr + 20, 4));
+    const int32_t data_len = static_cast<int32_t>(Be(hdr + 24, 4));
+    std::string problem;
+    if (sync != kSync) {
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "bad sync word 0x%08X (expected 0xEDA1DA01)", sync);
+      problem = buf;
+    } else if (chan_len <= 0 || chan_len > kMaxChannel) {
+      problem = "channel length " + std::to_string(chan_len) + " out of range";
+    } else if (data_len < 0 || data_len > kMaxData) {
+      problem = "data length " + std::to_string(data_len) + " out of range";
+    }
+    if (!problem.empty()) {
+      if (!resync) return MakeError(ErrorCode::kParse, where(start) + problem);
+      // Scan forward byte by byte for the next sync word.
+      if (std::fseek(f_, static_cast<long>(start + 1), SEEK_SET) != 0) return false;
+      offset_ = start + 1;
+      uint32_t window = 0;
+      int c;
+      int have = 0;
+      while ((c = std::fgetc(f_)) != EOF) {
+        window = (window << 8) | static_cast<uint32_t>(c);
+        ++offset_;
+        if (++have >= 4 && window == kSync) break;
+      }
+      if (c == EOF) {
+        skipped_bytes_ += offset_ - start;
+        return false;
+      }
+      offset_ -= 4;
+      skipped_bytes_ += offset_ - start;
+      std::fseek(f_, static_cast<long>(offset_), SEEK_SET);
+      continue;
+    }
+    ev->event_number = static_cast<int64_t>(Be(hdr + 4, 8));
+    ev->utime = static_cast<int64_t>(Be(hdr + 12, 8));
+    ev->offset = start;
+    ev->channel.resize(static_cast<size_t>(chan_len));
+    ev->data.resize(static_cast<size_t>(data_len));
+    if (std::fread(ev->channel.data(), 1, ev->channel.size(), f_) != ev->channel.size() ||
+        (data_len > 0 && std::fread(ev->data.data(), 1, ev->data.size(), f_) != ev->data.size())) {
+      return MakeError(ErrorCode::kParse, where(start) + "event truncated: channel " +
+                                              std::to_string(chan_len) + " + data " +
+                                              std::to_string(data_len) + " bytes announced");
+    }
+    offset_ =
+        start + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);
+    return true;
+  }
+}
+
+Result<LcmLogWriter> LcmLogWriter::Open(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "wb");
+  if (!f)
+    return MakeError(ErrorCode::kIo,
+                     "cannot create LCM log '" + path + "': " + std::strerror(errno));
+  return LcmLogWriter(f, path);
+}
+LcmLogWriter::LcmLogWriter(LcmLogWriter&& o) noexcept
+    : f_(o.f_), path_(std::move(o.path_)), next_event_(o.next_event_) {
+  o.f_ = nullptr;
+}
+LcmLogWriter& LcmLogWriter::operator=(LcmLogWriter&& o) noexcept {
+  if (this != &o) {
+    if (f_) std::fclose(f_);
+    f_ = o.f_;
+    path_ = std::move(o.path_);
+    next_event_ = o.next_event_;
+    o.f_ = nullptr;
+  }
+  return *this;
+}
+LcmLogWriter::~LcmLogWriter() {
+  if (f_) std::fclose(f_);
+}
+
+Status LcmLogWriter::Write(int64_t utime, const std::string& channel, const void* data,
+                           size_t size) {
+  if (!f_) return MakeError(ErrorCode::kIo, "LCM log '" + path_ + "' is closed");
+  if (channel.empty() || channel.size() > static_cast<size_t>(kMaxChannel))
+    return MakeError(ErrorCode::kInvalidArgument, "channel name must be 1..255 bytes");
+  uint8_t hdr[28];
+  PutBe(hdr, kSync, 4);
+  PutBe(hdr + 4, static_cast<uint64_t>(next_event_), 8);
+  PutBe(hdr + 12, static_cast<uint64_t>(utime), 8);
+  PutBe(hdr + 20, channel.size(), 4);
+  PutBe(hdr + 24, size, 4);
+  if (std::fwrite(hdr, 1, sizeof(hdr), f_) != sizeof(hdr) ||
+      std::fwrite(channel.data(), 1, channel.size(), f_) != channel.size() ||
+      (size > 0 && std::fwrite(data, 1, size, f_) != size)) {
+    return MakeError(ErrorCode::kIo,
+                     "write to LCM log '" + path_ + "' failed: " + std::strerror(errno));
+  }
+  ++next_event_;
+  return Status::Ok();
+}
+
+Status LcmLogWriter::Close() {
+  if (!f_) return Status::Ok();
+  const int r = std::fclose(f_);
+  f_ = nullptr;
+  if (r != 0) return MakeError(ErrorCode::kIo, "closing LCM log '" + path_ + "' failed");
+  return Status::Ok();
+}
+
+}  // namespace omni::io

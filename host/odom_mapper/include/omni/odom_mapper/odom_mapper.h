@@ -1,0 +1,71 @@
+// Occupancy mapping at raw odometry poses (no correction): the library of the odom_mapper
+// process. No LCM here; the process feeds it decoded messages.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/geometry.h"
+#include "omni/common/result.h"
+#include "omni/io/grid.h"
+
+namespace omni::odom_mapper {
+
+struct OdomMapperOptions {
+  double resolution_m = 0.05;       // grid cell size
+  double max_pose_gap_s = 0.5;      // a scan further than this from any odometry is not mapped
+  int min_valid_beams = 10;         // scans with fewer valid beams are rejected
+  double max_hit_range_m = 25.0;    // returns beyond this are not trusted as obstacles
+  double publish_interval_s = 2.0;  // grid publication period (node)
+  std::string scan_channel = "LIDAR_SCAN";
+  std::string odom_channel = "WHEEL_ODOM";
+  std::string grid_channel = "GRID_ODOM";
+
+  // Reads every key above from `reader` (all optional); range errors name the key.
+  static Result<OdomMapperOptions> Load(ConfigReader& reader);
+};
+
+struct OdomMapperCounters {
+  int64_t scans_in = 0;
+  int64_t scans_mapped = 0;
+  int64_t scans_no_pose = 0;        // no odometry close enough in time
+  int64_t scans_too_few_beams = 0;  // empty or mostly invalid
+  int64_t invalid_beams = 0;        // NaN/inf/negative ranges
+  int64_t odom_in = 0;
+  int64_t odom_out_of_order = 0;  // older than the newest odometry: rejected
+  int64_t odom_invalid = 0;       // non-finite pose
+  int64_t scans_lost = 0;         // gaps in the driver's scan sequence numbers
+};
+
+struct Scan {
+  int64_t utime = 0;
+  int64_t seq = -1;      // driver sequence number (-1: unknown)
+  Pose2 sensor_in_base;  // mounting pose
+  float angle_min_rad = 0;
+  float angle_increment_rad = 0;
+  float range_max_m = 0;
+  std::vector<float> ranges_m;
+};
+
+class OdomMapper {
+ public:
+  explicit OdomMapper(const OdomMapperOptions& options);
+  bool AddOdometry(int64_t utime, const Pose2& pose);
+  bool AddScan(const Scan& scan);
+  io::GridMap Map() const { return grid_.ToGridMap(); }
+  // Pose of the base at every mapped scan.
+  const std::vector<std::pair<int64_t, Pose2>>& trajectory() const { return trajectory_; }
+  const OdomMapperCounters& counters() const { return counters_; }
+
+ private:
+  OdomMapperOptions opt_;
+  io::LogOddsGrid grid_;
+  StampedBuffer<Pose2> odom_;
+  std::vector<std::pair<int64_t, Pose2>> trajectory_;
+  OdomMapperCounters counters_;
+  int64_t last_seq_ = -1;
+};
+
+}  // namespace omni::odom_mapper

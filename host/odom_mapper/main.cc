@@ -1,0 +1,190 @@
+// odom_mapper process: LIDAR_SCAN + WHEEL_ODOM -> GRID_ODOM, and map files on exit.
+#include <poll.h>
+
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <string>
+
+#include "omni/bus/bus.h"
+#include "omni/bus/channels.h"
+#include "omni/bus/convert.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/common/log.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/trajectory_io.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odom_mapper/odom_mapper.h"
+#include "omni/odometry_t.hpp"
+
+namespace {
+
+volatile std::sig_atomic_t g_stop = 0;
+void OnSignal(int) { g_stop = 1; }
+
+void Usage(std::FILE* f) {
+  std::fprintf(f,
+               "usage: odom_mapper [--config FILE] [--out DIR] [--url LCM_URL] [--idle-exit S]\n"
+               "  Maps LIDAR_SCAN at the WHEEL_ODOM pose of each scan (no correction), publishes\n"
+               "  GRID_ODOM and HEARTBEAT, and on SIGINT/SIGTERM (or after S seconds without\n"
+               "  messages once data has arrived) writes DIR/odom_map.{pgm,yaml,png},\n"
+               "  DIR/odom_trajectory.{txt,png} (default DIR: out).\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string config_path, out_dir = "out", url;
+  double idle_exit_s = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "odom_mapper: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--help" || a == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--config")
+      config_path = val();
+    else if (a == "--out")
+      out_dir = val();
+    else if (a == "--url")
+      url = val();
+    else if (a == "--idle-exit")
+      idle_exit_s = std::atof(val().c_str());
+    else {
+      std::fprintf(stderr, "odom_mapper: unknown option '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  omni::SetLogProcessName("odom_mapper");
+  omni::odom_mapper::OdomMapperOptions opt;
+  if (!config_path.empty()) {
+    auto reader = omni::ConfigReader::FromFile(config_path);
+    if (!reader.ok()) {
+      std::fprintf(stderr, "odom_mapper: %s\n", reader.error().message.c_str());
+      return 1;
+    }
+    auto loaded = omni::odom_mapper::OdomMapperOptions::Load(*reader);
+    if (!loaded.ok()) {
+      std::fprintf(stderr, "odom_mapper: bad config:\n%s\n", loaded.error().message.c_str());
+      return 1;
+    }
+    opt = *loaded;
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir, ec);
+  if (ec) {
+    std::fprintf(stderr, "odom_mapper: cannot create output folder '%s': %s\n", out_dir.c_str(),
+                 ec.message().c_str());
+    return 1;
+  }
+  auto bus_or = omni::bus::Bus::Create(url);
+  if (!bus_or.ok()) {
+    std::fprintf(stderr, "odom_mapper: %s\n", bus_or.error().message.c_str());
+    return 1;
+  }
+  auto& bus = **bus_or;
+  omni::odom_mapper::OdomMapper mapper(opt);
+  omni::SystemClock clock;
+  int64_t last_msg_us = 0;
+  bus.Subscribe<omni::odometry_t>(opt.odom_channel, [&](const omni::odometry_t& m, int64_t) {
+    last_msg_us = omni::MonotonicMicros();
+    if (!mapper.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad))) ++bus.counters().drops;
+  });
+  bus.Subscribe<omni::laser_scan_t>(opt.scan_channel, [&](const omni::laser_scan_t& m, int64_t) {
+    last_msg_us = omni::MonotonicMicros();
+    omni::odom_mapper::Scan s;
+    s.utime = m.utime;
+    s.seq = m.seq;
+    s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+    s.angle_min_rad = m.angle_min_rad;
+    s.angle_increment_rad = m.angle_increment_rad;
+    s.range_max_m = m.range_max_m;
+    s.ranges_m = m.ranges_m;
+    if (!mapper.AddScan(s)) ++bus.counters().drops;
+  });
+  omni::bus::Heartbeat hb(&bus, "odom_mapper", &clock);
+  const auto& c = mapper.counters();
+  hb.AddCounter("scans_in", [&] { return c.scans_in; });
+  hb.AddCounter("scans_mapped", [&] { return c.scans_mapped; });
+  hb.AddCounter("scans_no_pose", [&] { return c.scans_no_pose; });
+  hb.AddCounter("scans_too_few_beams", [&] { return c.scans_too_few_beams; });
+  hb.AddCounter("invalid_beams", [&] { return c.invalid_beams; });
+  hb.AddCounter("scans_lost", [&] { return c.scans_lost; });
+  hb.AddCounter("odom_out_of_order", [&] { return c.odom_out_of_order; });
+  hb.AddCounter("odom_invalid", [&] { return c.odom_invalid; });
+  hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
+           << (url.empty() ? "default" : url) << ")";
+  int64_t last_grid_us = omni::MonotonicMicros();
+  while (!g_stop) {
+    const int r = bus.HandleTimeout(100);
+    if (r < 0 && !g_stop) {
+      LOG_WARN << "bus ended or failed; writing the map";
+      break;
+    }
+    hb.Tick();
+    const int64_t now = omni::MonotonicMicros();
+    if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
+        c.scans_mapped > 0) {
+      bus.Publish(opt.grid_channel,
+                  omni::bus::ToGridMessage(mapper.Map(), clock.NowUtime(), "odom"));
+      last_grid_us = now;
+    }
+    if (idle_exit_s > 0 && last_msg_us > 0 &&
+        now - last_msg_us > static_cast<int64_t>(idle_exit_s * 1e6))
+      break;
+  }
+  hb.SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
+  hb.Tick(true);
+  const auto map = mapper.Map();
+  if (map.width == 0) {
+    std::fprintf(
+        stderr,
+        "odom_mapper: no scan was mapped (scans in %lld, without pose %lld, too few beams %lld)\n",
+        static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_pose),
+        static_cast<long long>(c.scans_too_few_beams));
+    return 1;
+  }
+  bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
+  const std::string base = out_dir + "/odom_map";
+  omni::Status s = omni::io::WriteMapServer(map, base);
+  if (s.ok()) s = omni::io::WritePng(base + ".png", omni::io::RenderGrid(map, {}, 1));
+  omni::io::Polyline line;
+  std::vector<omni::io::TrajectoryEntry> entries;
+  for (size_t i = 0; i < mapper.trajectory().size(); ++i) {
+    const auto& [t, p] = mapper.trajectory()[i];
+    line.poses.push_back(p);
+    entries.push_back(omni::io::MakeEntry2D(static_cast<int64_t>(i), omni::UtimeToSeconds(t), p));
+  }
+  if (s.ok())
+    s = omni::io::WritePng(out_dir + "/odom_trajectory.png", omni::io::RenderGrid(map, {line}, 2));
+  if (s.ok())
+    s = omni::io::WriteTrajectory2D(out_dir + "/odom_trajectory.txt", entries,
+                                    "mapped_scan_index timestamp x y theta (raw wheel odometry)");
+  if (!s.ok()) {
+    std::fprintf(stderr, "odom_mapper: %s\n", s.message().c_str());
+    return 1;
+  }
+  std::printf(
+      "odom_mapper: mapped %lld of %lld scans received (%lld lost on the bus, %lld without pose, "
+      "%lld too few beams, %lld invalid beams, "
+      "%lld decode errors); map %dx%d cells at %.3f m -> %s.{pgm,yaml,png}, "
+      "%s/odom_trajectory.{txt,png}\n",
+      static_cast<long long>(c.scans_mapped), static_cast<long long>(c.scans_in),
+      static_cast<long long>(c.scans_lost), static_cast<long long>(c.scans_no_pose),
+      static_cast<long long>(c.scans_too_few_beams), static_cast<long long>(c.invalid_beams),
+      static_cast<long long>(bus.counters().decode_errors.load()), map.width, map.height,
+      map.resolution_m, base.c_str(), out_dir.c_str());
+  return 0;
+}

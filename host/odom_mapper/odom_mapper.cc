@@ -1,0 +1,82 @@
+#include "omni/odom_mapper/odom_mapper.h"
+
+#include <cmath>
+
+namespace omni::odom_mapper {
+
+Result<OdomMapperOptions> OdomMapperOptions::Load(ConfigReader& r) {
+  OdomMapperOptions o;
+  r.Get("resolution_m", &o.resolution_m, Optional(), InRange(0.005, 1.0));
+  r.Get("max_pose_gap_s", &o.max_pose_gap_s, Optional(), InRange(0.0, 10.0));
+  r.Get("min_valid_beams", &o.min_valid_beams, Optional(), InRange(1, 100000));
+  r.Get("max_hit_range_m", &o.max_hit_range_m, Optional(), Positive<double>());
+  r.Get("publish_interval_s", &o.publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  r.Get("scan_channel", &o.scan_channel, Optional(), NonEmpty());
+  r.Get("odom_channel", &o.odom_channel, Optional(), NonEmpty());
+  r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
+  if (Status s = r.Finish(); !s.ok()) return s.error();
+  return o;
+}
+
+namespace {
+io::LogOddsOptions GridOptions(const OdomMapperOptions& o) {
+  io::LogOddsOptions g;
+  g.resolution_m = o.resolution_m;
+  g.max_hit_range_m = static_cast<float>(o.max_hit_range_m);
+  return g;
+}
+}  // namespace
+
+OdomMapper::OdomMapper(const OdomMapperOptions& options)
+    : opt_(options), grid_(GridOptions(options)), odom_(100000) {}
+
+bool OdomMapper::AddOdometry(int64_t utime, const Pose2& pose) {
+  ++counters_.odom_in;
+  if (!std::isfinite(pose.x) || !std::isfinite(pose.y) || !std::isfinite(pose.theta)) {
+    ++counters_.odom_invalid;
+    return false;
+  }
+  if (!odom_.Insert(utime, pose)) {
+    ++counters_.odom_out_of_order;
+    return false;
+  }
+  return true;
+}
+
+bool OdomMapper::AddScan(const Scan& scan) {
+  ++counters_.scans_in;
+  if (scan.seq >= 0) {
+    if (last_seq_ >= 0 && scan.seq > last_seq_ + 1)
+      counters_.scans_lost += scan.seq - last_seq_ - 1;
+    last_seq_ = scan.seq;
+  }
+  int valid = 0;
+  std::vector<float> ranges(scan.ranges_m.size());
+  for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const float r = scan.ranges_m[i];
+    if (std::isfinite(r) && r > 0.f) {
+      ranges[i] = r;
+      if (r < scan.range_max_m) ++valid;
+    } else {
+      if (!std::isnan(r) || std::signbit(r)) ++counters_.invalid_beams;  // inf / negative
+      ranges[i] = std::nanf("");
+    }
+  }
+  if (valid < opt_.min_valid_beams || !std::isfinite(scan.angle_increment_rad)) {
+    ++counters_.scans_too_few_beams;
+    return false;
+  }
+  const auto pose = odom_.At(scan.utime, static_cast<int64_t>(opt_.max_pose_gap_s * 1e6));
+  if (!pose) {
+    ++counters_.scans_no_pose;
+    return false;
+  }
+  const Pose2 sensor = *pose * scan.sensor_in_base;
+  grid_.IntegrateScan(sensor, ranges, scan.angle_min_rad, scan.angle_increment_rad,
+                      scan.range_max_m);
+  trajectory_.emplace_back(scan.utime, *pose);
+  ++counters_.scans_mapped;
+  return true;
+}
+
+}  // namespace omni::odom_mapper

@@ -1,0 +1,88 @@
+#include "omni/io/carmen.h"
+
+#include <sstream>
+
+#include <gtest/gtest.h>
+
+#include "test_paths.h"
+
+namespace omni::io {
+namespace {
+
+TEST(Carmen, IntelRawCounts) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  auto log = ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  EXPECT_EQ(log->num_lasers, 2726u);
+  EXPECT_EQ(log->num_odometry, 2727u);
+  const CarmenLaser* first = nullptr;
+  for (const auto& r : log->records)
+    if (r.kind == CarmenRecord::Kind::kLaser) {
+      first = &r.laser;
+      break;
+    }
+  ASSERT_NE(first, nullptr);
+  EXPECT_EQ(first->ranges_m.size(), 180u);
+  EXPECT_NEAR(first->angle_min_rad, -M_PI / 2, 1e-6);
+  EXPECT_NEAR(first->angle_increment_rad, M_PI / 180, 1e-7);
+  EXPECT_NEAR(first->ranges_m[0], 1.07f, 1e-6);
+  EXPECT_NEAR(first->timestamp_s, 1155923634.713750, 1e-6);
+}
+
+TEST(Carmen, GzipCorrectedLogCountsAndSkipsOtherTags) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/aces-corrected.log.gz");
+  auto log = ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  EXPECT_EQ(log->num_lasers, 440u);
+  EXPECT_EQ(log->num_odometry, 7814u);
+  EXPECT_EQ(log->skipped.at("NEFF"), 440u);
+  EXPECT_EQ(log->skipped.at("PARAM"), 4u);
+}
+
+TEST(Carmen, NoisyFreiburgCounts) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/freiburg-079.noisy.clf.gz");
+  auto log = ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  EXPECT_EQ(log->num_lasers, 4791u);
+  EXPECT_EQ(log->num_odometry, 4791u);
+}
+
+TEST(Carmen, HalfDegreeBeamsAndRobotLaser) {
+  std::istringstream in(
+      "# comment\n"
+      "ROBOTLASER1 0 -1.5708 3.14159 0.0174533 30 0.01 0 3 1.0 2.0 3.0 0 0.1 0.2 0.3 0.0 0.0 0.0 0 "
+      "0 0 0 0 "
+      "12.5 host 12.5\n");
+  auto log = ParseCarmenLog(in, "mem");
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  ASSERT_EQ(log->num_lasers, 1u);
+  const auto& l = log->records[0].laser;
+  EXPECT_EQ(l.ranges_m.size(), 3u);
+  EXPECT_NEAR(l.laser_pose.x, 0.1, 1e-12);
+  EXPECT_NEAR(l.timestamp_s, 12.5, 1e-12);
+  EXPECT_NEAR(CarmenBeamIncrementRad(361), M_PI / 360, 1e-7);
+}
+
+TEST(Carmen, TruncatedLineNamesFileAndLine) {
+  std::istringstream in("ODOM 0 0 0 0 0 0 1.0 host 1.0\nFLASER 180 1.0 2.0 3.0\n");
+  auto log = ParseCarmenLog(in, "broken.clf");
+  ASSERT_FALSE(log.ok());
+  EXPECT_NE(log.error().message.find("broken.clf:2"), std::string::npos) << log.error().message;
+}
+
+TEST(Carmen, NonNumberNamed) {
+  std::istringstream in("ODOM 0 0 zero 0 0 0 1.0 host 1.0\n");
+  auto log = ParseCarmenLog(in, "bad.clf");
+  ASSERT_FALSE(log.ok());
+  EXPECT_NE(log.error().message.find("bad.clf:1"), std::string::npos);
+  EXPECT_NE(log.error().message.find("'zero'"), std::string::npos) << log.error().message;
+}
+
+TEST(Carmen, MissingFile) {
+  auto log = ReadCarmenLog("/nonexistent.clf");
+  ASSERT_FALSE(log.ok());
+  EXPECT_NE(log.error().message.find("/nonexistent.clf"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace omni::io

@@ -1,0 +1,105 @@
+#include "omni/common/config.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "test_paths.h"
+
+namespace omni {
+namespace {
+
+struct Options {
+  int particles = 30;
+  double sigma = 0.1;
+  std::string mode = "fast";
+  bool enabled = false;
+  double alpha = 0.0;
+};
+
+Status Load(const std::string& yaml, Options* o) {
+  auto r = ConfigReader::FromString(yaml, "mapper.yaml");
+  if (!r.ok()) return r.error();
+  r->Get("particles", &o->particles, Required(), InRange(1, 1000));
+  r->Get("sigma", &o->sigma, Optional(), Positive<double>());
+  r->Get("mode", &o->mode, Optional(), OneOf({"fast", "exact"}));
+  r->Get("enabled", &o->enabled, Optional());
+  auto motion = r->Section("motion");
+  motion.Get("alpha", &o->alpha, Optional(), NonNegative<double>());
+  return r->Finish();
+}
+
+TEST(Config, ValidFileFillsOptions) {
+  Options o;
+  ASSERT_TRUE(
+      Load("particles: 50\nsigma: 0.2\nmode: exact\nenabled: true\nmotion:\n  alpha: 0.3\n", &o)
+          .ok());
+  EXPECT_EQ(o.particles, 50);
+  EXPECT_DOUBLE_EQ(o.sigma, 0.2);
+  EXPECT_EQ(o.mode, "exact");
+  EXPECT_TRUE(o.enabled);
+  EXPECT_DOUBLE_EQ(o.alpha, 0.3);
+}
+
+TEST(Config, MissingRequiredKeyIsNamed) {
+  Options o;
+  const Status s = Load("sigma: 0.2\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("mapper.yaml"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("'particles'"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("required key is missing"), std::string::npos) << s.message();
+}
+
+TEST(Config, MisspelledKeyIsNamedWithLine) {
+  Options o;
+  const Status s = Load("particles: 5\nsigmaa: 0.2\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("mapper.yaml:2"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("'sigmaa'"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("not a known option"), std::string::npos) << s.message();
+}
+
+TEST(Config, MisspelledNestedKeyIsNamed) {
+  Options o;
+  const Status s = Load("particles: 5\nmotion:\n  alpah: 1\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'motion.alpah'"), std::string::npos) << s.message();
+}
+
+TEST(Config, WrongTypeIsNamed) {
+  Options o;
+  const Status s = Load("particles: many\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'particles' = 'many'"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("wrong type"), std::string::npos) << s.message();
+}
+
+TEST(Config, OutOfRangeNamesTheRule) {
+  Options o;
+  const Status s = Load("particles: 0\nsigma: -1\nmode: slow\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'particles' = '0': must be in [1, 1000]"), std::string::npos)
+      << s.message();
+  EXPECT_NE(s.message().find("'sigma' = '-1': must be > 0"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("must be one of: fast exact"), std::string::npos) << s.message();
+  EXPECT_EQ(o.particles, 30) << "a rejected value must not be stored";
+}
+
+TEST(Config, NonFiniteNumberRejected) {
+  Options o;
+  const Status s = Load("particles: 3\nsigma: .nan\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("finite"), std::string::npos) << s.message();
+}
+
+TEST(Config, MissingFileAndBadYaml) {
+  auto r = ConfigReader::FromFile("/nonexistent/omni.yaml");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("/nonexistent/omni.yaml"), std::string::npos);
+  auto bad = ConfigReader::FromString("a: [1, 2\nb: 3\n", "broken.yaml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("broken.yaml:"), std::string::npos) << bad.error().message;
+}
+
+}  // namespace
+}  // namespace omni

@@ -1,0 +1,149 @@
+#include "omni/eval/eval.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "omni/io/carmen.h"
+#include "test_paths.h"
+
+namespace omni::eval {
+namespace {
+
+io::Trajectory Spiral(int n) {
+  io::Trajectory t;
+  for (int i = 0; i < n; ++i) {
+    const double a = 0.1 * i;
+    t.entries.push_back(
+        io::MakeEntry2D(i, i * 0.1, Pose2(a * std::cos(a), a * std::sin(a), a + 0.3)));
+  }
+  return t;
+}
+
+TEST(Ate, RigidlyMovedCopyHasZeroError) {
+  const io::Trajectory ref = Spiral(200);
+  io::Trajectory est = ref;
+  const Pose2 motion(5.0, -3.0, 1.1);
+  for (auto& e : est.entries) e = io::MakeEntry2D(e.index, e.timestamp_s, motion * e.pose2());
+  auto r = ComputeAte(ref, est);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->matched, 200u);
+  EXPECT_LT(r->rmse_m, 1e-9);
+  EXPECT_LT(r->rot_rmse_rad, 1e-9);
+  auto r3 = ComputeAte(ref, est, /*se3=*/true);
+  ASSERT_TRUE(r3.ok());
+  EXPECT_LT(r3->rmse_m, 1e-9);
+  auto rpe = ComputeRpe(ref, est);
+  ASSERT_TRUE(rpe.ok());
+  EXPECT_LT(rpe->trans_rmse_m, 1e-9);
+}
+
+TEST(Ate, NoiseGivesExpectedError) {
+  const io::Trajectory ref = Spiral(2000);
+  io::Trajectory est = ref;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n(0, 0.1);
+  for (auto& e : est.entries) e.position += Eigen::Vector3d(n(rng), n(rng), 0);
+  auto r = ComputeAte(ref, est);
+  ASSERT_TRUE(r.ok());
+  EXPECT_NEAR(r->rmse_m, 0.1 * std::sqrt(2.0), 0.01);
+}
+
+TEST(Ate, TimestampAssociationForTum) {
+  io::Trajectory ref = Spiral(50), est = Spiral(50);
+  ref.format = est.format = io::Trajectory::Format::kTum;
+  for (auto& e : est.entries) e.timestamp_s += 0.005;
+  auto r = ComputeAte(ref, est, false, 0.01);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->matched, 50u);
+  auto none = ComputeAte(ref, est, false, 0.001);
+  EXPECT_FALSE(none.ok());
+}
+
+TEST(Ate, IntelRawOdometryIsFarFromReference) {
+  OMNI_REQUIRE_DATASET(clf, "intel-raw/intel.clf");
+  OMNI_REQUIRE_DATASET(ref_path, "intel-raw/intel.reference.txt");
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok());
+  io::Trajectory est;
+  int64_t idx = 0;
+  for (const auto& r : log->records)
+    if (r.kind == io::CarmenRecord::Kind::kLaser)
+      est.entries.push_back(io::MakeEntry2D(idx++, r.laser.timestamp_s, r.laser.robot_pose));
+  auto ref = io::ReadTrajectory(ref_path);
+  ASSERT_TRUE(ref.ok());
+  auto r = ComputeAte(*ref, est);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->matched, 174u);
+  EXPECT_GT(r->rmse_m, 10.0) << "raw odometry of intel drifts by tens of metres";
+}
+
+io::GridMap Room() {
+  io::GridMap m;
+  m.resolution_m = 0.05;
+  m.width = 200;
+  m.height = 160;
+  m.cells.assign(static_cast<size_t>(m.width) * m.height, -1);
+  for (int r = 20; r < 140; ++r)
+    for (int c = 20; c < 180; ++c) {
+      const bool wall = r == 20 || r == 139 || c == 20 || c == 179 || (c == 90 && r < 100) ||
+                        (r == 70 && c > 120);
+      m.at(c, r) = wall ? 100 : 0;
+    }
+  return m;
+}
+
+io::GridMap Moved(const io::GridMap& m, double rot, double dx, double dy) {
+  io::GridMap out = m;
+  std::fill(out.cells.begin(), out.cells.end(), -1);
+  const double cx = m.origin_x_m + m.width * m.resolution_m / 2,
+               cy = m.origin_y_m + m.height * m.resolution_m / 2;
+  for (int r = 0; r < m.height; ++r)
+    for (int c = 0; c < m.width; ++c) {
+      // out(world p) = m(R^-1 (p - d - centre) + centre)
+      const double x = m.origin_x_m + (c + 0.5) * m.resolution_m - dx - cx;
+      const double y = m.origin_y_m + (r + 0.5) * m.resolution_m - dy - cy;
+      const double sx = std::cos(rot) * x + std::sin(rot) * y + cx,
+                   sy = -std::sin(rot) * x + std::cos(rot) * y + cy;
+      const int sc = static_cast<int>(std::floor((sx - m.origin_x_m) / m.resolution_m));
+      const int sr = static_cast<int>(std::floor((sy - m.origin_y_m) / m.resolution_m));
+      if (m.Contains(sc, sr)) out.at(c, r) = m.at(sc, sr);
+    }
+  return out;
+}
+
+TEST(MapCompare, IdenticalMapsHaveZeroError) {
+  const auto m = Room();
+  const auto r = CompareMaps(m, m);
+  EXPECT_EQ(r.error, 0.0);
+  EXPECT_DOUBLE_EQ(r.precision, 1.0);
+  EXPECT_DOUBLE_EQ(r.recall, 1.0);
+}
+
+TEST(MapCompare, RecoversRotationAndShift) {
+  const auto ref = Room();
+  const auto est = Moved(ref, 0.12, 0.4, -0.3);
+  MapCompareOptions no_align;
+  no_align.align = false;
+  const auto raw = CompareMaps(ref, est, no_align);
+  const auto aligned = CompareMaps(ref, est);
+  EXPECT_NEAR(aligned.rotation_rad, -0.12, 0.02);
+  EXPECT_GT(aligned.precision, 0.9);
+  EXPECT_GT(aligned.recall, 0.9);
+  EXPECT_LT(aligned.error, 0.5 * raw.error);
+}
+
+TEST(MapCompare, SlamfusionMetricOnHandCase) {
+  io::GridMap t;
+  t.width = 3;
+  t.height = 1;
+  t.cells = {-1, 0, 100};
+  io::GridMap m = t;
+  m.cells = {0, 100, -1};  // differences 1, 1, 2 -> sqrt(1 + 1 + 4)
+  MapCompareOptions o;
+  o.align = false;
+  EXPECT_NEAR(CompareMaps(t, m, o).error, std::sqrt(6.0), 1e-12);
+}
+
+}  // namespace
+}  // namespace omni::eval

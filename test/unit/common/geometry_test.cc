@@ -1,0 +1,63 @@
+#include "omni/common/geometry.h"
+
+#include <gtest/gtest.h>
+
+namespace omni {
+namespace {
+
+TEST(Geometry, WrapAngle) {
+  EXPECT_NEAR(WrapAngle(3 * M_PI), M_PI, 1e-12);
+  EXPECT_NEAR(WrapAngle(-M_PI), M_PI, 1e-12);
+  EXPECT_NEAR(WrapAngle(0.5), 0.5, 1e-12);
+  EXPECT_NEAR(WrapAngle(-7.0), -7.0 + 2 * M_PI, 1e-12);
+}
+
+TEST(Geometry, ComposeInverseBetween) {
+  const Pose2 a(1, 2, 0.5), b(-0.3, 0.7, -2.0);
+  const Pose2 id = a * a.Inverse();
+  EXPECT_NEAR(id.x, 0, 1e-12);
+  EXPECT_NEAR(id.y, 0, 1e-12);
+  EXPECT_NEAR(id.theta, 0, 1e-12);
+  const Pose2 c = a * a.Between(b);
+  EXPECT_NEAR(c.x, b.x, 1e-12);
+  EXPECT_NEAR(c.y, b.y, 1e-12);
+  EXPECT_NEAR(c.theta, b.theta, 1e-12);
+  // (1,0) seen from a pose at (1,2) heading 90 deg is at (1,3).
+  const auto p = Pose2(1, 2, M_PI / 2).Transform({1, 0});
+  EXPECT_NEAR(p.x(), 1, 1e-12);
+  EXPECT_NEAR(p.y(), 3, 1e-12);
+}
+
+TEST(Geometry, InterpolateTakesShortestArc) {
+  const Pose2 m = Interpolate(Pose2(0, 0, 3.0), Pose2(2, 4, -3.0), 0.5);
+  EXPECT_NEAR(m.x, 1, 1e-12);
+  EXPECT_NEAR(m.y, 2, 1e-12);
+  EXPECT_NEAR(std::fabs(m.theta), M_PI, 1e-9);
+}
+
+TEST(Geometry, StampedBufferInterpolatesAndRejectsOutOfOrder) {
+  StampedBuffer<Pose2> buf;
+  EXPECT_TRUE(buf.Insert(1000, Pose2(0, 0, 0)));
+  EXPECT_TRUE(buf.Insert(2000, Pose2(1, 0, 0.2)));
+  EXPECT_FALSE(buf.Insert(1500, Pose2(5, 5, 5)));
+  auto p = buf.At(1250);
+  ASSERT_TRUE(p);
+  EXPECT_NEAR(p->x, 0.25, 1e-12);
+  EXPECT_NEAR(p->theta, 0.05, 1e-12);
+  EXPECT_FALSE(buf.At(2600, 500));
+  EXPECT_TRUE(buf.At(2400, 500));
+  EXPECT_FALSE(buf.At(100, 0));
+}
+
+TEST(Geometry, Se3InterpolationSlerps) {
+  Eigen::Isometry3d a = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d b = Eigen::Isometry3d::Identity();
+  b.linear() = Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  b.translation() = Eigen::Vector3d(2, 0, 4);
+  const auto m = Interpolate(a, b, 0.5);
+  EXPECT_NEAR(Eigen::AngleAxisd(m.linear()).angle(), 0.5, 1e-12);
+  EXPECT_TRUE(m.translation().isApprox(Eigen::Vector3d(1, 0, 2)));
+}
+
+}  // namespace
+}  // namespace omni

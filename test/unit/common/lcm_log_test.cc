@@ -1,0 +1,98 @@
+#include "omni/io/lcm_log.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "test_paths.h"
+
+namespace omni::io {
+namespace {
+
+TEST(LcmLog, ReadsLogWrittenByLcmTools) {
+  OMNI_REQUIRE_DATASET(path, "lcm/example.lcmlog");
+  auto r = LcmLogReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  LcmLogEvent ev;
+  int n = 0;
+  int64_t last = 0;
+  for (;;) {
+    auto more = r->Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    EXPECT_EQ(ev.channel, "JOINT_TEST");
+    EXPECT_GE(ev.utime, last);
+    last = ev.utime;
+    ++n;
+  }
+  EXPECT_EQ(n, 10);
+}
+
+std::string WriteSample(const std::string& dir) {
+  auto w = LcmLogWriter::Open(dir + "/s.lcmlog");
+  EXPECT_TRUE(w.ok());
+  const std::string a = "hello", b = "world!";
+  EXPECT_TRUE(w->Write(100, "A", a.data(), a.size()).ok());
+  EXPECT_TRUE(w->Write(200, "BB", b.data(), b.size()).ok());
+  EXPECT_TRUE(w->Write(300, "A", a.data(), a.size()).ok());
+  EXPECT_TRUE(w->Close().ok());
+  return dir + "/s.lcmlog";
+}
+
+TEST(LcmLog, RoundTrip) {
+  const std::string path = WriteSample(omni::testing::TempDir());
+  auto r = LcmLogReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r->Next(&ev));
+  EXPECT_EQ(ev.channel, "A");
+  EXPECT_EQ(ev.utime, 100);
+  ASSERT_TRUE(*r->Next(&ev));
+  EXPECT_EQ(ev.channel, "BB");
+  EXPECT_EQ(std::string(ev.data.begin(), ev.data.end()), "world!");
+  EXPECT_EQ(ev.event_number, 1);
+  ASSERT_TRUE(*r->Next(&ev));
+  EXPECT_FALSE(*r->Next(&ev));
+}
+
+TEST(LcmLog, CorruptionNamesOffsetAndResyncSkipsIt) {
+  const std::string path = WriteSample(omni::testing::TempDir());
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(34);  // first event is 28 + 1 + 5 = 34 bytes: corrupt the second sync word
+    f.put('\x00');
+  }
+  auto r = LcmLogReader::Open(path);
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r->Next(&ev));
+  auto bad = r->Next(&ev);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("byte offset 34"), std::string::npos) << bad.error().message;
+  EXPECT_NE(bad.error().message.find("sync"), std::string::npos);
+
+  auto r2 = LcmLogReader::Open(path);
+  ASSERT_TRUE(*r2->Next(&ev, true));
+  ASSERT_TRUE(*r2->Next(&ev, true));
+  EXPECT_EQ(ev.utime, 300) << "resync lands on the third event";
+  EXPECT_EQ(r2->skipped_bytes(), 28u + 2 + 6);
+}
+
+TEST(LcmLog, TruncationIsAnError) {
+  const std::string path = WriteSample(omni::testing::TempDir());
+  std::ifstream in(path, std::ios::binary);
+  std::string all((std::istreambuf_iterator<char>(in)), {});
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(all.data(), static_cast<std::streamsize>(all.size() - 3));
+  }
+  auto r = LcmLogReader::Open(path);
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r->Next(&ev));
+  ASSERT_TRUE(*r->Next(&ev));
+  auto bad = r->Next(&ev);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("truncated"), std::string::npos) << bad.error().message;
+}
+
+}  // namespace
+}  // namespace omni::io
