@@ -1,0 +1,115 @@
+// The CAN protocol between the base controller and the host (docs/firmware.md has the table).
+//
+// Modelled on ODrive's "CAN Simple": 11-bit id = node_id << 5 | command, every frame carries
+// 8 bytes, little-endian. Encoders and decoders are pure functions shared by the firmware
+// (float, no heap) and the host base bridge, so both ends cannot disagree.
+#pragma once
+
+#include <cstdint>
+
+#include "omni/firmware/hal.h"
+
+namespace omni::firmware::can {
+
+inline constexpr uint8_t kProtocolVersion = 1;
+inline constexpr uint8_t kFrameLength = 8;
+
+enum Command : uint8_t {
+  kHeartbeat = 0x01,          // fw -> host, every heartbeat_period_ms
+  kEstop = 0x02,              // host -> fw
+  kClearFaults = 0x03,        // host -> fw
+  kSetBodyTwist = 0x04,       // host -> fw
+  kSetWheelSpeeds = 0x05,     // host -> fw
+  kGetParam = 0x06,           // host -> fw
+  kSetParam = 0x07,           // host -> fw
+  kParamValue = 0x08,         // fw -> host, reply to get/set
+  kEncoderFeedback = 0x09,    // fw -> host, every feedback_period_ms
+  kSpeedFeedback = 0x0A,      // fw -> host, every feedback_period_ms
+  kCurrentFeedback = 0x0B,    // fw -> host, every feedback_period_ms
+  kBodyTwistFeedback = 0x0C,  // fw -> host, every feedback_period_ms
+  kSetpointFeedback = 0x0D,   // fw -> host, every heartbeat_period_ms
+  kDiagnostics = 0x0E,        // fw -> host, every 10 heartbeats
+};
+
+inline constexpr uint16_t MakeId(uint8_t node, uint8_t cmd) {
+  return static_cast<uint16_t>(((node & 0x3Fu) << 5) | (cmd & 0x1Fu));
+}
+inline constexpr uint8_t NodeOf(uint16_t id) { return static_cast<uint8_t>((id >> 5) & 0x3F); }
+inline constexpr uint8_t CommandOf(uint16_t id) { return static_cast<uint8_t>(id & 0x1F); }
+
+// Scalings of the fixed-point fields.
+inline constexpr float kLinearScale = 1000.f;   // mm/s per m/s
+inline constexpr float kAngularScale = 1000.f;  // mrad/s per rad/s (body yaw rate)
+inline constexpr float kWheelScale = 100.f;     // 0.01 rad/s per rad/s (wheel speeds)
+inline constexpr float kCurrentScale = 1000.f;  // mA per A
+inline constexpr float kVoltageScale = 1000.f;  // mV per V
+
+struct Heartbeat {
+  uint32_t fault_bits = 0;
+  uint8_t state = 0;
+  uint8_t counter = 0;        // +1 per heartbeat (wraps)
+  float bus_voltage_v = 0.f;  // sent as uint16 mV
+};
+struct BodyTwist {
+  float vx_m_s = 0.f, vy_m_s = 0.f, omega_rad_s = 0.f;  // int16 mm/s, mm/s, mrad/s
+  uint16_t seq = 0;
+};
+struct WheelTriple {  // wheel speeds (int16, 0.01 rad/s) or currents (int16 mA)
+  float v[kNumWheels] = {0.f, 0.f, 0.f};
+  uint16_t seq = 0;
+};
+struct EncoderFeedback {
+  uint16_t position_low16[kNumWheels] = {0, 0, 0};  // x4 counts mod 2^16
+  uint16_t seq = 0;                                 // feedback cycle counter
+};
+struct ParamRequest {
+  uint16_t id = 0;
+  float value = 0.f;  // SET_PARAM only
+};
+enum ParamResult : uint8_t {
+  kParamOk = 0,
+  kParamUnknown = 1,
+  kParamOutOfRange = 2,
+  kParamReadOnly = 3
+};
+struct ParamReply {
+  uint16_t id = 0;
+  uint8_t result = kParamOk;
+  float value = 0.f;
+};
+struct Diagnostics {
+  uint16_t rx_unknown = 0;     // frames for this node with an unknown command
+  uint16_t rx_bad_length = 0;  // frames for this node with a wrong DLC
+  uint16_t tx_dropped = 0;     // frames not sent (mailboxes full / bus-off)
+  uint16_t max_step_us = 0;    // longest control step since boot, microseconds
+};
+
+// Encoders fill id, dlc = 8 and the payload. Values are saturated to the field range.
+CanFrame EncodeHeartbeat(uint8_t node, const Heartbeat& m);
+CanFrame EncodeEstop(uint8_t node);
+CanFrame EncodeClearFaults(uint8_t node);
+CanFrame EncodeSetBodyTwist(uint8_t node, const BodyTwist& m);
+CanFrame EncodeSetWheelSpeeds(uint8_t node, const WheelTriple& m);
+CanFrame EncodeGetParam(uint8_t node, uint16_t param_id);
+CanFrame EncodeSetParam(uint8_t node, const ParamRequest& m);
+CanFrame EncodeParamValue(uint8_t node, const ParamReply& m);
+CanFrame EncodeEncoderFeedback(uint8_t node, const EncoderFeedback& m);
+CanFrame EncodeSpeedFeedback(uint8_t node, const WheelTriple& m);
+CanFrame EncodeCurrentFeedback(uint8_t node, const WheelTriple& m);
+CanFrame EncodeBodyTwistFeedback(uint8_t node, const BodyTwist& m);
+CanFrame EncodeSetpointFeedback(uint8_t node, const WheelTriple& m);
+CanFrame EncodeDiagnostics(uint8_t node, const Diagnostics& m);
+
+// Decoders check the DLC (must be 8) and return false on a wrong length; the command must
+// already have been matched by the caller from the id.
+[[nodiscard]] bool DecodeHeartbeat(const CanFrame& f, Heartbeat* m);
+[[nodiscard]] bool DecodeBodyTwist(const CanFrame& f, BodyTwist* m);      // set or feedback
+[[nodiscard]] bool DecodeWheelSpeeds(const CanFrame& f, WheelTriple* m);  // 0.01 rad/s fields
+[[nodiscard]] bool DecodeCurrents(const CanFrame& f, WheelTriple* m);     // mA fields
+[[nodiscard]] bool DecodeEncoderFeedback(const CanFrame& f, EncoderFeedback* m);
+[[nodiscard]] bool DecodeParamRequest(const CanFrame& f, ParamRequest* m);  // get or set
+[[nodiscard]] bool DecodeParamReply(const CanFrame& f, ParamReply* m);
+[[nodiscard]] bool DecodeDiagnostics(const CanFrame& f, Diagnostics* m);
+[[nodiscard]] bool CheckLength(const CanFrame& f);
+
+}  // namespace omni::firmware::can

@@ -1,0 +1,314 @@
+#include "omni/firmware/firmware.h"
+
+namespace omni::firmware {
+namespace {
+
+constexpr int kMaxFramesPerStep = 8;  // bounded work per period
+constexpr float kTwoPi = 6.28318530718f;
+constexpr float kStoppedRadS = 0.3f;  // |speed| below this counts as stopped
+
+float Abs(float v) { return v < 0.f ? -v : v; }
+bool Finite(float v) { return v == v && v < 3.0e38f && v > -3.0e38f; }
+
+}  // namespace
+
+FwStatus Firmware::Init() {
+  uint16_t bad = 0;
+  if (ValidateParams(params_, &bad) != FwStatus::kOk) return FwStatus::kInvalid;
+  for (int w = 0; w < kNumWheels; ++w) {
+    counters16_[w].Reset(hal_->ReadEncoder(w));
+    estimators_[w].Reset(0);
+    pids_[w].Reset();
+    wheels_[w] = WheelState{};
+    stall_ms_[w] = 0;
+  }
+  MotorsOff();
+  fault_bits_ = 0;
+  uptime_ms_ = 0;
+  step_accum_us_ = 0;
+  state_ = State::kIdle;
+  return FwStatus::kOk;
+}
+
+void Firmware::MotorsOff() {
+  for (int w = 0; w < kNumWheels; ++w) {
+    hal_->WritePwm(w, 0.f);
+    wheels_[w].duty = 0.f;
+    wheels_[w].target_rad_s = 0.f;
+    wheels_[w].setpoint_rad_s = 0.f;
+    pids_[w].Reset();
+  }
+  hal_->SetMotorEnable(false);
+}
+
+void Firmware::EnterFault(uint32_t bit) {
+  fault_bits_ |= bit;
+  if (bit == kFaultEstop) {
+    state_ = State::kEstop;
+  } else if (state_ != State::kEstop) {
+    state_ = State::kFault;
+  }
+  MotorsOff();
+}
+
+void Firmware::Send(const CanFrame& f) {
+  if (hal_->CanBusOff() || hal_->CanWrite(f) != FwStatus::kOk) ++counters_.tx_dropped;
+}
+
+void Firmware::OnMotionCommand(const float target_rad_s[kNumWheels]) {
+  if (state_ == State::kFault || state_ == State::kEstop || state_ == State::kBoot) return;
+  float peak = 0.f;
+  for (int w = 0; w < kNumWheels; ++w) {
+    if (!Finite(target_rad_s[w])) {
+      fault_bits_ |= kFaultBadCommand;
+      return;
+    }
+    if (Abs(target_rad_s[w]) > peak) peak = Abs(target_rad_s[w]);
+  }
+  // Above the wheel speed limit: scale all three alike, so the direction of travel holds.
+  const float scale =
+      peak > params_.max_wheel_speed_rad_s ? params_.max_wheel_speed_rad_s / peak : 1.f;
+  if (scale < 1.f) ++counters_.commands_limited;
+  for (int w = 0; w < kNumWheels; ++w) wheels_[w].target_rad_s = target_rad_s[w] * scale;
+  fault_bits_ &= ~(kFaultWatchdog | kFaultBadCommand);
+  ++counters_.commands;
+  last_command_ms_ = uptime_ms_;
+  if (state_ != State::kRunning) {
+    if (state_ == State::kIdle) {
+      for (int w = 0; w < kNumWheels; ++w) pids_[w].Reset();
+    }
+    state_ = State::kRunning;
+    hal_->SetMotorEnable(true);
+  }
+}
+
+void Firmware::HandleParam(const CanFrame& f, bool set) {
+  can::ParamRequest req;
+  if (!can::DecodeParamRequest(f, &req)) return;
+  can::ParamReply reply;
+  reply.id = req.id;
+  FwStatus s = FwStatus::kOk;
+  if (set) {
+    s = SetParam(&params_, req.id, req.value);
+    if (s != FwStatus::kOk) fault_bits_ |= kFaultBadCommand;
+  }
+  if (s == FwStatus::kOk) s = GetParam(params_, req.id, &reply.value);
+  switch (s) {
+    case FwStatus::kOk:
+      reply.result = can::kParamOk;
+      break;
+    case FwStatus::kUnknown:
+      reply.result = can::kParamUnknown;
+      break;
+    case FwStatus::kReadOnly:
+      reply.result = can::kParamReadOnly;
+      break;
+    default:
+      reply.result = can::kParamOutOfRange;
+      break;
+  }
+  if (reply.result != can::kParamOk) (void)GetParam(params_, req.id, &reply.value);
+  Send(can::EncodeParamValue(params_.node_id, reply));
+}
+
+void Firmware::HandleFrame(const CanFrame& f) {
+  if (can::NodeOf(f.id) != params_.node_id) return;  // another node's traffic: not ours
+  ++counters_.rx_frames;
+  const uint8_t cmd = can::CommandOf(f.id);
+  switch (cmd) {
+    case can::kEstop:
+    case can::kClearFaults:
+    case can::kSetBodyTwist:
+    case can::kSetWheelSpeeds:
+    case can::kGetParam:
+    case can::kSetParam:
+      break;
+    default:
+      ++counters_.rx_unknown;
+      return;
+  }
+  if (!can::CheckLength(f)) {
+    ++counters_.rx_bad_length;
+    return;
+  }
+  switch (cmd) {
+    case can::kEstop:
+      EnterFault(kFaultEstop);
+      break;
+    case can::kClearFaults:
+      if (state_ == State::kFault || state_ == State::kEstop) state_ = State::kIdle;
+      fault_bits_ = 0;
+      under_voltage_ms_ = 0;
+      for (int w = 0; w < kNumWheels; ++w) {
+        stall_ms_[w] = 0;
+        wheels_[w].over_current_ms = 0;
+      }
+      break;
+    case can::kSetBodyTwist: {
+      can::BodyTwist t;
+      if (!can::DecodeBodyTwist(f, &t)) return;
+      last_cmd_seq_ = t.seq;
+      // Eq. (1): body twist -> rim speeds (m/s) -> wheel angular speeds (rad/s).
+      const omni::kinematics::BodyTwist<float> twist{t.vx_m_s, t.vy_m_s, t.omega_rad_s};
+      const auto rim = omni::kinematics::BodyToWheels(Geometry(), twist);
+      float target[kNumWheels];
+      for (int w = 0; w < kNumWheels; ++w) target[w] = rim.v_m_s[w] / params_.wheel_radius_m;
+      OnMotionCommand(target);
+      break;
+    }
+    case can::kSetWheelSpeeds: {
+      can::WheelTriple ws;
+      if (!can::DecodeWheelSpeeds(f, &ws)) return;
+      last_cmd_seq_ = ws.seq;
+      OnMotionCommand(ws.v);
+      break;
+    }
+    case can::kGetParam:
+      HandleParam(f, /*set=*/false);
+      break;
+    case can::kSetParam:
+      HandleParam(f, /*set=*/true);
+      break;
+    default:
+      break;
+  }
+}
+
+void Firmware::CheckFaults(float dt_s) {
+  (void)dt_s;
+  if (hal_->CanBusOff()) EnterFault(kFaultCanBusOff);
+  if (bus_voltage_v_ < params_.under_voltage_v) {
+    if (++under_voltage_ms_ >= params_.under_voltage_ms) EnterFault(kFaultUnderVoltage);
+  } else {
+    under_voltage_ms_ = 0;
+  }
+  const bool driving = state_ == State::kRunning || state_ == State::kStopping;
+  for (int w = 0; w < kNumWheels; ++w) {
+    WheelState& ws = wheels_[w];
+    if (Abs(ws.current_a) > params_.current_limit_a) {
+      if (++ws.over_current_ms >= params_.over_current_ms) EnterFault(kFaultOverCurrent);
+    } else {
+      ws.over_current_ms = 0;
+    }
+    if (driving && Abs(ws.duty) >= params_.stall_duty &&
+        estimators_[w].periods_since_change() > 0) {
+      if (++stall_ms_[w] >= params_.stall_ms) EnterFault(kFaultEncoderStall);
+    } else {
+      stall_ms_[w] = 0;
+    }
+  }
+}
+
+void Firmware::Step() {
+  const uint32_t t0 = hal_->MicrosNow();
+  const float dt = static_cast<float>(params_.control_period_us) * 1e-6f;
+  ++counters_.steps;
+  step_accum_us_ += params_.control_period_us;
+  const bool new_ms = step_accum_us_ >= 1000;
+  while (step_accum_us_ >= 1000) {
+    ++uptime_ms_;
+    step_accum_us_ -= 1000;
+  }
+
+  // 1. Commands.
+  CanFrame f;
+  for (int n = 0; n < kMaxFramesPerStep && hal_->CanRead(&f); ++n) HandleFrame(f);
+
+  // 2. Encoders, speeds, currents, supply.
+  const float counts_to_rad_s = kTwoPi / (params_.ticks_per_rev * dt);
+  omni::kinematics::WheelSpeeds<float> rim;
+  for (int w = 0; w < kNumWheels; ++w) {
+    WheelState& ws = wheels_[w];
+    (void)counters16_[w].Update(hal_->ReadEncoder(w));
+    ws.position = counters16_[w].position();
+    ws.speed_rad_s = estimators_[w].Update(ws.position) * counts_to_rad_s;
+    ws.current_a = hal_->ReadCurrentA(w);
+    rim.v_m_s[w] = ws.speed_rad_s * params_.wheel_radius_m;
+  }
+  bus_voltage_v_ = hal_->ReadBusVoltageV();
+  if (!omni::kinematics::WheelsToBody(Geometry(), rim, &measured_twist_)) {
+    measured_twist_ = {};
+  }
+
+  // 3. Watchdog, then faults.
+  if (state_ == State::kRunning && uptime_ms_ - last_command_ms_ >= params_.watchdog_ms) {
+    state_ = State::kStopping;
+    fault_bits_ |= kFaultWatchdog;
+    ++counters_.watchdog_trips;
+    for (WheelState& ws : wheels_) ws.target_rad_s = 0.f;
+  }
+  CheckFaults(dt);
+
+  // 4./5. Speed loop and PWM.
+  if (state_ == State::kRunning || state_ == State::kStopping) {
+    const PidGains gains{params_.kp, params_.ki, params_.kd, params_.kff, params_.max_duty};
+    const float rate =
+        state_ == State::kStopping ? params_.stop_decel_rad_s2 : params_.max_wheel_accel_rad_s2;
+    bool stopped = true;
+    for (int w = 0; w < kNumWheels; ++w) {
+      WheelState& ws = wheels_[w];
+      ws.setpoint_rad_s = RampTowards(ws.setpoint_rad_s, ws.target_rad_s, rate, dt);
+      ws.duty = pids_[w].Update(gains, ws.setpoint_rad_s, ws.speed_rad_s, dt);
+      hal_->WritePwm(w, ws.duty);
+      if (ws.setpoint_rad_s != 0.f || Abs(ws.speed_rad_s) > kStoppedRadS) stopped = false;
+    }
+    if (state_ == State::kStopping && stopped) {
+      MotorsOff();
+      state_ = State::kIdle;
+    }
+  }
+
+  // 6. Feedback, once per millisecond boundary.
+  if (new_ms) SendFeedback();
+  hal_->SetStatusLed(state_ == State::kFault || state_ == State::kEstop ||
+                     (state_ == State::kRunning && (uptime_ms_ / 250) % 2 == 0));
+
+  const uint32_t took = hal_->MicrosNow() - t0;
+  if (took > counters_.max_step_us) counters_.max_step_us = took;
+}
+
+void Firmware::SendFeedback() {
+  const uint8_t node = params_.node_id;
+  if (uptime_ms_ - feedback_ms_ >= params_.feedback_period_ms) {
+    feedback_ms_ = uptime_ms_;
+    ++feedback_seq_;
+    can::EncoderFeedback enc;
+    can::WheelTriple speed, current;
+    enc.seq = speed.seq = current.seq = feedback_seq_;
+    for (int w = 0; w < kNumWheels; ++w) {
+      enc.position_low16[w] = static_cast<uint16_t>(wheels_[w].position);
+      speed.v[w] = wheels_[w].speed_rad_s;
+      current.v[w] = wheels_[w].current_a;
+    }
+    can::BodyTwist twist{measured_twist_.vx_m_s, measured_twist_.vy_m_s,
+                         measured_twist_.omega_rad_s, feedback_seq_};
+    Send(can::EncodeEncoderFeedback(node, enc));
+    Send(can::EncodeSpeedFeedback(node, speed));
+    Send(can::EncodeCurrentFeedback(node, current));
+    Send(can::EncodeBodyTwistFeedback(node, twist));
+  }
+  if (uptime_ms_ - heartbeat_ms_ >= params_.heartbeat_period_ms) {
+    heartbeat_ms_ = uptime_ms_;
+    can::Heartbeat hb;
+    hb.fault_bits = fault_bits_;
+    hb.state = static_cast<uint8_t>(state_);
+    hb.counter = ++heartbeat_counter_;
+    hb.bus_voltage_v = bus_voltage_v_;
+    Send(can::EncodeHeartbeat(node, hb));
+    can::WheelTriple sp;
+    sp.seq = last_cmd_seq_;
+    for (int w = 0; w < kNumWheels; ++w) sp.v[w] = wheels_[w].setpoint_rad_s;
+    Send(can::EncodeSetpointFeedback(node, sp));
+    if (heartbeat_counter_ % 10 == 0) {
+      can::Diagnostics d;
+      d.rx_unknown = static_cast<uint16_t>(counters_.rx_unknown);
+      d.rx_bad_length = static_cast<uint16_t>(counters_.rx_bad_length);
+      d.tx_dropped = static_cast<uint16_t>(counters_.tx_dropped);
+      d.max_step_us =
+          static_cast<uint16_t>(counters_.max_step_us > 65535 ? 65535 : counters_.max_step_us);
+      Send(can::EncodeDiagnostics(node, d));
+    }
+  }
+}
+
+}  // namespace omni::firmware
