@@ -1,0 +1,74 @@
+// Depth image to 3D points: paper 002 section III-C, eq. (6)-(8).
+//
+// A pixel (u, v) (u = column to the right, v = row down) with raw value d > 0 lies in the
+// camera optical frame (z forward along the optical axis, x right, y down) at
+//   z = d / s                  (6)
+//   x = (u - cx) * z / fx      (7)
+//   y = (v - cy) * z / fy      (8)
+// with s the depth scale in raw units per metre. d = 0 is "no measurement" and is skipped.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omni/common/result.h"
+
+namespace omni::octo {
+
+struct DepthIntrinsics {
+  double fx = 0;           // focal length along u, pixels (negative flips the axis)
+  double fy = 0;           // focal length along v, pixels
+  double cx = 0;           // principal point u, pixels
+  double cy = 0;           // principal point v, pixels
+  double depth_scale = 0;  // raw units per metre (1000: millimetres)
+  // "" when usable, else which constraint is violated.
+  std::string Validate() const;
+};
+
+// A decoded depth frame: row-major uint16 raw values.
+struct DepthImage {
+  int64_t utime = 0;  // exposure time, microseconds since the Unix epoch
+  int width = 0;
+  int height = 0;
+  DepthIntrinsics intrinsics;
+  std::vector<uint16_t> data;  // width * height raw values
+  uint16_t at(int u, int v) const { return data[static_cast<size_t>(v) * width + u]; }
+};
+
+struct DepthToPointsOptions {
+  double min_depth_m = 0.3;  // pixels nearer than this (along z) are skipped
+  double max_depth_m = 8.0;  // pixels farther than this (along z) are skipped
+  int pixel_stride = 1;      // use every n-th pixel along u and v (1 = all)
+};
+
+// Eq. (6)-(8) for one pixel; the point is in the camera optical frame, metres.
+inline Eigen::Vector3d PixelToPoint(double u, double v, double d, const DepthIntrinsics& k) {
+  const double z = d / k.depth_scale;  // (6)
+  return {(u - k.cx) * z / k.fx,       // (7)
+          (v - k.cy) * z / k.fy,       // (8)
+          z};
+}
+
+// All valid pixels of `image` as points in the camera optical frame (float, metres).
+// Fails when the intrinsics or options are unusable or the data size does not match.
+Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
+                                                   const DepthToPointsOptions& options);
+
+// Voxel-grid filter (like PCL's VoxelGrid): one point per occupied cube of edge `leaf_m`, at
+// the centroid of the points inside it. Order of the output follows first appearance.
+std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>& points,
+                                             double leaf_m);
+
+// Encodings of omni.depth_image_t (the .lcm constants).
+enum class DepthEncoding : int8_t { kRawU16Le = 0, kZlibU16Le = 1, kDeltaZlib = 2 };
+
+// Decodes the `data` of a depth message into width*height uint16 values. RAW and ZLIB are
+// decoded here; DELTA_ZLIB is the Kinect driver's codec and is rejected with kInvalidArgument
+// until that codec library is linked (see docs/octomap.md).
+Status DecodeDepthData(int8_t encoding, const uint8_t* data, size_t size, int width, int height,
+                       std::vector<uint16_t>* out);
+
+}  // namespace omni::octo

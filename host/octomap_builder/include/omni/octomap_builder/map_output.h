@@ -1,0 +1,39 @@
+// What the builder writes: the tree as .bt/.ot (atomically), its serialised bytes for the bus,
+// a 2D grid projected from a height band, and a rendered top view.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include <octomap/OcTree.h>
+
+#include "omni/common/result.h"
+#include "omni/io/grid.h"
+#include "omni/io/image_io.h"
+
+namespace omni::octo {
+
+// Binary form (.bt: occupied/free per node, writeBinaryConst: the tree is not modified) or the
+// full form (.ot: log-odds per node).
+std::string SerializeTree(const octomap::OcTree& tree, bool binary);
+// Writes `base`.bt and `base`.ot, each through a temporary file and rename().
+Status SaveTree(const octomap::OcTree& tree, const std::string& base);
+// Reads a .bt (binary) or .ot (full) file holding an OcTree.
+Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path);
+
+struct GridProjectionOptions {
+  double min_z_m = 0.05;  // height band, map frame: voxels overlapping [min_z, max_z] count
+  double max_z_m = 1.8;
+  double resolution_m = 0;  // grid cell edge; 0: the tree's resolution
+};
+
+// Occupied (100) where any occupied leaf overlaps the band above the cell, else free (0) where
+// a free leaf does, else unknown (-1). The grid covers the band's known leaves.
+Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree,
+                                  const GridProjectionOptions& options);
+
+// Top view of the occupied voxels, one pixel per leaf column, coloured by the height of the
+// highest occupied voxel (blue low .. red high), light grey where only free space is known.
+io::Image RenderTopView(const octomap::OcTree& tree);
+
+}  // namespace omni::octo

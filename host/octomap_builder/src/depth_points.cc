@@ -1,0 +1,139 @@
+#include "omni/octomap_builder/depth_points.h"
+
+#include <cmath>
+#include <cstring>
+#include <sstream>
+#include <unordered_map>
+
+#include <zlib.h>
+
+namespace omni::octo {
+
+std::string DepthIntrinsics::Validate() const {
+  if (!std::isfinite(fx) || !std::isfinite(fy) || fx == 0 || fy == 0)
+    return "fx and fy must be finite and non-zero";
+  if (!std::isfinite(cx) || !std::isfinite(cy)) return "cx and cy must be finite";
+  if (!std::isfinite(depth_scale) || depth_scale <= 0) return "depth_scale must be > 0";
+  return "";
+}
+
+Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
+                                                   const DepthToPointsOptions& options) {
+  const std::string bad = image.intrinsics.Validate();
+  if (!bad.empty()) return MakeError(ErrorCode::kInvalidArgument, "depth intrinsics: " + bad);
+  if (image.width <= 0 || image.height <= 0 ||
+      image.data.size() != static_cast<size_t>(image.width) * image.height) {
+    std::ostringstream s;
+    s << "depth image " << image.width << "x" << image.height << " has " << image.data.size()
+      << " values";
+    return MakeError(ErrorCode::kInvalidArgument, s.str());
+  }
+  if (options.pixel_stride < 1)
+    return MakeError(ErrorCode::kInvalidArgument, "pixel_stride must be >= 1");
+  if (!(options.min_depth_m >= 0) || !(options.max_depth_m > options.min_depth_m))
+    return MakeError(ErrorCode::kInvalidArgument, "need 0 <= min_depth_m < max_depth_m");
+
+  const DepthIntrinsics& k = image.intrinsics;
+  // Raw limits, so the per-pixel test is an integer compare.
+  const double dmin = options.min_depth_m * k.depth_scale;
+  const double dmax = options.max_depth_m * k.depth_scale;
+  const double inv_s = 1.0 / k.depth_scale;
+  const double inv_fx = 1.0 / k.fx, inv_fy = 1.0 / k.fy;
+  std::vector<Eigen::Vector3f> points;
+  const int stride = options.pixel_stride;
+  points.reserve(static_cast<size_t>(image.width / stride + 1) * (image.height / stride + 1));
+  for (int v = 0; v < image.height; v += stride) {
+    const uint16_t* row = image.data.data() + static_cast<size_t>(v) * image.width;
+    const double yf = (v - k.cy) * inv_fy;
+    for (int u = 0; u < image.width; u += stride) {
+      const uint16_t d = row[u];
+      if (d == 0 || d < dmin || d > dmax) continue;
+      const double z = d * inv_s;                // (6)
+      const double x = (u - k.cx) * z * inv_fx;  // (7)
+      const double y = yf * z;                   // (8)
+      points.emplace_back(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+    }
+  }
+  return points;
+}
+
+std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>& points,
+                                             double leaf_m) {
+  if (!(leaf_m > 0)) return points;
+  struct Acc {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    int n = 0;
+    size_t order = 0;
+  };
+  const double inv = 1.0 / leaf_m;
+  std::unordered_map<uint64_t, Acc> cells;
+  cells.reserve(points.size() / 4 + 16);
+  for (const auto& p : points) {
+    // 21 bits per axis, offset so negative coordinates map to positive indices.
+    const auto ix =
+        static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() * inv)) + (1 << 20));
+    const auto iy =
+        static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() * inv)) + (1 << 20));
+    const auto iz =
+        static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() * inv)) + (1 << 20));
+    const uint64_t key = (ix & 0x1fffff) | ((iy & 0x1fffff) << 21) | ((iz & 0x1fffff) << 42);
+    auto [it, inserted] = cells.try_emplace(key);
+    if (inserted) it->second.order = cells.size() - 1;
+    it->second.sum += p.cast<double>();
+    ++it->second.n;
+  }
+  std::vector<Eigen::Vector3f> out(cells.size());
+  for (const auto& [key, acc] : cells) out[acc.order] = (acc.sum / acc.n).cast<float>();
+  return out;
+}
+
+Status DecodeDepthData(int8_t encoding, const uint8_t* data, size_t size, int width, int height,
+                       std::vector<uint16_t>* out) {
+  if (width <= 0 || height <= 0 || width > 16384 || height > 16384) {
+    std::ostringstream s;
+    s << "depth image size " << width << "x" << height << " is not plausible";
+    return MakeError(ErrorCode::kInvalidArgument, s.str());
+  }
+  const size_t n = static_cast<size_t>(width) * height;
+  const size_t bytes = n * 2;
+  std::vector<uint8_t> raw;
+  const uint8_t* src = nullptr;
+  switch (static_cast<DepthEncoding>(encoding)) {
+    case DepthEncoding::kRawU16Le:
+      if (size != bytes) {
+        std::ostringstream s;
+        s << "raw depth: " << size << " bytes, expected " << bytes;
+        return MakeError(ErrorCode::kParse, s.str());
+      }
+      src = data;
+      break;
+    case DepthEncoding::kZlibU16Le: {
+      raw.resize(bytes);
+      uLongf len = static_cast<uLongf>(bytes);
+      const int rc = uncompress(raw.data(), &len, data, static_cast<uLong>(size));
+      if (rc != Z_OK || len != bytes) {
+        std::ostringstream s;
+        s << "zlib depth: inflate failed (zlib code " << rc << ", " << len << " of " << bytes
+          << " bytes)";
+        return MakeError(ErrorCode::kParse, s.str());
+      }
+      src = raw.data();
+      break;
+    }
+    case DepthEncoding::kDeltaZlib:
+      return MakeError(ErrorCode::kInvalidArgument,
+                       "depth encoding DELTA_ZLIB (2) needs the Kinect driver's depth codec, "
+                       "which is not linked into this build");
+    default: {
+      std::ostringstream s;
+      s << "unknown depth encoding " << static_cast<int>(encoding);
+      return MakeError(ErrorCode::kParse, s.str());
+    }
+  }
+  out->resize(n);
+  for (size_t i = 0; i < n; ++i)
+    (*out)[i] = static_cast<uint16_t>(src[2 * i] | (static_cast<uint16_t>(src[2 * i + 1]) << 8));
+  return Status::Ok();
+}
+
+}  // namespace omni::octo

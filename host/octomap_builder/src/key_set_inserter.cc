@@ -1,0 +1,351 @@
+#include "omni/octomap_builder/key_set_inserter.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+namespace omni::octo {
+namespace {
+
+constexpr uint64_t kEmpty = ~uint64_t{0};  // never a packed key (those use 48 bits)
+
+inline uint64_t Mix(uint64_t k) {
+  k ^= k >> 31;
+  k *= 0x9E3779B97F4A7C15ull;
+  k ^= k >> 29;
+  return k;
+}
+
+// Open-addressing (linear probing) set of packed keys; grows at half load.
+class KeyHashSet {
+ public:
+  explicit KeyHashSet(size_t expected = 1024) { Rehash(Capacity(expected)); }
+
+  bool Insert(uint64_t key) {
+    size_t i = Mix(key) >> shift_;
+    for (;;) {
+      const uint64_t s = slots_[i];
+      if (s == key) return false;
+      if (s == kEmpty) break;
+      i = (i + 1) & mask_;
+    }
+    slots_[i] = key;
+    if (++size_ * 2 > slots_.size()) Rehash(slots_.size() * 2);
+    return true;
+  }
+  bool Contains(uint64_t key) const {
+    size_t i = Mix(key) >> shift_;
+    for (;;) {
+      const uint64_t s = slots_[i];
+      if (s == key) return true;
+      if (s == kEmpty) return false;
+      i = (i + 1) & mask_;
+    }
+  }
+  template <class F>
+  void ForEach(F&& f) const {
+    for (uint64_t s : slots_)
+      if (s != kEmpty) f(s);
+  }
+  size_t size() const { return size_; }
+
+ private:
+  static size_t Capacity(size_t expected) {
+    size_t c = 64;
+    while (c < expected * 2) c *= 2;
+    return c;
+  }
+  void Rehash(size_t capacity) {
+    std::vector<uint64_t> old;
+    old.swap(slots_);
+    slots_.assign(capacity, kEmpty);
+    mask_ = capacity - 1;
+    int bits = 0;
+    while ((size_t{1} << bits) < capacity) ++bits;
+    shift_ = 64 - bits;
+    size_ = 0;
+    for (uint64_t s : old)
+      if (s != kEmpty) Insert(s);
+  }
+
+  std::vector<uint64_t> slots_;
+  size_t mask_ = 0;
+  int shift_ = 64;
+  size_t size_ = 0;
+};
+
+inline uint64_t PackKey(const octomap::OcTreeKey& k) {
+  return static_cast<uint64_t>(k[0]) | (static_cast<uint64_t>(k[1]) << 16) |
+         (static_cast<uint64_t>(k[2]) << 32);
+}
+
+inline size_t ShardOf(uint64_t key, size_t shards) {
+  // Low bits of a different mix than the table index (which uses the high bits).
+  return static_cast<size_t>((key * 0xC2B2AE3D27D4EB4Full) >> 40) % shards;
+}
+
+// Interleaves the 16 bits of v into bits 0, 3, 6, ... and back.
+inline uint64_t Spread16(uint64_t v) {
+  v &= 0xffff;
+  v = (v | (v << 16)) & 0x0000FF0000FFull;
+  v = (v | (v << 8)) & 0x00F00F00F00Full;
+  v = (v | (v << 4)) & 0x0C30C30C30C3ull;
+  v = (v | (v << 2)) & 0x249249249249ull;
+  return v;
+}
+inline uint64_t Compact16(uint64_t v) {
+  v &= 0x249249249249ull;
+  v = (v | (v >> 2)) & 0x0C30C30C30C3ull;
+  v = (v | (v >> 4)) & 0x00F00F00F00Full;
+  v = (v | (v >> 8)) & 0x0000FF0000FFull;
+  v = (v | (v >> 16)) & 0xffff;
+  return v;
+}
+inline uint64_t MortonOfPacked(uint64_t packed) {
+  return Spread16(packed) | (Spread16(packed >> 16) << 1) | (Spread16(packed >> 32) << 2);
+}
+
+// LSD radix sort of values below 2^49 (11-bit digits); `tmp` is scratch of the same size.
+void RadixSort49(std::vector<uint64_t>* v, std::vector<uint64_t>* tmp) {
+  if (v->size() < 2048) {
+    std::sort(v->begin(), v->end());
+    return;
+  }
+  tmp->resize(v->size());
+  constexpr int kBits = 11;
+  constexpr size_t kBuckets = size_t{1} << kBits;
+  std::vector<size_t> count(kBuckets);
+  for (int pass = 0; pass * kBits < 49; ++pass) {
+    const int shift = pass * kBits;
+    std::fill(count.begin(), count.end(), 0);
+    for (uint64_t x : *v) ++count[(x >> shift) & (kBuckets - 1)];
+    size_t sum = 0;
+    for (auto& c : count) {
+      const size_t n = c;
+      c = sum;
+      sum += n;
+    }
+    for (uint64_t x : *v) (*tmp)[count[(x >> shift) & (kBuckets - 1)]++] = x;
+    v->swap(*tmp);
+  }
+}
+
+// OcTreeBaseImpl::computeRayKeys (octomap 1.9.7) with the keys handed to `emit` (packed)
+// instead of a KeyRay: the same arithmetic in the same order (float point, double DDA state),
+// so the same keys and the same tie-breaking. Faster by being inlined, by stepping a packed
+// key (one add, one compare) and by choosing the axis without branches.
+template <class Emit>
+inline bool CastRay(const octomap::OcTree& keyer, const octomap::point3d& origin,
+                    const octomap::point3d& end, Emit&& emit) {
+  octomap::OcTreeKey key_origin, key_end;
+  if (!keyer.coordToKeyChecked(origin, key_origin) || !keyer.coordToKeyChecked(end, key_end))
+    return false;
+  if (key_origin == key_end) return true;
+  emit(PackKey(key_origin));
+  octomap::point3d direction = (end - origin);
+  const float length = static_cast<float>(direction.norm());
+  direction /= length;
+  const double resolution = keyer.getResolution();
+  double t_max[3];
+  double t_delta[3];
+  uint64_t step[3];  // added to the packed key: +-1 in the field of the axis
+  for (unsigned i = 0; i < 3; ++i) {
+    int s = 0;
+    if (direction(i) > 0.0)
+      s = 1;
+    else if (direction(i) < 0.0)
+      s = -1;
+    step[i] = static_cast<uint64_t>(static_cast<int64_t>(s) * (int64_t{1} << (16 * i)));
+    if (s != 0) {
+      double voxel_border = keyer.keyToCoord(key_origin[i]);
+      voxel_border += static_cast<float>(s * resolution * 0.5);
+      t_max[i] = (voxel_border - origin(i)) / direction(i);
+      t_delta[i] = resolution / std::fabs(direction(i));
+    } else {
+      t_max[i] = std::numeric_limits<double>::max();
+      t_delta[i] = std::numeric_limits<double>::max();
+    }
+  }
+  uint64_t current = PackKey(key_origin);
+  const uint64_t last = PackKey(key_end);
+  const double len = length;
+  for (;;) {
+    const double t0 = t_max[0], t1 = t_max[1], t2 = t_max[2];
+    const unsigned a = t0 < t1, b = t0 < t2, c = t1 < t2;
+    const unsigned dim = a ? (b ? 0u : 2u) : (c ? 1u : 2u);
+    current += step[dim];
+    t_max[dim] += t_delta[dim];
+    if (current == last) break;
+    if (std::min(std::min(t_max[0], t_max[1]), t_max[2]) > len) break;
+    emit(current);
+  }
+  return true;
+}
+
+template <class F>
+void RunOnThreads(int n, F&& f) {
+  std::vector<std::thread> threads;
+  threads.reserve(static_cast<size_t>(n > 0 ? n - 1 : 0));
+  for (int t = 1; t < n; ++t) threads.emplace_back([&f, t] { f(t); });
+  f(0);
+  for (auto& th : threads) th.join();
+}
+
+}  // namespace
+
+uint64_t MortonCode(const octomap::OcTreeKey& key) { return MortonOfPacked(PackKey(key)); }
+
+octomap::OcTreeKey KeyFromMorton(uint64_t code) {
+  return octomap::OcTreeKey(static_cast<uint16_t>(Compact16(code)),
+                            static_cast<uint16_t>(Compact16(code >> 1)),
+                            static_cast<uint16_t>(Compact16(code >> 2)));
+}
+
+std::vector<octomap::OcTreeKey> KeySets::Free() const {
+  std::vector<octomap::OcTreeKey> keys;
+  for (uint64_t u : updates)
+    if (!(u & 1)) keys.push_back(KeyFromMorton(u >> 1));
+  return keys;
+}
+
+std::vector<octomap::OcTreeKey> KeySets::Occupied() const {
+  std::vector<octomap::OcTreeKey> keys;
+  for (uint64_t u : updates)
+    if (u & 1) keys.push_back(KeyFromMorton(u >> 1));
+  return keys;
+}
+
+ParallelKeySetInserter::ParallelKeySetInserter(double resolution_m, const KeySetOptions& options)
+    : options_(options), keyer_(resolution_m) {
+  if (options_.num_threads < 1) options_.num_threads = 1;
+}
+
+int64_t ParallelKeySetInserter::NowMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+std::vector<Eigen::Vector3f> ParallelKeySetInserter::Discretize(
+    const std::vector<Eigen::Vector3f>& points) const {
+  KeyHashSet seen(points.size() / 8 + 64);
+  std::vector<Eigen::Vector3f> out;
+  out.reserve(points.size() / 4 + 16);
+  for (const auto& p : points) {
+    octomap::OcTreeKey k;
+    if (!keyer_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), k)) continue;
+    if (!seen.Insert(PackKey(k))) continue;
+    const octomap::point3d c = keyer_.keyToCoord(k);
+    out.emplace_back(c.x(), c.y(), c.z());
+  }
+  return out;
+}
+
+KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f>& input,
+                                               const Eigen::Vector3f& origin_in,
+                                               InsertStats* stats) const {
+  const int64_t t0 = NowMicros();
+  std::vector<Eigen::Vector3f> discrete;
+  if (options_.discretize) discrete = Discretize(input);
+  const std::vector<Eigen::Vector3f>& points = options_.discretize ? discrete : input;
+
+  const int nt = options_.num_threads;
+  const octomap::point3d origin(origin_in.x(), origin_in.y(), origin_in.z());
+  const double maxrange = options_.max_range_m;
+  std::vector<KeyHashSet> free_local(static_cast<size_t>(nt), KeyHashSet(1 << 16));
+  std::vector<KeyHashSet> occ_local(static_cast<size_t>(nt), KeyHashSet(points.size() / nt + 64));
+
+  // Phase 1: rays, in chunks handed out dynamically (ray lengths vary a lot).
+  constexpr size_t kChunk = 512;
+  std::atomic<size_t> next{0};
+  RunOnThreads(nt, [&](int t) {
+    KeyHashSet& fr = free_local[static_cast<size_t>(t)];
+    KeyHashSet& oc = occ_local[static_cast<size_t>(t)];
+    auto emit = [&fr](uint64_t packed) { fr.Insert(packed); };
+    auto add_ray = [&](const octomap::point3d& end_point) {
+      CastRay(keyer_, origin, end_point, emit);
+    };
+    for (;;) {
+      const size_t begin = next.fetch_add(kChunk);
+      if (begin >= points.size()) break;
+      const size_t end = std::min(points.size(), begin + kChunk);
+      for (size_t i = begin; i < end; ++i) {
+        const octomap::point3d p(points[i].x(), points[i].y(), points[i].z());
+        // Same expressions as OccupancyOcTreeBase::computeUpdate, so the same keys.
+        if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
+          add_ray(p);
+          octomap::OcTreeKey key;
+          if (keyer_.coordToKeyChecked(p, key)) oc.Insert(PackKey(key));
+        } else {
+          const octomap::point3d direction = (p - origin).normalized();
+          add_ray(origin + direction * static_cast<float>(maxrange));
+        }
+      }
+    }
+  });
+
+  const int64_t t_rays = NowMicros();
+  // Phase 2: merge by shard; thread s owns the keys whose shard is s.
+  // Each shard's output: Morton code << 1 | occupied, sorted.
+  std::vector<std::vector<uint64_t>> shard_out(static_cast<size_t>(nt));
+  std::vector<size_t> shard_free(static_cast<size_t>(nt), 0), shard_occ(static_cast<size_t>(nt), 0);
+  RunOnThreads(nt, [&](int s) {
+    const size_t shards = static_cast<size_t>(nt);
+    const size_t me = static_cast<size_t>(s);
+    size_t occ_guess = 0, free_guess = 0;
+    for (int t = 0; t < nt; ++t) {
+      occ_guess += occ_local[static_cast<size_t>(t)].size() / shards;
+      free_guess += free_local[static_cast<size_t>(t)].size() / shards;
+    }
+    std::vector<uint64_t>& out = shard_out[me];
+    out.reserve(occ_guess + free_guess);
+    KeyHashSet occ(occ_guess + 64);
+    for (const auto& set : occ_local)
+      set.ForEach([&](uint64_t k) {
+        if (ShardOf(k, shards) == me && occ.Insert(k)) out.push_back(MortonOfPacked(k) << 1 | 1);
+      });
+    KeyHashSet fr(free_guess + 64);
+    for (const auto& set : free_local)
+      set.ForEach([&](uint64_t k) {
+        if (ShardOf(k, shards) == me && !occ.Contains(k) && fr.Insert(k))
+          out.push_back(MortonOfPacked(k) << 1);
+      });
+    shard_occ[me] = occ.size();
+    shard_free[me] = fr.size();
+    std::vector<uint64_t> tmp;
+    RadixSort49(&out, &tmp);
+  });
+
+  const int64_t t_merge = NowMicros();
+  // Merge the sorted shards (pairwise; nt is small).
+  KeySets out;
+  out.updates = std::move(shard_out[0]);
+  for (size_t i = 1; i < shard_out.size(); ++i) {
+    std::vector<uint64_t> merged(out.updates.size() + shard_out[i].size());
+    std::merge(out.updates.begin(), out.updates.end(), shard_out[i].begin(), shard_out[i].end(),
+               merged.begin());
+    out.updates.swap(merged);
+  }
+  size_t n_free = 0, n_occ = 0;
+  for (size_t i = 0; i < shard_out.size(); ++i) {
+    n_free += shard_free[i];
+    n_occ += shard_occ[i];
+  }
+  if (stats) {
+    stats->points = input.size();
+    stats->rays = points.size();
+    stats->free_keys = n_free;
+    stats->occupied_keys = n_occ;
+    const int64_t t_end = NowMicros();
+    stats->keys_us = t_end - t0;
+    stats->rays_us = t_rays - t0;
+    stats->merge_us = t_merge - t_rays;
+    stats->sort_us = t_end - t_merge;
+  }
+  return out;
+}
+
+}  // namespace omni::octo

@@ -1,0 +1,154 @@
+#include "omni/octomap_builder/map_output.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+#include <octomap/AbstractOcTree.h>
+
+#include "omni/octomap_builder/depth_io.h"
+
+namespace omni::octo {
+
+std::string SerializeTree(const octomap::OcTree& tree, bool binary) {
+  std::ostringstream s(std::ios::binary);
+  if (binary)
+    tree.writeBinaryConst(s);
+  else
+    tree.write(s);
+  return s.str();
+}
+
+Status SaveTree(const octomap::OcTree& tree, const std::string& base) {
+  if (Status s = WriteFileAtomic(base + ".bt", SerializeTree(tree, true)); !s.ok()) return s;
+  return WriteFileAtomic(base + ".ot", SerializeTree(tree, false));
+}
+
+Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
+  const bool binary = path.size() >= 3 && path.compare(path.size() - 3, 3, ".bt") == 0;
+  if (binary) {
+    auto tree = std::make_unique<octomap::OcTree>(0.1);
+    if (!tree->readBinary(in) || in.fail())
+      return MakeError(ErrorCode::kParse,
+                       path + ": not a readable .bt OcTree (bad header or truncated)");
+    return tree;
+  }
+  std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
+  auto* oc = dynamic_cast<octomap::OcTree*>(any.get());
+  if (!oc || in.fail())
+    return MakeError(ErrorCode::kParse,
+                     path + ": not a readable .ot OcTree (bad header or truncated)");
+  any.release();
+  return std::unique_ptr<octomap::OcTree>(oc);
+}
+
+Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProjectionOptions& o) {
+  if (!(o.max_z_m > o.min_z_m))
+    return MakeError(ErrorCode::kInvalidArgument, "grid projection: need min_z_m < max_z_m");
+  const double res = o.resolution_m > 0 ? o.resolution_m : tree.getResolution();
+  // Pass 1: extent of the leaves in the band.
+  double min_x = std::numeric_limits<double>::max(), min_y = min_x;
+  double max_x = std::numeric_limits<double>::lowest(), max_y = max_x;
+  auto in_band = [&](double z, double half) {
+    return z + half > o.min_z_m && z - half < o.max_z_m;
+  };
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    const double half = it.getSize() / 2;
+    if (!in_band(it.getZ(), half)) continue;
+    min_x = std::min(min_x, it.getX() - half);
+    min_y = std::min(min_y, it.getY() - half);
+    max_x = std::max(max_x, it.getX() + half);
+    max_y = std::max(max_y, it.getY() + half);
+  }
+  io::GridMap g;
+  g.resolution_m = res;
+  if (min_x > max_x) return g;  // nothing known in the band: an empty grid
+  g.origin_x_m = std::floor(min_x / res) * res;
+  g.origin_y_m = std::floor(min_y / res) * res;
+  g.width = static_cast<int>(std::ceil((max_x - g.origin_x_m) / res - 1e-9));
+  g.height = static_cast<int>(std::ceil((max_y - g.origin_y_m) / res - 1e-9));
+  if (static_cast<double>(g.width) * g.height > 4e8)
+    return MakeError(ErrorCode::kOutOfRange, "grid projection: grid would exceed 4e8 cells");
+  g.cells.assign(static_cast<size_t>(g.width) * g.height, -1);
+  // Pass 2: cells covered by each leaf's footprint (cell centres inside it).
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    const double half = it.getSize() / 2;
+    if (!in_band(it.getZ(), half)) continue;
+    const bool occ = tree.isNodeOccupied(*it);
+    const int c0 =
+        std::max(0, static_cast<int>(std::floor((it.getX() - half - g.origin_x_m) / res + 1e-6)));
+    const int c1 = std::min(
+        g.width, static_cast<int>(std::ceil((it.getX() + half - g.origin_x_m) / res - 1e-6)));
+    const int r0 =
+        std::max(0, static_cast<int>(std::floor((it.getY() - half - g.origin_y_m) / res + 1e-6)));
+    const int r1 = std::min(
+        g.height, static_cast<int>(std::ceil((it.getY() + half - g.origin_y_m) / res - 1e-6)));
+    for (int r = r0; r < r1; ++r)
+      for (int c = c0; c < c1; ++c) {
+        int8_t& cell = g.at(c, r);
+        if (occ)
+          cell = 100;
+        else if (cell < 0)
+          cell = 0;
+      }
+  }
+  return g;
+}
+
+io::Image RenderTopView(const octomap::OcTree& tree) {
+  double x0, y0, z0, x1, y1, z1;
+  tree.getMetricMin(x0, y0, z0);
+  tree.getMetricMax(x1, y1, z1);
+  const double res = tree.getResolution();
+  if (tree.size() == 0 || !(x1 > x0) || !(y1 > y0)) return io::Image::Make(1, 1, 3, 128);
+  const int w = std::max(1, static_cast<int>(std::ceil((x1 - x0) / res)));
+  const int h = std::max(1, static_cast<int>(std::ceil((y1 - y0) / res)));
+  if (static_cast<double>(w) * h > 1e8) return io::Image::Make(1, 1, 3, 128);
+  std::vector<float> top(static_cast<size_t>(w) * h, -std::numeric_limits<float>::infinity());
+  std::vector<uint8_t> known(static_cast<size_t>(w) * h, 0);
+  double zmin = std::numeric_limits<double>::max(), zmax = std::numeric_limits<double>::lowest();
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    const double half = it.getSize() / 2;
+    const bool occ = tree.isNodeOccupied(*it);
+    const int c0 = std::max(0, static_cast<int>(std::floor((it.getX() - half - x0) / res + 1e-6)));
+    const int c1 = std::min(w, static_cast<int>(std::ceil((it.getX() + half - x0) / res - 1e-6)));
+    const int r0 = std::max(0, static_cast<int>(std::floor((it.getY() - half - y0) / res + 1e-6)));
+    const int r1 = std::min(h, static_cast<int>(std::ceil((it.getY() + half - y0) / res - 1e-6)));
+    const float ztop = static_cast<float>(it.getZ() + half);
+    if (occ) {
+      zmin = std::min(zmin, it.getZ());
+      zmax = std::max(zmax, it.getZ());
+    }
+    for (int r = r0; r < r1; ++r)
+      for (int c = c0; c < c1; ++c) {
+        const size_t i = static_cast<size_t>(r) * w + c;
+        known[i] = 1;
+        if (occ) top[i] = std::max(top[i], ztop);
+      }
+  }
+  io::Image im = io::Image::Make(w, h, 3, 40);  // dark: never seen
+  const double span = zmax > zmin ? zmax - zmin : 1.0;
+  for (int r = 0; r < h; ++r)
+    for (int c = 0; c < w; ++c) {
+      const size_t i = static_cast<size_t>(r) * w + c;
+      const int y = h - 1 - r;  // north up
+      if (std::isfinite(top[i])) {
+        const double f = std::clamp((top[i] - zmin) / span, 0.0, 1.0);
+        // blue -> green -> red
+        const double rr = std::clamp(2 * f - 1, 0.0, 1.0), bb = std::clamp(1 - 2 * f, 0.0, 1.0);
+        const double gg = 1 - rr - bb;
+        im.at(c, y, 0) = static_cast<uint16_t>(40 + 215 * rr);
+        im.at(c, y, 1) = static_cast<uint16_t>(40 + 215 * gg);
+        im.at(c, y, 2) = static_cast<uint16_t>(40 + 215 * bb);
+      } else if (known[i]) {
+        for (int ch = 0; ch < 3; ++ch) im.at(c, y, ch) = 225;
+      }
+    }
+  return im;
+}
+
+}  // namespace omni::octo

@@ -1,0 +1,156 @@
+#include "omni/octomap_builder/octomap_builder.h"
+
+#include <cmath>
+
+namespace omni::octo {
+namespace {
+
+KeySetOptions ToKeySetOptions(const OctomapBuilderOptions& o) {
+  KeySetOptions k;
+  k.num_threads = o.threads;
+  k.max_range_m = o.max_range_m;
+  k.discretize = o.discretize;
+  return k;
+}
+
+template <typename T>
+Rule<T> Probability() {
+  return [](const T& v) -> std::string { return v > 0 && v < 1 ? "" : "must be in (0, 1)"; };
+}
+
+}  // namespace
+
+Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
+  OctomapBuilderOptions o;
+  r.Get("pose_source", &o.pose_source, Required(), OneOf({"rbpf", "pg"}));
+  r.Get("pose_channel", &o.pose_channel, Optional());
+  r.Get("depth_channel", &o.depth_channel, Optional(), NonEmpty());
+  r.Get("octomap_channel", &o.octomap_channel, Optional(), NonEmpty());
+  r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
+  r.Get("map_frame", &o.map_frame, Optional(), NonEmpty());
+
+  auto tree = r.Section("tree");
+  tree.Get("resolution_m", &o.resolution_m, Required(), InRange(0.005, 1.0));
+  tree.Get("max_range_m", &o.max_range_m, Required());
+  tree.Get("prob_hit", &o.prob_hit, Optional(), Probability<double>());
+  tree.Get("prob_miss", &o.prob_miss, Optional(), Probability<double>());
+  tree.Get("clamping_min", &o.clamping_min, Optional(), Probability<double>());
+  tree.Get("clamping_max", &o.clamping_max, Optional(), Probability<double>());
+  if (o.max_range_m == 0) tree.AddError("max_range_m", "must be > 0 (or < 0 for unlimited)");
+  if (o.prob_hit <= 0.5) tree.AddError("prob_hit", "must be > 0.5 (a hit raises occupancy)");
+  if (o.prob_miss >= 0.5) tree.AddError("prob_miss", "must be < 0.5 (a miss lowers occupancy)");
+  if (o.clamping_min >= o.clamping_max) tree.AddError("clamping_min", "must be < clamping_max");
+
+  auto depth = r.Section("depth");
+  depth.Get("min_depth_m", &o.depth.min_depth_m, Required(), NonNegative<double>());
+  depth.Get("max_depth_m", &o.depth.max_depth_m, Required(), Positive<double>());
+  depth.Get("pixel_stride", &o.depth.pixel_stride, Optional(), InRange(1, 64));
+  depth.Get("voxel_filter_m", &o.voxel_filter_m, Optional(), NonNegative<double>());
+  depth.Get("discretize", &o.discretize, Optional());
+  if (o.depth.min_depth_m >= o.depth.max_depth_m)
+    depth.AddError("min_depth_m", "must be < max_depth_m");
+  r.Get("threads", &o.threads, Optional(), InRange(1, 64));
+
+  auto mount = r.Section("camera_mount");
+  mount.Get("x_m", &o.mount.x_m, Optional());
+  mount.Get("y_m", &o.mount.y_m, Optional());
+  mount.Get("height_m", &o.mount.height_m, Required(), InRange(-1.0, 3.0));
+  mount.Get("yaw_rad", &o.mount.yaw_rad, Optional(), InRange(-M_PI, M_PI));
+  mount.Get("tilt_rad", &o.mount.tilt_rad, Optional(), InRange(-M_PI / 2, M_PI / 2));
+  mount.Get("roll_rad", &o.mount.roll_rad, Optional(), InRange(-M_PI, M_PI));
+
+  auto poses = r.Section("poses");
+  double latency_s = 0.5, gap_s = 2.0;
+  int queue = 30;
+  poses.Get("max_latency_s", &latency_s, Required(), InRange(0.0, 60.0));
+  poses.Get("max_pose_gap_s", &gap_s, Optional(), Positive<double>());
+  poses.Get("max_queued_frames", &queue, Optional(), InRange(1, 10000));
+  o.poser.max_latency_us = static_cast<int64_t>(latency_s * 1e6);
+  o.poser.max_pose_gap_us = static_cast<int64_t>(gap_s * 1e6);
+  o.poser.max_queued_frames = static_cast<size_t>(queue);
+
+  auto grid = r.Section("grid");
+  grid.Get("min_z_m", &o.grid.min_z_m, Required());
+  grid.Get("max_z_m", &o.grid.max_z_m, Required());
+  grid.Get("resolution_m", &o.grid.resolution_m, Optional(), NonNegative<double>());
+  if (o.grid.min_z_m >= o.grid.max_z_m) grid.AddError("min_z_m", "must be < max_z_m");
+
+  auto out = r.Section("output");
+  out.Get("dir", &o.out_dir, Optional(), NonEmpty());
+  out.Get("save_interval_s", &o.save_interval_s, Optional(), Positive<double>());
+  out.Get("octomap_interval_s", &o.octomap_interval_s, Optional(), Positive<double>());
+  out.Get("octomap_binary", &o.octomap_binary, Optional());
+  out.Get("grid_interval_s", &o.grid_interval_s, Optional(), Positive<double>());
+  out.Get("keep_cloud", &o.keep_cloud, Optional());
+  out.Get("cloud_voxel_m", &o.cloud_voxel_m, Optional(), Positive<double>());
+  r.Get("heartbeat_period_s", &o.heartbeat_period_s, Optional(), InRange(0.05, 60.0));
+
+  if (Status s = r.Finish(); !s.ok()) return s.error();
+  return o;
+}
+
+Result<OctomapBuilderOptions> OctomapBuilderOptions::LoadFile(const std::string& path) {
+  auto reader = ConfigReader::FromFile(path);
+  if (!reader.ok()) return reader.error();
+  return Load(*reader);
+}
+
+std::string OctomapBuilderOptions::PoseChannel() const {
+  if (!pose_channel.empty()) return pose_channel;
+  return pose_source == "pg" ? "POSE_PG" : "POSE_RBPF";
+}
+
+OctomapBuilder::OctomapBuilder(const OctomapBuilderOptions& options)
+    : options_(options),
+      tree_(std::make_unique<octomap::OcTree>(options.resolution_m)),
+      inserter_(options.resolution_m, ToKeySetOptions(options)) {
+  tree_->setProbHit(options.prob_hit);
+  tree_->setProbMiss(options.prob_miss);
+  tree_->setClampingThresMin(options.clamping_min);
+  tree_->setClampingThresMax(options.clamping_max);
+}
+
+Result<FrameStats> OctomapBuilder::InsertDepth(const DepthImage& image,
+                                               const Eigen::Isometry3d& camera_in_map) {
+  auto pts = DepthToPoints(image, options_.depth);
+  if (!pts.ok()) return pts.error();
+  return InsertPoints(*pts, camera_in_map);
+}
+
+FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& points_camera,
+                                        const Eigen::Isometry3d& camera_in_map) {
+  FrameStats st;
+  st.points = points_camera.size();
+  const Eigen::Isometry3f t = camera_in_map.cast<float>();
+  std::vector<Eigen::Vector3f> world;
+  world.reserve(points_camera.size());
+  for (const auto& p : points_camera) world.push_back(t * p);
+  if (options_.voxel_filter_m > 0) world = VoxelDownsample(world, options_.voxel_filter_m);
+  if (options_.keep_cloud) {
+    const double inv = 1.0 / options_.cloud_voxel_m;
+    for (const auto& p : world) {
+      const auto ix =
+          static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() * inv)) + (1 << 20));
+      const auto iy =
+          static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() * inv)) + (1 << 20));
+      const auto iz =
+          static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() * inv)) + (1 << 20));
+      CloudCell& c = cloud_[(ix & 0x1fffff) | ((iy & 0x1fffff) << 21) | ((iz & 0x1fffff) << 42)];
+      c.sum += p.cast<double>();
+      ++c.n;
+    }
+  }
+  st.insert = inserter_.Insert(tree_.get(), world, t.translation());
+  st.rays = st.insert.rays;
+  ++frames_inserted_;
+  return st;
+}
+
+std::vector<Eigen::Vector3f> OctomapBuilder::AggregateCloud() const {
+  std::vector<Eigen::Vector3f> out;
+  out.reserve(cloud_.size());
+  for (const auto& [key, c] : cloud_) out.push_back((c.sum / c.n).cast<float>());
+  return out;
+}
+
+}  // namespace omni::octo

@@ -1,0 +1,57 @@
+#include <gtest/gtest.h>
+
+#include "omni/octomap_builder/octomap_builder.h"
+
+namespace omni::octo {
+namespace {
+
+TEST(OctomapBuilderConfig, ShippedFileLoads) {
+  auto o = OctomapBuilderOptions::LoadFile(std::string(OMNI_SOURCE_DIR) +
+                                           "/config/octomap_builder.yaml");
+  ASSERT_TRUE(o.ok()) << o.error().message;
+  EXPECT_EQ(o->PoseChannel(), "POSE_RBPF");
+  EXPECT_DOUBLE_EQ(o->resolution_m, 0.05);
+  EXPECT_TRUE(o->discretize);
+  EXPECT_EQ(o->poser.max_latency_us, 500000);
+  EXPECT_GT(o->mount.height_m, 0.0);
+  EXPECT_LT(o->grid.min_z_m, o->grid.max_z_m);
+}
+
+constexpr const char* kMinimal = R"(
+pose_source: pg
+tree: {resolution_m: 0.1, max_range_m: 4.0}
+depth: {min_depth_m: 0.3, max_depth_m: 5.0}
+camera_mount: {height_m: 0.4}
+poses: {max_latency_s: 0.2}
+grid: {min_z_m: 0.1, max_z_m: 1.5}
+)";
+
+TEST(OctomapBuilderConfig, MinimalFileAndDerivedChannel) {
+  auto r = ConfigReader::FromString(kMinimal, "minimal.yaml");
+  ASSERT_TRUE(r.ok());
+  auto o = OctomapBuilderOptions::Load(*r);
+  ASSERT_TRUE(o.ok()) << o.error().message;
+  EXPECT_EQ(o->PoseChannel(), "POSE_PG");
+  EXPECT_EQ(o->poser.max_latency_us, 200000);
+}
+
+TEST(OctomapBuilderConfig, UnknownKeysAndBadValuesAreNamed) {
+  auto r = ConfigReader::FromString(std::string(kMinimal) + "tree_resolution: 0.1\n", "typo.yaml");
+  ASSERT_TRUE(r.ok());
+  auto o = OctomapBuilderOptions::Load(*r);
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("tree_resolution"), std::string::npos) << o.error().message;
+
+  std::string bad = kMinimal;
+  bad.replace(bad.find("min_z_m: 0.1"), 12, "min_z_m: 2.0");
+  bad.replace(bad.find("pose_source: pg"), 15, "pose_source: gps");
+  r = ConfigReader::FromString(bad, "bad.yaml");
+  ASSERT_TRUE(r.ok());
+  o = OctomapBuilderOptions::Load(*r);
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("grid.min_z_m"), std::string::npos) << o.error().message;
+  EXPECT_NE(o.error().message.find("pose_source"), std::string::npos) << o.error().message;
+}
+
+}  // namespace
+}  // namespace omni::octo

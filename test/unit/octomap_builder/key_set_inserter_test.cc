@@ -1,0 +1,177 @@
+#include <algorithm>
+#include <random>
+#include <set>
+#include <tuple>
+
+#include <gtest/gtest.h>
+
+#include "omni/octomap_builder/key_set_inserter.h"
+#include "omni/octomap_builder/octomap_builder.h"
+#include "omni/octomap_builder/tree_compare.h"
+
+namespace omni::octo {
+namespace {
+
+using KeyTuple = std::tuple<int, int, int>;
+std::set<KeyTuple> ToSet(const std::vector<octomap::OcTreeKey>& keys) {
+  std::set<KeyTuple> s;
+  for (const auto& k : keys) s.emplace(k[0], k[1], k[2]);
+  return s;
+}
+std::set<KeyTuple> ToSet(const octomap::KeySet& keys) {
+  std::set<KeyTuple> s;
+  for (const auto& k : keys) s.emplace(k[0], k[1], k[2]);
+  return s;
+}
+
+// A room-like scan: points on the walls of a box around the origin, some beyond max range.
+std::vector<Eigen::Vector3f> BoxScan(int n, unsigned seed, const Eigen::Vector3f& shift) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < n; ++i) {
+    Eigen::Vector3f d(u(rng), u(rng), 0.4f * u(rng));
+    const float m = d.cwiseAbs().maxCoeff();
+    pts.push_back(shift + d / m * (i % 7 == 0 ? 6.0f : 2.5f));  // every 7th far away
+  }
+  return pts;
+}
+
+octomap::Pointcloud ToCloud(const std::vector<Eigen::Vector3f>& pts) {
+  octomap::Pointcloud pc;
+  for (const auto& p : pts) pc.push_back(p.x(), p.y(), p.z());
+  return pc;
+}
+
+TEST(Morton, RoundTripAndChildOrder) {
+  const octomap::OcTreeKey k(32768 + 5, 32768 - 3, 12345);
+  const octomap::OcTreeKey back = KeyFromMorton(MortonCode(k));
+  EXPECT_EQ(back, k);
+  // The child index at every depth equals octomap::computeChildIdx.
+  const uint64_t m = MortonCode(k);
+  for (unsigned depth = 0; depth < 16; ++depth)
+    EXPECT_EQ((m >> (3 * (15 - depth))) & 7, octomap::computeChildIdx(k, 15 - depth)) << depth;
+}
+
+TEST(KeySets, EqualOctomapComputeUpdate) {
+  const double res = 0.1;
+  const auto pts = BoxScan(3000, 1, {0.3f, -0.2f, 0.1f});
+  const Eigen::Vector3f origin(0.05f, 0.02f, 0.3f);
+  for (double maxrange : {-1.0, 4.0}) {
+    for (int threads : {1, 3}) {
+      KeySetOptions o;
+      o.num_threads = threads;
+      o.max_range_m = maxrange;
+      ParallelKeySetInserter ins(res, o);
+      InsertStats st;
+      const KeySets ours = ins.ComputeKeySets(pts, origin, &st);
+      octomap::OcTree ref(res);
+      octomap::KeySet free_ref, occ_ref;
+      ref.computeUpdate(ToCloud(pts), octomap::point3d(origin.x(), origin.y(), origin.z()),
+                        free_ref, occ_ref, maxrange);
+      EXPECT_EQ(ToSet(ours.Free()), ToSet(free_ref))
+          << "maxrange " << maxrange << " threads " << threads;
+      EXPECT_EQ(ToSet(ours.Occupied()), ToSet(occ_ref)) << "maxrange " << maxrange;
+      EXPECT_EQ(st.free_keys, free_ref.size());
+      EXPECT_EQ(st.occupied_keys, occ_ref.size());
+      EXPECT_TRUE(std::is_sorted(ours.updates.begin(), ours.updates.end()));
+      if (maxrange > 0) {
+        EXPECT_LT(occ_ref.size(), 3000u);  // far points add no occupied key
+      }
+    }
+  }
+}
+
+TEST(KeySets, TreeEqualsInsertPointCloudOverSeveralScans) {
+  const double res = 0.1;
+  for (bool discretize : {false, true}) {
+    KeySetOptions o;
+    o.num_threads = 2;
+    o.max_range_m = 5.0;
+    o.discretize = discretize;
+    ParallelKeySetInserter ins(res, o);
+    octomap::OcTree ours(res), ref(res);
+    for (unsigned scan = 0; scan < 4; ++scan) {
+      const Eigen::Vector3f origin(0.3f * scan, 0.1f * scan, 0.2f);
+      // The same room seen from moving origins: leaves get hit, missed, clamped, pruned.
+      const auto pts = BoxScan(4000, 7 + scan, {0.f, 0.f, 0.f});
+      ins.Insert(&ours, pts, origin);
+      ref.insertPointCloud(ToCloud(pts), octomap::point3d(origin.x(), origin.y(), origin.z()), 5.0,
+                           false, discretize);
+    }
+    EXPECT_GT(ref.getNumLeafNodes(), 1000u);
+    EXPECT_TRUE(SameLeaves(ours, ref)) << "discretize " << discretize;
+    EXPECT_EQ(ours.size(), ref.size());  // same pruning: same node count
+    const auto cmp = CompareOccupied(ours, ref);
+    EXPECT_DOUBLE_EQ(cmp.iou, 1.0);
+    // Inner nodes carry the same (max-of-children) values.
+    double ours_root = ours.getRoot()->getLogOdds(), ref_root = ref.getRoot()->getLogOdds();
+    EXPECT_FLOAT_EQ(static_cast<float>(ours_root), static_cast<float>(ref_root));
+  }
+}
+
+TEST(KeySets, RepeatedScansClampAndPruneLikeOctomap) {
+  // The same scan many times drives leaves to the clamping thresholds, where octomap prunes
+  // uniform regions and skips updates (early abort): the trees must still match.
+  const double res = 0.2;
+  KeySetOptions o;
+  o.num_threads = 2;
+  ParallelKeySetInserter ins(res, o);
+  octomap::OcTree ours(res), ref(res);
+  const auto pts = BoxScan(2000, 3, {0, 0, 0});
+  for (int i = 0; i < 12; ++i) {
+    ins.Insert(&ours, pts, Eigen::Vector3f::Zero());
+    ref.insertPointCloud(ToCloud(pts), octomap::point3d(0, 0, 0), -1, false, false);
+  }
+  EXPECT_TRUE(SameLeaves(ours, ref));
+  EXPECT_EQ(ours.size(), ref.size());
+}
+
+TEST(OctomapBuilder, PlaneAtKnownDistance) {
+  // A camera 1 m above the floor looking along the map's +x at a wall 2 m ahead.
+  OctomapBuilderOptions opt;
+  opt.resolution_m = 0.05;
+  opt.max_range_m = 5.0;
+  opt.depth.min_depth_m = 0.1;
+  opt.depth.max_depth_m = 5.0;
+  opt.discretize = true;
+  opt.mount.height_m = 1.0;
+  OctomapBuilder builder(opt);
+  DepthImage im;
+  im.width = 64;
+  im.height = 48;
+  im.intrinsics = {50.0, 50.0, 31.5, 23.5, 1000.0};
+  im.data.assign(static_cast<size_t>(im.width) * im.height, 2000);  // z = 2 m everywhere
+  im.data[5] = 0;                                                   // one invalid pixel
+  const Eigen::Isometry3d cam = CameraInMap(Pose2(0, 0, 0), opt.mount);
+  auto st = builder.InsertDepth(im, cam);
+  ASSERT_TRUE(st.ok()) << st.error().message;
+  EXPECT_EQ(st->points, static_cast<size_t>(im.width * im.height - 1));
+  const octomap::OcTree& t = builder.tree();
+  // The wall: occupied voxels at x = 2 m (the voxel holding 2.0), for the image's extent:
+  // |y| <= 2 * 31.5 / 50 = 1.26 m, |z - 1| <= 2 * 23.5 / 50 = 0.94 m.
+  for (double y : {-1.0, 0.0, 0.6}) {
+    for (double z : {0.3, 1.0, 1.8}) {
+      const octomap::OcTreeNode* n = t.search(2.02, y, z);
+      ASSERT_NE(n, nullptr) << y << " " << z;
+      EXPECT_TRUE(t.isNodeOccupied(n)) << y << " " << z;
+      // Free space before the wall, along the rays.
+      const octomap::OcTreeNode* f = t.search(1.0 + 0.5 * (0.0), y * 0.5, 1.0 + (z - 1.0) * 0.5);
+      ASSERT_NE(f, nullptr);
+      EXPECT_FALSE(t.isNodeOccupied(f));
+    }
+  }
+  // Nothing is known behind the wall or outside the field of view.
+  EXPECT_EQ(t.search(2.5, 0.0, 1.0), nullptr);
+  EXPECT_EQ(t.search(1.0, 2.0, 1.0), nullptr);
+  // All occupied voxels lie in the wall's voxel slab.
+  const double slab = std::floor(2.0 / 0.05) * 0.05;
+  for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it)
+    if (t.isNodeOccupied(*it)) {
+      EXPECT_GE(it.getX(), slab - 1e-6);
+      EXPECT_LE(it.getX(), slab + 0.05 + 1e-6);
+    }
+}
+
+}  // namespace
+}  // namespace omni::octo

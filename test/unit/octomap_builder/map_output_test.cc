@@ -1,0 +1,145 @@
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+#include <tuple>
+
+#include <gtest/gtest.h>
+
+#include "omni/octomap_builder/depth_io.h"
+#include "omni/octomap_builder/key_set_inserter.h"
+#include "omni/octomap_builder/map_output.h"
+#include "omni/octomap_builder/tree_compare.h"
+
+namespace omni::octo {
+namespace {
+
+namespace fs = std::filesystem;
+
+octomap::OcTree MakeTree() {
+  octomap::OcTree t(0.1);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-3.f, 3.f);
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < 2000; ++i) pts.emplace_back(u(rng), u(rng), 0.5f * u(rng));
+  KeySetOptions o;
+  ParallelKeySetInserter(0.1, o).Insert(&t, pts, Eigen::Vector3f(0, 0, 0.2f));
+  return t;
+}
+
+// Leaves as (key, depth) -> occupied.
+std::map<std::tuple<int, int, int, unsigned>, bool> Occupancy(const octomap::OcTree& t) {
+  std::map<std::tuple<int, int, int, unsigned>, bool> m;
+  for (auto it = t.begin_leafs(); it != t.end_leafs(); ++it) {
+    const auto k = it.getKey();
+    m[{k[0], k[1], k[2], it.getDepth()}] = t.isNodeOccupied(*it);
+  }
+  return m;
+}
+
+TEST(MapOutput, SavedTreesLoadBackWithTheSameLeaves) {
+  const octomap::OcTree t = MakeTree();
+  ASSERT_GT(t.getNumLeafNodes(), 100u);
+  const std::string dir = testing::TempDir() + "/octo_save";
+  fs::create_directories(dir);
+  ASSERT_TRUE(SaveTree(t, dir + "/map").ok());
+  EXPECT_FALSE(fs::exists(dir + "/map.bt.tmp"));
+  EXPECT_FALSE(fs::exists(dir + "/map.ot.tmp"));
+  // .ot keeps the log-odds: identical leaves.
+  auto ot = LoadTree(dir + "/map.ot");
+  ASSERT_TRUE(ot.ok()) << ot.error().message;
+  EXPECT_TRUE(SameLeaves(t, **ot));
+  // .bt keeps occupied/free per leaf, read by octomap's own reader.
+  octomap::OcTree bt(0.1);
+  ASSERT_TRUE(bt.readBinary(dir + "/map.bt"));
+  EXPECT_EQ(Occupancy(bt), Occupancy(t));
+  EXPECT_DOUBLE_EQ(CompareOccupied(bt, t).iou, 1.0);
+  // Saving did not change the tree (writeBinaryConst): still probabilistic.
+  EXPECT_TRUE(SameLeaves(t, **ot));
+  // Corrupt files are errors, not crashes.
+  {
+    std::ofstream(dir + "/bad.ot") << "# Octomap OcTree file\nid OcTree\nsize 99\nres 0.1\ndata\n";
+  }
+  EXPECT_FALSE(LoadTree(dir + "/bad.ot").ok());
+  EXPECT_FALSE(LoadTree(dir + "/missing.bt").ok());
+}
+
+TEST(MapOutput, ProjectsTheHeightBand) {
+  octomap::OcTree t(0.1);
+  // A floor (z = 0.05, below the band), a low box (z = 0.25) and free space above the floor.
+  for (double x = 0.05; x < 1.0; x += 0.1)
+    for (double y = 0.05; y < 1.0; y += 0.1) {
+      t.updateNode(x, y, 0.05, true);
+      t.updateNode(x, y, 0.25, x > 0.5 && y > 0.5);  // occupied only in one quadrant
+    }
+  GridProjectionOptions o;
+  o.min_z_m = 0.2;
+  o.max_z_m = 1.0;
+  auto g = ProjectToGrid(t, o);
+  ASSERT_TRUE(g.ok());
+  EXPECT_EQ(g->width, 10);
+  EXPECT_EQ(g->height, 10);
+  EXPECT_NEAR(g->origin_x_m, 0.0, 1e-9);
+  EXPECT_EQ(g->at(8, 8), 100);  // the box
+  EXPECT_EQ(g->at(2, 2), 0);    // free at box height; the floor below the band is ignored
+  o.min_z_m = 1.0;
+  o.max_z_m = 0.5;
+  EXPECT_FALSE(ProjectToGrid(t, o).ok());
+}
+
+TEST(MapOutput, Geb079LoadsAndProjectsToAFloorPlan) {
+  const std::string path = std::string(OMNI_DATASETS_DIR) + "/octomap/geb079.bt";
+  if (!fs::exists(path)) GTEST_SKIP() << "dataset octomap/geb079.bt absent";
+  auto tree = LoadTree(path);
+  ASSERT_TRUE(tree.ok()) << tree.error().message;
+  const octomap::OcTree& t = **tree;
+  EXPECT_DOUBLE_EQ(t.getResolution(), 0.08);
+  EXPECT_EQ(t.size(), 532566u);  // SOURCE.md: "size 532566"
+  double x0, y0, z0, x1, y1, z1;
+  t.getMetricMin(x0, y0, z0);
+  t.getMetricMax(x1, y1, z1);
+  // A band from 0.5 m above the lowest occupied level to 1.5 m above it: walls, not floor.
+  GridProjectionOptions o;
+  o.min_z_m = z0 + 0.5;
+  o.max_z_m = z0 + 1.5;
+  auto g = ProjectToGrid(t, o);
+  ASSERT_TRUE(g.ok());
+  size_t occ = 0, fr = 0;
+  for (int8_t c : g->cells) occ += c == 100, fr += c == 0;
+  const double n = static_cast<double>(g->cells.size());
+  // A building floor: metres across, mostly free corridors/rooms, walls a small fraction.
+  EXPECT_GT(g->width * g->resolution_m, 10.0);
+  EXPECT_GT(g->height * g->resolution_m, 5.0);
+  EXPECT_GT(fr / n, 0.2);
+  EXPECT_GT(occ / n, 0.01);
+  EXPECT_LT(occ / n, 0.35);
+  EXPECT_GT(fr, 2 * occ);
+  // Walls are thin lines: most occupied cells have a free 4-neighbour.
+  size_t occ_next_to_free = 0;
+  for (int r = 1; r + 1 < g->height; ++r)
+    for (int c = 1; c + 1 < g->width; ++c)
+      if (g->at(c, r) == 100 && (g->at(c + 1, r) == 0 || g->at(c - 1, r) == 0 ||
+                                 g->at(c, r + 1) == 0 || g->at(c, r - 1) == 0))
+        ++occ_next_to_free;
+  EXPECT_GT(occ_next_to_free, occ / 3);
+  const io::Image view = RenderTopView(t);
+  EXPECT_GT(view.width, 100);
+}
+
+TEST(DepthIo, PcdAndPngWriters) {
+  const std::string dir = testing::TempDir();
+  std::vector<Eigen::Vector3f> pts = {{1, 2, 3}, {-1.5f, 0, 0.25f}};
+  ASSERT_TRUE(WritePcd(dir + "/c.pcd", pts, false).ok());
+  std::ifstream in(dir + "/c.pcd");
+  std::stringstream s;
+  s << in.rdbuf();
+  EXPECT_NE(s.str().find("POINTS 2\nDATA ascii\n1 2 3\n-1.5 0 0.25\n"), std::string::npos);
+  ASSERT_TRUE(WritePcd(dir + "/b.pcd", pts, true).ok());
+  EXPECT_EQ(fs::file_size(dir + "/b.pcd"),
+            s.str().size() - std::string("1 2 3\n-1.5 0 0.25\n").size() -
+                std::string("ascii").size() + std::string("binary").size() + 24);
+}
+
+}  // namespace
+}  // namespace omni::octo
