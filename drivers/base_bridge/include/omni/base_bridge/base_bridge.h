@@ -1,0 +1,186 @@
+// The base bridge: host side of the base controller's CAN link. No LCM in here (the node
+// does the bus I/O); time is passed in, so tests drive it frame by frame.
+//
+// Commands (twist, e-stop, clear faults) go in through OnCommand(); Tick() turns the latest
+// twist into a SET_BODY_TWIST frame at a fixed rate, after clamping it to the configured
+// speed limits (counted) and ramping it to the acceleration limits. Frames from the firmware
+// go in through OnFrame(): encoder positions are integrated into a pose with the forward
+// kinematics (eq. (1) inverted, eq. (2)), heartbeats and sequence numbers are watched, so a
+// silent firmware, lost feedback and malformed frames are detected and counted.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "omni/common/kinematics.h"
+#include "omni/common/result.h"
+#include "omni/firmware/can_protocol.h"
+#include "omni/firmware/hal.h"
+
+namespace omni::base_bridge {
+
+struct BaseBridgeOptions {
+  std::string can_url = "socketcan:can0";
+  int node_id = 1;
+  // Geometry: must match the firmware (checked at connect through GET_PARAM).
+  double alpha_rad = 2.0943951023931954923;
+  double center_to_wheel_m = 0.15;
+  double wheel_radius_m = 0.05;
+  double ticks_per_rev = 1440.0;
+  double feedback_period_s = 0.01;  // firmware feedback period (for mcu time and twist)
+  // Limits applied to every command before it reaches CAN.
+  double max_vx_m_s = 1.0;
+  double max_vy_m_s = 1.0;
+  double max_omega_rad_s = 2.0;
+  double max_linear_accel_m_s2 = 1.0;
+  double max_angular_accel_rad_s2 = 3.0;
+  // Timing.
+  double send_rate_hz = 100.0;     // SET_BODY_TWIST rate while commanding
+  double command_timeout_s = 0.3;  // host command older than this: ramp to zero, then stop
+  double firmware_heartbeat_period_s = 0.1;
+  int missed_heartbeats_for_silent = 3;
+  double reconnect_period_s = 0.5;
+  double status_rate_hz = 10.0;
+  // Odometry uncertainty: variance growth per metre travelled / radian turned, and a fixed
+  // twist variance.
+  double odom_var_xy_per_m = 1e-4;     // m^2 per m
+  double odom_var_yaw_per_rad = 1e-3;  // rad^2 per rad
+  double twist_var_linear = 1e-4;      // (m/s)^2
+  double twist_var_angular = 1e-3;     // (rad/s)^2
+  std::string odom_frame = "odom";
+  std::string base_frame = "base";
+  // LCM channels.
+  std::string cmd_channel = "BASE_CMD";
+  std::string odom_channel = "WHEEL_ODOM";
+  std::string encoders_channel = "WHEEL_ENCODERS";
+  std::string status_channel = "BASE_STATUS";
+};
+
+Result<BaseBridgeOptions> LoadBaseBridgeOptions(const std::string& path);
+Result<BaseBridgeOptions> LoadBaseBridgeOptionsFromString(const std::string& yaml,
+                                                          const std::string& name);
+
+struct Command {
+  enum Mode { kTwist = 0, kEstop = 1, kClearFaults = 2 } mode = kTwist;  // = base_cmd_t MODE_*
+  double vx_m_s = 0, vy_m_s = 0, omega_rad_s = 0;
+};
+
+struct Odometry {
+  int64_t utime = 0;
+  int64_t seq = 0;
+  double x_m = 0, y_m = 0, yaw_rad = 0;            // in the odom frame
+  double vx_m_s = 0, vy_m_s = 0, omega_rad_s = 0;  // body frame
+  double pose_cov[9] = {0};
+  double twist_cov[9] = {0};
+};
+
+struct Encoders {
+  int64_t utime = 0;
+  int64_t mcu_time_us = 0;
+  int32_t seq = 0;
+  int64_t position_ticks[3] = {0, 0, 0};
+  float velocity_rad_s[3] = {0, 0, 0};
+  float current_a[3] = {0, 0, 0};
+};
+
+struct BaseStatus {
+  int64_t utime = 0;
+  int8_t state = 0;  // firmware state (base_status_t STATE_*); BOOT until the first heartbeat
+  int32_t fault_bits = 0;
+  bool firmware_alive = false;
+  int32_t missed_heartbeats = 0;  // since the last one received
+  float bus_voltage_v = 0;
+  float wheel_speed_rad_s[3] = {0, 0, 0};
+  float wheel_setpoint_rad_s[3] = {0, 0, 0};
+};
+
+struct Counters {
+  int64_t commands_in = 0;
+  int64_t commands_clamped = 0;   // above a speed limit: clamped
+  int64_t commands_rejected = 0;  // non-finite values or unknown mode
+  int64_t frames_sent = 0;
+  int64_t frames_in = 0;
+  int64_t can_rx_errors = 0;         // our node, wrong length
+  int64_t unknown_frames = 0;        // our node, unknown or host->fw command
+  int64_t missed_heartbeats = 0;     // total, from gaps between firmware heartbeats
+  int64_t feedback_frames_lost = 0;  // gaps in the feedback sequence
+  int64_t reconnects = 0;            // CAN interface re-opened after being lost
+  int64_t link_losses = 0;
+  int64_t geometry_mismatches = 0;  // firmware parameters that differ from ours
+  int64_t firmware_rx_unknown = 0;  // as reported by the firmware's diagnostics frame
+  int64_t firmware_rx_bad_length = 0;
+  int64_t firmware_tx_dropped = 0;
+  int64_t firmware_max_step_us = 0;
+};
+
+class BaseBridge {
+ public:
+  explicit BaseBridge(const BaseBridgeOptions& options);
+
+  void OnCommand(const Command& cmd, int64_t now_us);
+  void OnFrame(const firmware::CanFrame& f, int64_t now_us);
+  // Periodic work; appends frames to send. Call often (every few ms).
+  void Tick(int64_t now_us, std::vector<firmware::CanFrame>* out);
+  // The CAN link went away / came back (node calls these; they reset the feedback tracking).
+  void OnLinkDown(int64_t now_us);
+  void OnLinkUp(int64_t now_us);
+
+  // Odometry updated by the latest encoder frame (false if none since the last call).
+  bool TakeOdometry(Odometry* out);
+  bool TakeEncoders(Encoders* out);
+  BaseStatus status(int64_t now_us) const;
+  const Counters& counters() const { return counters_; }
+  bool link_up() const { return link_up_; }
+  // Human-readable health for the process heartbeat ("" when all is well).
+  std::string Problem(int64_t now_us) const;
+  // The twist last sent on CAN (after limits and ramps).
+  const kinematics::BodyTwist<double>& sent_twist() const { return sent_; }
+
+ private:
+  void HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us);
+  void HandleParamReply(const firmware::can::ParamReply& r);
+  int64_t SilentForUs(int64_t now_us) const;
+
+  BaseBridgeOptions o_;
+  kinematics::OmniGeometry<double> geom_;
+  uint8_t node_;
+  // Commands.
+  Command cmd_;
+  int64_t cmd_us_ = 0;
+  bool have_cmd_ = false;
+  bool pending_estop_ = false;
+  bool pending_clear_ = false;
+  kinematics::BodyTwist<double> sent_;
+  int64_t last_send_us_ = 0;
+  int64_t last_tick_us_ = 0;
+  bool sending_ = false;
+  uint16_t cmd_seq_ = 0;
+  // Feedback.
+  bool have_enc_ = false;
+  uint16_t last_enc_seq_ = 0;
+  uint16_t last_raw_[3] = {0, 0, 0};
+  int64_t ticks_[3] = {0, 0, 0};
+  Odometry odom_;
+  bool odom_new_ = false;
+  Encoders enc_;
+  bool enc_new_ = false;
+  float speed_[3] = {0, 0, 0};
+  float current_[3] = {0, 0, 0};
+  float setpoint_[3] = {0, 0, 0};
+  // Heartbeat.
+  bool have_hb_ = false;
+  int64_t last_hb_us_ = 0;
+  int8_t fw_state_ = 0;
+  uint32_t fw_faults_ = 0;
+  float bus_voltage_ = 0;
+  // Link.
+  bool link_up_ = true;
+  int64_t link_down_since_us_ = 0;
+  bool geometry_checked_ = false;
+  int64_t geometry_query_us_ = 0;
+  std::string last_mismatch_;
+  Counters counters_;
+};
+
+}  // namespace omni::base_bridge

@@ -1,0 +1,41 @@
+// The base bridge process's bus side: subscribes to BASE_CMD, owns the CAN bus (re-opening it
+// when it goes away), publishes WHEEL_ODOM, WHEEL_ENCODERS, BASE_STATUS and the heartbeat.
+#pragma once
+
+#include <atomic>
+#include <memory>
+
+#include "omni/base_bridge/base_bridge.h"
+#include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/can/can_bus.h"
+#include "omni/common/time.h"
+
+namespace omni::base_bridge {
+
+class BaseBridgeNode {
+ public:
+  BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, const Clock* clock);
+  // Runs until *stop becomes true (or for max_s seconds if > 0).
+  void Run(const std::atomic<bool>* stop, double max_s = -1);
+  // One iteration (waits at most ~2 ms for CAN traffic). Public for tests.
+  void SpinOnce();
+  const BaseBridge& bridge() const { return bridge_; }
+
+ private:
+  void TryOpen(int64_t now_us);
+  void Publish(int64_t now_us);
+
+  BaseBridgeOptions o_;
+  bus::Bus* bus_;
+  const Clock* clock_;
+  BaseBridge bridge_;
+  bus::Heartbeat heartbeat_;
+  std::unique_ptr<can::CanBus> can_;
+  int64_t last_open_try_us_ = 0;
+  int64_t last_status_us_ = 0;
+  bool ever_opened_ = false;
+  std::string open_error_;
+};
+
+}  // namespace omni::base_bridge

@@ -1,0 +1,347 @@
+#include "omni/base_bridge/base_bridge.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "omni/firmware/firmware.h"
+#include "omni/firmware/params.h"
+
+namespace omni::base_bridge {
+
+namespace fwcan = omni::firmware::can;
+
+BaseBridge::BaseBridge(const BaseBridgeOptions& options)
+    : o_(options),
+      geom_{options.alpha_rad, options.center_to_wheel_m, options.wheel_radius_m},
+      node_(static_cast<uint8_t>(options.node_id)) {}
+
+void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
+  ++counters_.commands_in;
+  switch (cmd.mode) {
+    case Command::kEstop:
+      pending_estop_ = true;
+      have_cmd_ = false;
+      sent_ = {};
+      return;
+    case Command::kClearFaults:
+      pending_clear_ = true;
+      return;
+    case Command::kTwist:
+      break;
+    default:
+      ++counters_.commands_rejected;
+      return;
+  }
+  if (!std::isfinite(cmd.vx_m_s) || !std::isfinite(cmd.vy_m_s) || !std::isfinite(cmd.omega_rad_s)) {
+    ++counters_.commands_rejected;
+    return;
+  }
+  Command c = cmd;
+  bool clamped = false;
+  auto clamp = [&clamped](double* v, double limit) {
+    if (std::fabs(*v) > limit) {
+      *v = std::copysign(limit, *v);
+      clamped = true;
+    }
+  };
+  clamp(&c.vx_m_s, o_.max_vx_m_s);
+  clamp(&c.vy_m_s, o_.max_vy_m_s);
+  clamp(&c.omega_rad_s, o_.max_omega_rad_s);
+  if (clamped) ++counters_.commands_clamped;
+  cmd_ = c;
+  cmd_us_ = now_us;
+  have_cmd_ = true;
+}
+
+void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
+  last_tick_us_ = now_us;
+  if (!link_up_) return;
+  if (pending_estop_) {
+    out->push_back(fwcan::EncodeEstop(node_));
+    pending_estop_ = false;
+    sending_ = false;
+  }
+  if (pending_clear_) {
+    out->push_back(fwcan::EncodeClearFaults(node_));
+    pending_clear_ = false;
+  }
+  // Once the firmware answers, check that it uses our geometry (else odometry would be wrong).
+  if (!geometry_checked_ && have_hb_ && now_us - geometry_query_us_ > 1000000) {
+    geometry_query_us_ = now_us;
+    for (uint16_t id :
+         {firmware::kParamAlpha, firmware::kParamCenterToWheel, firmware::kParamWheelRadius,
+          firmware::kParamTicksPerRev, firmware::kParamFeedbackPeriodMs}) {
+      out->push_back(fwcan::EncodeGetParam(node_, id));
+    }
+  }
+  const int64_t period_us = static_cast<int64_t>(1e6 / o_.send_rate_hz);
+  if (last_send_us_ != 0 && now_us - last_send_us_ < period_us) return;
+  int64_t dt_us = last_send_us_ == 0 ? period_us : now_us - last_send_us_;
+  dt_us = std::min<int64_t>(dt_us, 5 * period_us);
+  const bool fresh =
+      have_cmd_ && now_us - cmd_us_ <= static_cast<int64_t>(o_.command_timeout_s * 1e6);
+  kinematics::BodyTwist<double> target;
+  if (fresh) target = {cmd_.vx_m_s, cmd_.vy_m_s, cmd_.omega_rad_s};
+  const bool at_rest = sent_.vx_m_s == 0 && sent_.vy_m_s == 0 && sent_.omega_rad_s == 0;
+  if (!fresh && at_rest) {
+    // Nothing to say: the firmware's watchdog parks the base (motors off) after its timeout.
+    sending_ = false;
+    return;
+  }
+  last_send_us_ = now_us;
+  const double dt = static_cast<double>(dt_us) * 1e-6;
+  // Acceleration limits: the linear change as a vector (keeps the direction of travel).
+  const double dvx = target.vx_m_s - sent_.vx_m_s, dvy = target.vy_m_s - sent_.vy_m_s;
+  const double dv = std::hypot(dvx, dvy), dv_max = o_.max_linear_accel_m_s2 * dt;
+  const double k = dv > dv_max ? dv_max / dv : 1.0;
+  sent_.vx_m_s += k * dvx;
+  sent_.vy_m_s += k * dvy;
+  const double dw = target.omega_rad_s - sent_.omega_rad_s,
+               dw_max = o_.max_angular_accel_rad_s2 * dt;
+  sent_.omega_rad_s += std::clamp(dw, -dw_max, dw_max);
+  sending_ = true;
+  fwcan::BodyTwist t{static_cast<float>(sent_.vx_m_s), static_cast<float>(sent_.vy_m_s),
+                     static_cast<float>(sent_.omega_rad_s), ++cmd_seq_};
+  out->push_back(fwcan::EncodeSetBodyTwist(node_, t));
+  counters_.frames_sent += static_cast<int64_t>(out->size());
+}
+
+void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
+  if (fwcan::NodeOf(f.id) != node_) return;  // another node on the bus
+  ++counters_.frames_in;
+  bool ok = true;
+  switch (fwcan::CommandOf(f.id)) {
+    case fwcan::kHeartbeat: {
+      fwcan::Heartbeat hb;
+      if (!(ok = fwcan::DecodeHeartbeat(f, &hb))) break;
+      if (have_hb_) {
+        const double gap = static_cast<double>(now_us - last_hb_us_) * 1e-6;
+        const int64_t missed = std::llround(gap / o_.firmware_heartbeat_period_s) - 1;
+        if (missed > 0) counters_.missed_heartbeats += missed;
+      }
+      have_hb_ = true;
+      last_hb_us_ = now_us;
+      fw_state_ = static_cast<int8_t>(hb.state);
+      fw_faults_ = hb.fault_bits;
+      bus_voltage_ = hb.bus_voltage_v;
+      break;
+    }
+    case fwcan::kEncoderFeedback: {
+      fwcan::EncoderFeedback e;
+      if (!(ok = fwcan::DecodeEncoderFeedback(f, &e))) break;
+      HandleEncoders(e, now_us);
+      break;
+    }
+    case fwcan::kSpeedFeedback: {
+      fwcan::WheelTriple s;
+      if (!(ok = fwcan::DecodeWheelSpeeds(f, &s))) break;
+      std::copy(s.v, s.v + 3, speed_);
+      break;
+    }
+    case fwcan::kCurrentFeedback: {
+      fwcan::WheelTriple s;
+      if (!(ok = fwcan::DecodeCurrents(f, &s))) break;
+      std::copy(s.v, s.v + 3, current_);
+      break;
+    }
+    case fwcan::kSetpointFeedback: {
+      fwcan::WheelTriple s;
+      if (!(ok = fwcan::DecodeWheelSpeeds(f, &s))) break;
+      std::copy(s.v, s.v + 3, setpoint_);
+      break;
+    }
+    case fwcan::kBodyTwistFeedback: {
+      fwcan::BodyTwist t;
+      if (!(ok = fwcan::DecodeBodyTwist(f, &t))) break;
+      odom_.vx_m_s = t.vx_m_s;
+      odom_.vy_m_s = t.vy_m_s;
+      odom_.omega_rad_s = t.omega_rad_s;
+      break;
+    }
+    case fwcan::kParamValue: {
+      fwcan::ParamReply r;
+      if (!(ok = fwcan::DecodeParamReply(f, &r))) break;
+      HandleParamReply(r);
+      break;
+    }
+    case fwcan::kDiagnostics: {
+      fwcan::Diagnostics d;
+      if (!(ok = fwcan::DecodeDiagnostics(f, &d))) break;
+      counters_.firmware_rx_unknown = d.rx_unknown;
+      counters_.firmware_rx_bad_length = d.rx_bad_length;
+      counters_.firmware_tx_dropped = d.tx_dropped;
+      counters_.firmware_max_step_us = d.max_step_us;
+      break;
+    }
+    default:
+      ++counters_.unknown_frames;  // unknown, or a host->firmware command from someone else
+      return;
+  }
+  if (!ok) ++counters_.can_rx_errors;
+}
+
+void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
+  double ours = 0;
+  const char* what = "";
+  switch (r.id) {
+    case firmware::kParamAlpha:
+      ours = o_.alpha_rad;
+      what = "alpha_rad";
+      break;
+    case firmware::kParamCenterToWheel:
+      ours = o_.center_to_wheel_m;
+      what = "center_to_wheel_m";
+      break;
+    case firmware::kParamWheelRadius:
+      ours = o_.wheel_radius_m;
+      what = "wheel_radius_m";
+      break;
+    case firmware::kParamTicksPerRev:
+      ours = o_.ticks_per_rev;
+      what = "ticks_per_rev";
+      break;
+    case firmware::kParamFeedbackPeriodMs:
+      ours = o_.feedback_period_s * 1000.0;
+      what = "feedback_period";
+      break;
+    default:
+      return;
+  }
+  if (r.result != fwcan::kParamOk) return;
+  geometry_checked_ = true;
+  if (std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours))) {
+    ++counters_.geometry_mismatches;
+    std::ostringstream s;
+    s << "firmware " << what << " = " << r.value << " but config says " << ours;
+    last_mismatch_ = s.str();
+  }
+}
+
+void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us) {
+  if (have_enc_) {
+    const uint16_t d = static_cast<uint16_t>(e.seq - last_enc_seq_);
+    if (d == 0) return;  // duplicate
+    if (d >= 0x8000) {
+      have_enc_ = false;  // sequence went backwards: the firmware restarted; re-base
+    } else if (d > 1) {
+      counters_.feedback_frames_lost += d - 1;  // positions are absolute: odometry survives
+    }
+  }
+  if (!have_enc_) {
+    for (int w = 0; w < 3; ++w) last_raw_[w] = e.position_low16[w];
+    last_enc_seq_ = e.seq;
+    have_enc_ = true;
+    return;
+  }
+  last_enc_seq_ = e.seq;
+  kinematics::WheelSpeeds<double> rim;  // rim displacement of each wheel, m
+  const double m_per_tick = 2.0 * M_PI * o_.wheel_radius_m / o_.ticks_per_rev;
+  for (int w = 0; w < 3; ++w) {
+    const int16_t dt =
+        static_cast<int16_t>(static_cast<uint16_t>(e.position_low16[w] - last_raw_[w]));
+    last_raw_[w] = e.position_low16[w];
+    ticks_[w] += dt;
+    rim.v_m_s[w] = dt * m_per_tick;
+  }
+  // Forward kinematics is linear: wheel displacements -> body displacement.
+  kinematics::BodyTwist<double> d;
+  if (kinematics::WheelsToBody(geom_, rim, &d)) {
+    const double mid = odom_.yaw_rad + 0.5 * d.omega_rad_s;
+    odom_.x_m += std::cos(mid) * d.vx_m_s - std::sin(mid) * d.vy_m_s;
+    odom_.y_m += std::sin(mid) * d.vx_m_s + std::cos(mid) * d.vy_m_s;
+    odom_.yaw_rad = std::remainder(odom_.yaw_rad + d.omega_rad_s, 2.0 * M_PI);
+    if (odom_.yaw_rad <= -M_PI) odom_.yaw_rad += 2.0 * M_PI;
+    const double dist = std::hypot(d.vx_m_s, d.vy_m_s);
+    odom_.pose_cov[0] += o_.odom_var_xy_per_m * dist;
+    odom_.pose_cov[4] += o_.odom_var_xy_per_m * dist;
+    odom_.pose_cov[8] += o_.odom_var_yaw_per_rad * std::fabs(d.omega_rad_s);
+  }
+  odom_.twist_cov[0] = odom_.twist_cov[4] = o_.twist_var_linear;
+  odom_.twist_cov[8] = o_.twist_var_angular;
+  odom_.utime = now_us;
+  ++odom_.seq;
+  odom_new_ = true;
+  enc_.utime = now_us;
+  enc_.seq = e.seq;
+  enc_.mcu_time_us = static_cast<int64_t>(std::llround(odom_.seq * o_.feedback_period_s * 1e6));
+  for (int w = 0; w < 3; ++w) {
+    enc_.position_ticks[w] = ticks_[w];
+    enc_.velocity_rad_s[w] = speed_[w];
+    enc_.current_a[w] = current_[w];
+  }
+  enc_new_ = true;
+}
+
+void BaseBridge::OnLinkDown(int64_t now_us) {
+  if (!link_up_) return;
+  link_up_ = false;
+  link_down_since_us_ = now_us;
+  ++counters_.link_losses;
+  have_enc_ = false;  // motion while the link is down is lost; re-base on the next frame
+  sending_ = false;
+  sent_ = {};
+  last_send_us_ = 0;
+}
+
+void BaseBridge::OnLinkUp(int64_t now_us) {
+  (void)now_us;
+  if (link_up_) return;
+  link_up_ = true;
+  ++counters_.reconnects;
+  geometry_checked_ = false;
+}
+
+bool BaseBridge::TakeOdometry(Odometry* out) {
+  if (!odom_new_) return false;
+  *out = odom_;
+  odom_new_ = false;
+  return true;
+}
+
+bool BaseBridge::TakeEncoders(Encoders* out) {
+  if (!enc_new_) return false;
+  *out = enc_;
+  enc_new_ = false;
+  return true;
+}
+
+int64_t BaseBridge::SilentForUs(int64_t now_us) const {
+  return have_hb_ ? now_us - last_hb_us_ : -1;
+}
+
+BaseStatus BaseBridge::status(int64_t now_us) const {
+  BaseStatus s;
+  s.utime = now_us;
+  s.state = have_hb_ ? fw_state_ : 0;
+  s.fault_bits = static_cast<int32_t>(fw_faults_);
+  const int64_t period_us = static_cast<int64_t>(o_.firmware_heartbeat_period_s * 1e6);
+  const int64_t silent = SilentForUs(now_us);
+  s.missed_heartbeats = silent > 0 ? static_cast<int32_t>(silent / period_us) : 0;
+  s.firmware_alive = link_up_ && have_hb_ && s.missed_heartbeats < o_.missed_heartbeats_for_silent;
+  s.bus_voltage_v = bus_voltage_;
+  std::copy(speed_, speed_ + 3, s.wheel_speed_rad_s);
+  std::copy(setpoint_, setpoint_ + 3, s.wheel_setpoint_rad_s);
+  return s;
+}
+
+std::string BaseBridge::Problem(int64_t now_us) const {
+  std::ostringstream s;
+  if (!link_up_) {
+    s << "CAN " << o_.can_url << " down for " << (now_us - link_down_since_us_) / 1000 << " ms";
+    return s.str();
+  }
+  const BaseStatus st = status(now_us);
+  if (!have_hb_) return "no firmware heartbeat yet";
+  if (!st.firmware_alive) {
+    s << "firmware silent: " << st.missed_heartbeats << " heartbeats missed";
+    return s.str();
+  }
+  if (fw_faults_ & firmware::kLatchedFaults) {
+    s << "firmware fault bits 0x" << std::hex << fw_faults_;
+    return s.str();
+  }
+  return last_mismatch_;
+}
+
+}  // namespace omni::base_bridge

@@ -1,0 +1,195 @@
+#include "omni/base_bridge/base_bridge_node.h"
+
+#include <algorithm>
+#include <vector>
+
+#include "omni/base_cmd_t.hpp"
+#include "omni/base_status_t.hpp"
+#include "omni/common/log.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/odometry_t.hpp"
+#include "omni/wheel_encoders_t.hpp"
+
+namespace omni::base_bridge {
+
+BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, const Clock* clock)
+    : o_(options),
+      bus_(bus),
+      clock_(clock),
+      bridge_(options),
+      heartbeat_(bus, "base_bridge", clock) {
+  bus_->Subscribe<omni::base_cmd_t>(o_.cmd_channel, [this](const omni::base_cmd_t& m, int64_t) {
+    Command c;
+    c.mode = static_cast<Command::Mode>(m.mode);
+    if (m.mode != omni::base_cmd_t::MODE_TWIST && m.mode != omni::base_cmd_t::MODE_ESTOP &&
+        m.mode != omni::base_cmd_t::MODE_CLEAR_FAULTS) {
+      c.mode = static_cast<Command::Mode>(-1);
+    }
+    c.vx_m_s = m.vx_m_s;
+    c.vy_m_s = m.vy_m_s;
+    c.omega_rad_s = m.omega_rad_s;
+    bridge_.OnCommand(c, clock_->NowUtime());
+  });
+  const Counters* c = &bridge_.counters();
+  heartbeat_.AddCounter("commands_clamped", [c] { return c->commands_clamped; });
+  heartbeat_.AddCounter("commands_rejected", [c] { return c->commands_rejected; });
+  heartbeat_.AddCounter("can_rx_errors", [c] { return c->can_rx_errors; });
+  heartbeat_.AddCounter("unknown_frames", [c] { return c->unknown_frames; });
+  heartbeat_.AddCounter("missed_fw_heartbeats", [c] { return c->missed_heartbeats; });
+  heartbeat_.AddCounter("feedback_frames_lost", [c] { return c->feedback_frames_lost; });
+  heartbeat_.AddCounter("reconnects", [c] { return c->reconnects; });
+  heartbeat_.AddCounter("link_losses", [c] { return c->link_losses; });
+  heartbeat_.AddCounter("geometry_mismatches", [c] { return c->geometry_mismatches; });
+  heartbeat_.AddCounter("fw_rx_unknown", [c] { return c->firmware_rx_unknown; });
+  heartbeat_.AddCounter("fw_rx_bad_length", [c] { return c->firmware_rx_bad_length; });
+  heartbeat_.AddCounter("fw_max_step_us", [c] { return c->firmware_max_step_us; });
+  heartbeat_.AddCounter("can_rx_overruns",
+                        [this] { return can_ ? can_->stats().rx_overruns : int64_t{0}; });
+  heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "opening " + o_.can_url);
+}
+
+void BaseBridgeNode::TryOpen(int64_t now_us) {
+  last_open_try_us_ = now_us;
+  auto r = can::OpenCanBus(o_.can_url);
+  if (!r.ok()) {
+    if (open_error_ != r.error().message) {
+      LOG_WARN << r.error().ToString() << " (retrying)";
+    }
+    open_error_ = r.error().message;
+    return;
+  }
+  can_ = std::move(r).value();
+  open_error_.clear();
+  LOG_INFO << "CAN " << can_->name() << " open";
+  if (ever_opened_) bridge_.OnLinkUp(now_us);
+  ever_opened_ = true;
+}
+
+void BaseBridgeNode::SpinOnce() {
+  int64_t now = clock_->NowUtime();
+  if (!can_ && now - last_open_try_us_ >= static_cast<int64_t>(o_.reconnect_period_s * 1e6)) {
+    TryOpen(now);
+    if (!can_ && !ever_opened_) {
+      ever_opened_ = true;  // the first failure counts as a link loss, later successes reconnect
+      bridge_.OnLinkDown(now);
+    }
+  }
+  // Bus commands first (non-blocking), then CAN with a short wait.
+  while (bus_->HandleTimeout(0) > 0) {
+  }
+  if (can_) {
+    can::Frame f;
+    for (int n = 0; n < 256; ++n) {
+      auto r = can_->Receive(&f, n == 0 ? 2 : 0);
+      if (!r.ok()) {
+        LOG_WARN << r.error().ToString();
+        can_.reset();
+        bridge_.OnLinkDown(clock_->NowUtime());
+        break;
+      }
+      if (!r.value()) break;
+      if (f.extended || f.rtr) continue;
+      firmware::CanFrame ff;
+      ff.id = static_cast<uint16_t>(f.id);
+      ff.dlc = f.dlc;
+      std::copy(f.data, f.data + 8, ff.data);
+      bridge_.OnFrame(ff, clock_->NowUtime());
+    }
+  } else {
+    struct timespec ts {
+      0, 2000000
+    };
+    nanosleep(&ts, nullptr);
+  }
+  now = clock_->NowUtime();
+  std::vector<firmware::CanFrame> out;
+  bridge_.Tick(now, &out);
+  for (const auto& ff : out) {
+    if (!can_) break;
+    can::Frame f;
+    f.id = ff.id;
+    f.dlc = ff.dlc;
+    std::copy(ff.data, ff.data + 8, f.data);
+    const omni::Status s = can_->Send(f);
+    if (!s.ok()) {
+      LOG_WARN << s.error().ToString();
+      if (s.error().code == ErrorCode::kUnavailable) {
+        can_.reset();
+        bridge_.OnLinkDown(now);
+      }
+    }
+  }
+  Publish(now);
+}
+
+void BaseBridgeNode::Publish(int64_t now) {
+  Odometry od;
+  if (bridge_.TakeOdometry(&od)) {
+    omni::odometry_t m;
+    m.utime = od.utime;
+    m.seq = od.seq;
+    m.frame = o_.odom_frame;
+    m.child_frame = o_.base_frame;
+    m.x_m = od.x_m;
+    m.y_m = od.y_m;
+    m.yaw_rad = od.yaw_rad;
+    m.vx_m_s = od.vx_m_s;
+    m.vy_m_s = od.vy_m_s;
+    m.omega_rad_s = od.omega_rad_s;
+    std::copy(od.pose_cov, od.pose_cov + 9, m.pose_covariance);
+    std::copy(od.twist_cov, od.twist_cov + 9, m.twist_covariance);
+    bus_->Publish(o_.odom_channel, m);
+  }
+  Encoders en;
+  if (bridge_.TakeEncoders(&en)) {
+    omni::wheel_encoders_t m;
+    m.utime = en.utime;
+    m.mcu_time_us = en.mcu_time_us;
+    m.seq = en.seq;
+    m.num_wheels = 3;
+    m.position_ticks.assign(en.position_ticks, en.position_ticks + 3);
+    m.velocity_rad_s.assign(en.velocity_rad_s, en.velocity_rad_s + 3);
+    m.current_a.assign(en.current_a, en.current_a + 3);
+    m.ticks_per_rev = static_cast<float>(o_.ticks_per_rev);
+    bus_->Publish(o_.encoders_channel, m);
+  }
+  if (now - last_status_us_ >= static_cast<int64_t>(1e6 / o_.status_rate_hz)) {
+    last_status_us_ = now;
+    const BaseStatus s = bridge_.status(now);
+    const Counters& c = bridge_.counters();
+    omni::base_status_t m;
+    m.utime = s.utime;
+    m.state = s.state;
+    m.fault_bits = s.fault_bits;
+    m.firmware_alive = s.firmware_alive;
+    m.missed_heartbeats = s.missed_heartbeats;
+    m.bus_voltage_v = s.bus_voltage_v;
+    std::copy(s.wheel_speed_rad_s, s.wheel_speed_rad_s + 3, m.wheel_speed_rad_s);
+    std::copy(s.wheel_setpoint_rad_s, s.wheel_setpoint_rad_s + 3, m.wheel_setpoint_rad_s);
+    m.commands_clamped = c.commands_clamped;
+    m.can_rx_errors = c.can_rx_errors + c.unknown_frames;
+    m.feedback_frames_lost = c.feedback_frames_lost;
+    bus_->Publish(o_.status_channel, m);
+    const std::string problem = bridge_.Problem(now);
+    if (problem.empty()) {
+      heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "ok");
+    } else {
+      const bool broken = !bridge_.link_up() || !s.firmware_alive;
+      heartbeat_.SetState(
+          broken ? omni::heartbeat_t::STATE_ERROR : omni::heartbeat_t::STATE_DEGRADED, problem);
+    }
+  }
+  heartbeat_.Tick();
+}
+
+void BaseBridgeNode::Run(const std::atomic<bool>* stop, double max_s) {
+  const int64_t start = MonotonicMicros();
+  while (!stop->load()) {
+    SpinOnce();
+    if (max_s > 0 && (MonotonicMicros() - start) * 1e-6 > max_s) break;
+  }
+  heartbeat_.SetState(omni::heartbeat_t::STATE_STOPPING, "stopping");
+  heartbeat_.Tick(/*force=*/true);
+}
+
+}  // namespace omni::base_bridge

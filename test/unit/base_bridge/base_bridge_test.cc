@@ -1,0 +1,274 @@
+// Base bridge library: limits, ramps, odometry from encoder frames, loss/silence detection,
+// malformed frames; the node's reconnect on a user-space CAN bus; the shipped configs.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <vector>
+
+#include "omni/base_bridge/base_bridge.h"
+#include "omni/base_bridge/base_bridge_node.h"
+#include "omni/can/shm_can_bus.h"
+#include "omni/firmware/can_protocol.h"
+#include "omni/firmware/firmware.h"
+
+namespace omni::base_bridge {
+namespace {
+
+namespace fwcan = omni::firmware::can;
+using omni::firmware::CanFrame;
+
+BaseBridgeOptions TestOptions() {
+  BaseBridgeOptions o;
+  o.max_vx_m_s = 1.0;
+  o.max_vy_m_s = 0.5;
+  o.max_omega_rad_s = 2.0;
+  o.max_linear_accel_m_s2 = 1.0;
+  o.max_angular_accel_rad_s2 = 4.0;
+  return o;
+}
+
+Command Twist(double vx, double vy, double w) {
+  Command c;
+  c.vx_m_s = vx;
+  c.vy_m_s = vy;
+  c.omega_rad_s = w;
+  return c;
+}
+
+std::vector<fwcan::BodyTwist> SentTwists(const std::vector<CanFrame>& frames) {
+  std::vector<fwcan::BodyTwist> out;
+  for (const CanFrame& f : frames) {
+    if (fwcan::CommandOf(f.id) != fwcan::kSetBodyTwist) continue;
+    fwcan::BodyTwist t;
+    EXPECT_TRUE(fwcan::DecodeBodyTwist(f, &t));
+    out.push_back(t);
+  }
+  return out;
+}
+
+TEST(BaseBridgeTest, ClampsAndCountsCommandsAboveLimits) {
+  BaseBridge b(TestOptions());
+  b.OnCommand(Twist(0.5, 0.2, 1.0), 0);
+  EXPECT_EQ(b.counters().commands_clamped, 0);
+  b.OnCommand(Twist(3.0, -2.0, 0.0), 0);
+  EXPECT_EQ(b.counters().commands_clamped, 1);
+  b.OnCommand(Twist(NAN, 0.0, 0.0), 0);
+  EXPECT_EQ(b.counters().commands_rejected, 1);
+  // The clamped command ramps up to (1.0, -0.5) and never beyond.
+  std::vector<CanFrame> out;
+  for (int64_t t = 0; t < 3000000; t += 1000) {
+    if (t % 100000 == 0) b.OnCommand(Twist(3.0, -2.0, 0.0), t);
+    b.Tick(t, &out);
+  }
+  const auto sent = SentTwists(out);
+  ASSERT_FALSE(sent.empty());
+  EXPECT_NEAR(sent.back().vx_m_s, 1.0, 1e-3);
+  EXPECT_NEAR(sent.back().vy_m_s, -0.5, 1e-3);
+  for (const auto& t : sent) {
+    EXPECT_LE(std::fabs(t.vx_m_s), 1.0 + 1e-3);
+    EXPECT_LE(std::fabs(t.vy_m_s), 0.5 + 1e-3);
+  }
+}
+
+TEST(BaseBridgeTest, FixedRateAndAccelerationRamp) {
+  BaseBridge b(TestOptions());
+  std::vector<CanFrame> out;
+  for (int64_t t = 0; t <= 500000; t += 1000) {  // 0.5 s at 1 kHz ticks, commands at 10 Hz
+    if (t % 100000 == 0) b.OnCommand(Twist(1.0, 0.0, 0.0), t);
+    b.Tick(t, &out);
+  }
+  const auto sent = SentTwists(out);
+  EXPECT_NEAR(static_cast<double>(sent.size()), 51.0, 1.0);  // 100 Hz
+  for (size_t i = 1; i < sent.size(); ++i) {
+    EXPECT_LE(sent[i].vx_m_s - sent[i - 1].vx_m_s, 1.0 * 0.01 + 1.5e-3);  // 1 m/s^2 at 100 Hz
+  }
+  EXPECT_NEAR(sent.back().vx_m_s, 0.5, 0.02);
+}
+
+TEST(BaseBridgeTest, StaleCommandRampsToZeroThenGoesQuiet) {
+  BaseBridge b(TestOptions());
+  std::vector<CanFrame> out;
+  b.OnCommand(Twist(0.3, 0.0, 0.0), 0);
+  for (int64_t t = 0; t <= 2000000; t += 1000) b.Tick(t, &out);
+  const auto sent = SentTwists(out);
+  ASSERT_FALSE(sent.empty());
+  EXPECT_EQ(sent.back().vx_m_s, 0.f);
+  out.clear();
+  for (int64_t t = 2000000; t <= 2500000; t += 1000) b.Tick(t, &out);
+  EXPECT_TRUE(SentTwists(out).empty()) << "at rest with no command: let the firmware park";
+}
+
+TEST(BaseBridgeTest, EstopAndClearFaultsGoOutAtOnce) {
+  BaseBridge b(TestOptions());
+  std::vector<CanFrame> out;
+  b.OnCommand(Twist(0.3, 0.0, 0.0), 0);
+  b.Tick(0, &out);
+  Command e;
+  e.mode = Command::kEstop;
+  b.OnCommand(e, 1000);
+  out.clear();
+  b.Tick(2000, &out);
+  ASSERT_FALSE(out.empty());
+  EXPECT_EQ(out[0].id, fwcan::MakeId(1, fwcan::kEstop));
+  Command c;
+  c.mode = Command::kClearFaults;
+  b.OnCommand(c, 3000);
+  out.clear();
+  b.Tick(4000, &out);
+  ASSERT_FALSE(out.empty());
+  EXPECT_EQ(out[0].id, fwcan::MakeId(1, fwcan::kClearFaults));
+}
+
+// Generates the encoder frames the firmware would send for a constant body twist.
+struct FakeFirmware {
+  explicit FakeFirmware(const BaseBridgeOptions& o)
+      : g{o.alpha_rad, o.center_to_wheel_m, o.wheel_radius_m},
+        ticks_per_m(o.ticks_per_rev / (2 * M_PI * o.wheel_radius_m)) {}
+  CanFrame Next(const kinematics::BodyTwist<double>& body, double dt) {
+    const auto rim = kinematics::BodyToWheels(g, body);
+    fwcan::EncoderFeedback e;
+    for (int w = 0; w < 3; ++w) {
+      pos_m[w] += rim.v_m_s[w] * dt;
+      const int64_t counts = static_cast<int64_t>(std::floor(pos_m[w] * ticks_per_m)) + 60000;
+      e.position_low16[w] = static_cast<uint16_t>(counts & 0xFFFF);
+    }
+    e.seq = ++seq;
+    return fwcan::EncodeEncoderFeedback(1, e);
+  }
+  kinematics::OmniGeometry<double> g;
+  double ticks_per_m;
+  double pos_m[3] = {0, 0, 0};
+  uint16_t seq = 65530;  // wraps during the test
+};
+
+TEST(BaseBridgeTest, OdometryIntegratesForwardKinematics) {
+  const BaseBridgeOptions o = TestOptions();
+  BaseBridge b(o);
+  FakeFirmware fw(o);
+  int64_t t = 0;
+  // 2 s sideways at 0.5 m/s, then a quarter turn in place, then 1 s forward at 0.4 m/s.
+  for (int i = 0; i <= 200; ++i) b.OnFrame(fw.Next({0.0, 0.5, 0.0}, 0.01), t += 10000);
+  for (int i = 0; i < 100; ++i) b.OnFrame(fw.Next({0.0, 0.0, M_PI / 2}, 0.01), t += 10000);
+  for (int i = 0; i < 100; ++i) b.OnFrame(fw.Next({0.4, 0.0, 0.0}, 0.01), t += 10000);
+  Odometry od;
+  ASSERT_TRUE(b.TakeOdometry(&od));
+  EXPECT_NEAR(od.x_m, 0.0, 0.003);
+  EXPECT_NEAR(od.y_m, 1.0 + 0.4, 0.004);  // facing +y after the turn, forward is +y
+  EXPECT_NEAR(od.yaw_rad, M_PI / 2, 0.005);
+  EXPECT_GT(od.pose_cov[0], 0.0);
+  EXPECT_FALSE(b.TakeOdometry(&od)) << "only once per frame";
+  EXPECT_EQ(b.counters().feedback_frames_lost, 0);
+}
+
+TEST(BaseBridgeTest, LostFeedbackFramesCountedOdometrySurvives) {
+  const BaseBridgeOptions o = TestOptions();
+  BaseBridge b(o);
+  FakeFirmware fw(o);
+  int64_t t = 0;
+  for (int i = 0; i <= 100; ++i) {
+    const CanFrame f = fw.Next({0.5, 0.0, 0.0}, 0.01);
+    if (i % 10 == 5) continue;  // lose every 10th frame
+    b.OnFrame(f, t += 10000);
+  }
+  Odometry od;
+  ASSERT_TRUE(b.TakeOdometry(&od));
+  EXPECT_NEAR(od.x_m, 0.5, 0.003);  // positions are absolute: nothing is lost with the frames
+  EXPECT_EQ(b.counters().feedback_frames_lost, 10);
+}
+
+TEST(BaseBridgeTest, SilentFirmwareDetected) {
+  BaseBridge b(TestOptions());
+  fwcan::Heartbeat hb;
+  hb.state = 2;
+  int64_t t = 0;
+  for (int i = 0; i < 10; ++i) b.OnFrame(fwcan::EncodeHeartbeat(1, hb), t += 100000);
+  EXPECT_TRUE(b.status(t + 50000).firmware_alive);
+  EXPECT_EQ(b.status(t + 50000).state, 2);
+  EXPECT_EQ(b.status(t + 150000).missed_heartbeats, 1);
+  EXPECT_TRUE(b.status(t + 250000).firmware_alive);
+  EXPECT_FALSE(b.status(t + 350000).firmware_alive);
+  EXPECT_NE(b.Problem(t + 350000).find("silent"), std::string::npos);
+  // It comes back after 1 s: 9 heartbeats were missed in total.
+  b.OnFrame(fwcan::EncodeHeartbeat(1, hb), t += 1000000);
+  EXPECT_TRUE(b.status(t).firmware_alive);
+  EXPECT_EQ(b.counters().missed_heartbeats, 9);
+}
+
+TEST(BaseBridgeTest, MalformedAndForeignFramesCounted) {
+  BaseBridge b(TestOptions());
+  CanFrame bad = fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{});
+  bad.dlc = 3;
+  b.OnFrame(bad, 0);
+  CanFrame unknown;
+  unknown.id = fwcan::MakeId(1, 0x1E);
+  unknown.dlc = 8;
+  b.OnFrame(unknown, 0);
+  b.OnFrame(fwcan::EncodeHeartbeat(5, fwcan::Heartbeat{}), 0);  // node 5: not ours
+  EXPECT_EQ(b.counters().can_rx_errors, 1);
+  EXPECT_EQ(b.counters().unknown_frames, 1);
+  EXPECT_EQ(b.counters().frames_in, 2);
+  EXPECT_FALSE(b.status(0).firmware_alive);
+}
+
+TEST(BaseBridgeTest, GeometryMismatchReported) {
+  BaseBridge b(TestOptions());
+  b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), 2000000);
+  std::vector<CanFrame> out;
+  b.Tick(2000000, &out);
+  int queries = 0;
+  for (const CanFrame& f : out) queries += fwcan::CommandOf(f.id) == fwcan::kGetParam;
+  EXPECT_EQ(queries, 5);
+  fwcan::ParamReply r;
+  r.id = omni::firmware::kParamWheelRadius;
+  r.value = 0.06f;
+  b.OnFrame(fwcan::EncodeParamValue(1, r), 2000000);
+  EXPECT_EQ(b.counters().geometry_mismatches, 1);
+  EXPECT_NE(b.Problem(2000000).find("wheel_radius_m"), std::string::npos);
+}
+
+TEST(BaseBridgeConfigTest, ShippedConfigsLoad) {
+  auto o = LoadBaseBridgeOptions(std::string(OMNI_SOURCE_DIR) + "/config/base_bridge.yaml");
+  ASSERT_TRUE(o.ok()) << o.error().ToString();
+  EXPECT_EQ(o->can_url, "socketcan:can0");
+  EXPECT_DOUBLE_EQ(o->wheel_radius_m, 0.05);
+}
+
+TEST(BaseBridgeConfigTest, MisspelledKeyRejected) {
+  auto o = LoadBaseBridgeOptionsFromString(
+      "can: shm:x\ngeometry: {center_to_wheel_m: 0.15, wheel_radius_m: 0.05, ticks_per_rev: 1440,"
+      " wheel_radus_m: 1}\nlimits: {max_vx_m_s: 1, max_vy_m_s: 1, max_omega_rad_s: 1,"
+      " max_linear_accel_m_s2: 1, max_angular_accel_rad_s2: 1}\n",
+      "inline");
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("wheel_radus_m"), std::string::npos);
+}
+
+// The node on memq:// and a user-space CAN bus: the link goes down, the bridge reports it and
+// reconnects when it comes back.
+TEST(BaseBridgeNodeTest, ReconnectsWhenCanComesBack) {
+  const std::string name = "test-bridge-" + std::to_string(getpid());
+  (void)can::ShmCanBus::Remove(name);
+  auto bus = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok()) << bus.error().ToString();
+  BaseBridgeOptions o = TestOptions();
+  o.can_url = "shm:" + name;
+  o.reconnect_period_s = 0.02;
+  SystemClock clock;
+  BaseBridgeNode node(o, bus->get(), &clock);
+  for (int i = 0; i < 5; ++i) node.SpinOnce();
+  EXPECT_TRUE(node.bridge().link_up());
+  ASSERT_TRUE(can::ShmCanBus::SetLinkUp(name, false).ok());
+  for (int i = 0; i < 5; ++i) node.SpinOnce();
+  EXPECT_FALSE(node.bridge().link_up());
+  EXPECT_EQ(node.bridge().counters().link_losses, 1);
+  ASSERT_TRUE(can::ShmCanBus::SetLinkUp(name, true).ok());
+  const int64_t until = MonotonicMicros() + 1000000;
+  while (!node.bridge().link_up() && MonotonicMicros() < until) node.SpinOnce();
+  EXPECT_TRUE(node.bridge().link_up());
+  EXPECT_EQ(node.bridge().counters().reconnects, 1);
+  (void)can::ShmCanBus::Remove(name);
+}
+
+}  // namespace
+}  // namespace omni::base_bridge
