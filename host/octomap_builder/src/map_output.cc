@@ -46,6 +46,31 @@ Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
   return std::unique_ptr<octomap::OcTree>(oc);
 }
 
+bool UpAxis::Parse(const std::string& text, UpAxis* out) {
+  std::string t = text;
+  int sign = 1;
+  if (!t.empty() && (t[0] == '-' || t[0] == '+')) {
+    sign = t[0] == '-' ? -1 : 1;
+    t = t.substr(1);
+  }
+  if (t != "x" && t != "y" && t != "z") return false;
+  out->axis = t[0] - 'x';
+  out->sign = sign;
+  return true;
+}
+
+namespace {
+// (grid x, grid y, height) of a map point for an up axis.
+struct Planar {
+  double u, v, h;
+};
+Planar ToPlanar(double x, double y, double z, const UpAxis& up) {
+  const double p[3] = {x, y, z};
+  const int a = up.axis, b = (up.axis + 1) % 3, c = (up.axis + 2) % 3;
+  return {p[b], up.sign * p[c], up.sign * p[a]};
+}
+}  // namespace
+
 Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProjectionOptions& o) {
   if (!(o.max_z_m > o.min_z_m))
     return MakeError(ErrorCode::kInvalidArgument, "grid projection: need min_z_m < max_z_m");
@@ -58,11 +83,12 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProject
   };
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
     const double half = it.getSize() / 2;
-    if (!in_band(it.getZ(), half)) continue;
-    min_x = std::min(min_x, it.getX() - half);
-    min_y = std::min(min_y, it.getY() - half);
-    max_x = std::max(max_x, it.getX() + half);
-    max_y = std::max(max_y, it.getY() + half);
+    const Planar p = ToPlanar(it.getX(), it.getY(), it.getZ(), o.up);
+    if (!in_band(p.h, half)) continue;
+    min_x = std::min(min_x, p.u - half);
+    min_y = std::min(min_y, p.v - half);
+    max_x = std::max(max_x, p.u + half);
+    max_y = std::max(max_y, p.v + half);
   }
   io::GridMap g;
   g.resolution_m = res;
@@ -77,16 +103,17 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProject
   // Pass 2: cells covered by each leaf's footprint (cell centres inside it).
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
     const double half = it.getSize() / 2;
-    if (!in_band(it.getZ(), half)) continue;
+    const Planar p = ToPlanar(it.getX(), it.getY(), it.getZ(), o.up);
+    if (!in_band(p.h, half)) continue;
     const bool occ = tree.isNodeOccupied(*it);
     const int c0 =
-        std::max(0, static_cast<int>(std::floor((it.getX() - half - g.origin_x_m) / res + 1e-6)));
-    const int c1 = std::min(
-        g.width, static_cast<int>(std::ceil((it.getX() + half - g.origin_x_m) / res - 1e-6)));
+        std::max(0, static_cast<int>(std::floor((p.u - half - g.origin_x_m) / res + 1e-6)));
+    const int c1 =
+        std::min(g.width, static_cast<int>(std::ceil((p.u + half - g.origin_x_m) / res - 1e-6)));
     const int r0 =
-        std::max(0, static_cast<int>(std::floor((it.getY() - half - g.origin_y_m) / res + 1e-6)));
-    const int r1 = std::min(
-        g.height, static_cast<int>(std::ceil((it.getY() + half - g.origin_y_m) / res - 1e-6)));
+        std::max(0, static_cast<int>(std::floor((p.v - half - g.origin_y_m) / res + 1e-6)));
+    const int r1 =
+        std::min(g.height, static_cast<int>(std::ceil((p.v + half - g.origin_y_m) / res - 1e-6)));
     for (int r = r0; r < r1; ++r)
       for (int c = c0; c < c1; ++c) {
         int8_t& cell = g.at(c, r);
@@ -99,14 +126,21 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProject
   return g;
 }
 
-io::Image RenderTopView(const octomap::OcTree& tree) {
-  double x0, y0, z0, x1, y1, z1;
-  tree.getMetricMin(x0, y0, z0);
-  tree.getMetricMax(x1, y1, z1);
+io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
   const double res = tree.getResolution();
-  if (tree.size() == 0 || !(x1 > x0) || !(y1 > y0)) return io::Image::Make(1, 1, 3, 128);
-  const int w = std::max(1, static_cast<int>(std::ceil((x1 - x0) / res)));
-  const int h = std::max(1, static_cast<int>(std::ceil((y1 - y0) / res)));
+  if (tree.size() == 0) return io::Image::Make(1, 1, 3, 128);
+  double x0 = std::numeric_limits<double>::max(), y0 = x0;
+  double x1 = std::numeric_limits<double>::lowest(), y1 = x1;
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    const double half = it.getSize() / 2;
+    const Planar p = ToPlanar(it.getX(), it.getY(), it.getZ(), up);
+    x0 = std::min(x0, p.u - half);
+    y0 = std::min(y0, p.v - half);
+    x1 = std::max(x1, p.u + half);
+    y1 = std::max(y1, p.v + half);
+  }
+  const int w = std::max(1, static_cast<int>(std::ceil((x1 - x0) / res - 1e-6)));
+  const int h = std::max(1, static_cast<int>(std::ceil((y1 - y0) / res - 1e-6)));
   if (static_cast<double>(w) * h > 1e8) return io::Image::Make(1, 1, 3, 128);
   std::vector<float> top(static_cast<size_t>(w) * h, -std::numeric_limits<float>::infinity());
   std::vector<uint8_t> known(static_cast<size_t>(w) * h, 0);
@@ -114,14 +148,15 @@ io::Image RenderTopView(const octomap::OcTree& tree) {
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
     const double half = it.getSize() / 2;
     const bool occ = tree.isNodeOccupied(*it);
-    const int c0 = std::max(0, static_cast<int>(std::floor((it.getX() - half - x0) / res + 1e-6)));
-    const int c1 = std::min(w, static_cast<int>(std::ceil((it.getX() + half - x0) / res - 1e-6)));
-    const int r0 = std::max(0, static_cast<int>(std::floor((it.getY() - half - y0) / res + 1e-6)));
-    const int r1 = std::min(h, static_cast<int>(std::ceil((it.getY() + half - y0) / res - 1e-6)));
-    const float ztop = static_cast<float>(it.getZ() + half);
+    const Planar p = ToPlanar(it.getX(), it.getY(), it.getZ(), up);
+    const int c0 = std::max(0, static_cast<int>(std::floor((p.u - half - x0) / res + 1e-6)));
+    const int c1 = std::min(w, static_cast<int>(std::ceil((p.u + half - x0) / res - 1e-6)));
+    const int r0 = std::max(0, static_cast<int>(std::floor((p.v - half - y0) / res + 1e-6)));
+    const int r1 = std::min(h, static_cast<int>(std::ceil((p.v + half - y0) / res - 1e-6)));
+    const float ztop = static_cast<float>(p.h + half);
     if (occ) {
-      zmin = std::min(zmin, it.getZ());
-      zmax = std::max(zmax, it.getZ());
+      zmin = std::min(zmin, p.h);
+      zmax = std::max(zmax, p.h);
     }
     for (int r = r0; r < r1; ++r)
       for (int c = c0; c < c1; ++c) {

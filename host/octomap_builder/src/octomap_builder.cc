@@ -1,5 +1,6 @@
 #include "omni/octomap_builder/octomap_builder.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace omni::octo {
@@ -73,6 +74,9 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   grid.Get("min_z_m", &o.grid.min_z_m, Required());
   grid.Get("max_z_m", &o.grid.max_z_m, Required());
   grid.Get("resolution_m", &o.grid.resolution_m, Optional(), NonNegative<double>());
+  std::string up = "z";
+  grid.Get("up_axis", &up, Optional(), OneOf({"x", "y", "z", "-x", "-y", "-z"}));
+  UpAxis::Parse(up, &o.grid.up);
   if (o.grid.min_z_m >= o.grid.max_z_m) grid.AddError("min_z_m", "must be < max_z_m");
 
   auto out = r.Section("output");
@@ -151,6 +155,40 @@ std::vector<Eigen::Vector3f> OctomapBuilder::AggregateCloud() const {
   out.reserve(cloud_.size());
   for (const auto& [key, c] : cloud_) out.push_back((c.sum / c.n).cast<float>());
   return out;
+}
+
+OctomapPipeline::OctomapPipeline(const OctomapBuilderOptions& options)
+    : builder_(options), poser_(options.poser) {}
+
+void OctomapPipeline::AddPose(int64_t utime, const Pose2& robot_in_map) {
+  newest_utime_ = std::max(newest_utime_, utime);
+  poser_.AddPose(utime, robot_in_map);
+}
+
+void OctomapPipeline::AddDepth(DepthImage image) {
+  const int64_t t = image.utime;
+  newest_utime_ = std::max(newest_utime_, t);
+  poser_.AddFrame(t, std::move(image));
+}
+
+int OctomapPipeline::Process(int64_t now_utime) {
+  int n = 0;
+  for (auto& posed : poser_.Poll(now_utime)) {
+    const int64_t t0 = ParallelKeySetInserter::NowMicros();
+    const Eigen::Isometry3d cam = CameraInMap(posed.robot_in_map, builder_.options().mount);
+    auto st = builder_.InsertDepth(posed.frame, cam);
+    if (!st.ok()) {
+      ++counters_.frames_invalid;
+      last_error_ = st.error().message;
+      continue;
+    }
+    ++counters_.frames_inserted;
+    counters_.points_inserted += static_cast<int64_t>(st->points);
+    counters_.last_frame_us = ParallelKeySetInserter::NowMicros() - t0;
+    newest_inserted_utime_ = std::max(newest_inserted_utime_, posed.utime);
+    ++n;
+  }
+  return n;
 }
 
 }  // namespace omni::octo

@@ -21,10 +21,21 @@ Status SaveTree(const octomap::OcTree& tree, const std::string& base);
 // Reads a .bt (binary) or .ot (full) file holding an OcTree.
 Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path);
 
+// Which map axis is "up" (z for the robot's map frame; camera-posed datasets often have -y).
+// The grid's x, y are the remaining axes in right-handed order: up z -> (x, y), up y -> (z, x),
+// up x -> (y, z); a negative up axis mirrors the grid's second axis.
+struct UpAxis {
+  int axis = 2;  // 0 x, 1 y, 2 z
+  int sign = 1;  // +1 or -1
+  // Parses "x", "-y", "z", ...; false for anything else.
+  static bool Parse(const std::string& text, UpAxis* out);
+};
+
 struct GridProjectionOptions {
-  double min_z_m = 0.05;  // height band, map frame: voxels overlapping [min_z, max_z] count
+  double min_z_m = 0.05;  // height band along `up`: voxels overlapping [min_z, max_z] count
   double max_z_m = 1.8;
   double resolution_m = 0;  // grid cell edge; 0: the tree's resolution
+  UpAxis up;
 };
 
 // Occupied (100) where any occupied leaf overlaps the band above the cell, else free (0) where
@@ -34,6 +45,6 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree,
 
 // Top view of the occupied voxels, one pixel per leaf column, coloured by the height of the
 // highest occupied voxel (blue low .. red high), light grey where only free space is known.
-io::Image RenderTopView(const octomap::OcTree& tree);
+io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up = {});
 
 }  // namespace omni::octo

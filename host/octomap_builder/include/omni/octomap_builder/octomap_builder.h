@@ -99,4 +99,40 @@ class OctomapBuilder {
   int64_t frames_inserted_ = 0;
 };
 
+// The process logic without the bus: depth frames and 2D poses in, posed frames inserted.
+// The node feeds it from LCM subscriptions, `omni-octomap build` from a log file.
+class OctomapPipeline {
+ public:
+  explicit OctomapPipeline(const OctomapBuilderOptions& options);
+
+  void AddPose(int64_t utime, const Pose2& robot_in_map);
+  void AddDepth(DepthImage image);
+  // Poses and inserts what can be posed by `now_utime` (the newest data time seen when
+  // replaying). Returns the number of frames inserted.
+  int Process(int64_t now_utime);
+  // Newest time of any pose or frame given so far (the default `now`).
+  int64_t newest_utime() const { return newest_utime_; }
+
+  struct Counters {
+    int64_t frames_inserted = 0;
+    int64_t frames_invalid = 0;  // posed but rejected by DepthToPoints (bad intrinsics, size)
+    int64_t points_inserted = 0;
+    int64_t last_frame_us = 0;  // time the last insertion took (monotonic clock)
+  };
+  const Counters& counters() const { return counters_; }
+  const FramePoserCounters& poser_counters() const { return poser_.counters(); }
+  OctomapBuilder& builder() { return builder_; }
+  const OctomapBuilder& builder() const { return builder_; }
+  int64_t newest_inserted_utime() const { return newest_inserted_utime_; }
+  const std::string& last_error() const { return last_error_; }
+
+ private:
+  OctomapBuilder builder_;
+  FramePoser<DepthImage> poser_;
+  Counters counters_;
+  int64_t newest_utime_ = 0;
+  int64_t newest_inserted_utime_ = 0;
+  std::string last_error_;
+};
+
 }  // namespace omni::octo

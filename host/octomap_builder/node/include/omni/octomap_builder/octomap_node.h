@@ -1,0 +1,53 @@
+// The octomap_builder node: bus I/O around OctomapPipeline. Subscribes to DEPTH and
+// POSE_<source>; publishes OCTOMAP and GRID_OCTO on their intervals; saves map.bt/.ot at an
+// interval and on exit; heartbeat with the frame counters.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/common/time.h"
+#include "omni/depth_image_t.hpp"
+#include "omni/octomap_builder/octomap_builder.h"
+#include "omni/octomap_t.hpp"
+
+namespace omni::octo {
+
+// Decodes a depth message (RAW and ZLIB encodings; see DecodeDepthData).
+Result<DepthImage> FromDepthMessage(const omni::depth_image_t& msg);
+// An OCTOMAP message holding the tree in binary (.bt) or full (.ot) form.
+omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
+                                 const std::string& frame, const std::string& source, bool binary);
+
+class OctomapNode {
+ public:
+  // `bus` and `clock` must outlive the node.
+  OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock);
+
+  // Inserts posed frames; publishes, saves and beats when their periods have passed since
+  // the last time (`mono_us`: a monotonic time in microseconds).
+  void Tick(int64_t mono_us);
+  bool PublishOctomap();
+  bool PublishGrid();
+  // Writes out_dir/map.{bt,ot}, out_dir/grid.{pgm,yaml,png}, out_dir/view.png and, with
+  // keep_cloud, out_dir/map.pcd.
+  Status SaveOutputs();
+
+  OctomapPipeline& pipeline() { return pipeline_; }
+  int64_t depth_decode_errors() const { return depth_decode_errors_; }
+  bus::Heartbeat& heartbeat() { return heartbeat_; }
+
+ private:
+  bus::Bus* bus_;
+  OctomapBuilderOptions options_;
+  const Clock* clock_;
+  OctomapPipeline pipeline_;
+  bus::Heartbeat heartbeat_;
+  int64_t depth_decode_errors_ = 0;
+  int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
+  int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
+};
+
+}  // namespace omni::octo

@@ -1,0 +1,157 @@
+#include "omni/octomap_builder/octomap_node.h"
+
+#include <filesystem>
+
+#include "omni/bus/convert.h"
+#include "omni/common/log.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/grid.h"
+#include "omni/octomap_builder/depth_io.h"
+#include "omni/pose2d_t.hpp"
+
+namespace omni::octo {
+
+Result<DepthImage> FromDepthMessage(const omni::depth_image_t& m) {
+  DepthImage im;
+  im.utime = m.utime;
+  im.width = m.width;
+  im.height = m.height;
+  im.intrinsics = {m.fx, m.fy, m.cx, m.cy, m.depth_scale};
+  if (m.size != static_cast<int32_t>(m.data.size()))
+    return MakeError(ErrorCode::kParse, "depth message: size field disagrees with data");
+  Status s = DecodeDepthData(m.encoding, m.data.data(), m.data.size(), m.width, m.height, &im.data);
+  if (!s.ok()) return s.error();
+  const std::string bad = im.intrinsics.Validate();
+  if (!bad.empty()) return MakeError(ErrorCode::kInvalidArgument, "depth message: " + bad);
+  return im;
+}
+
+omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
+                                 const std::string& frame, const std::string& source, bool binary) {
+  omni::octomap_t msg;
+  msg.utime = utime;
+  msg.frame = frame;
+  msg.source = source;
+  msg.tree_type = tree.getTreeType();
+  msg.resolution_m = tree.getResolution();
+  msg.binary = binary;
+  const std::string bytes = SerializeTree(tree, binary);
+  msg.data.assign(bytes.begin(), bytes.end());
+  msg.size = static_cast<int32_t>(msg.data.size());
+  return msg;
+}
+
+OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock)
+    : bus_(bus),
+      options_(options),
+      clock_(clock),
+      pipeline_(options),
+      heartbeat_(bus, "octomap_builder", clock,
+                 static_cast<int64_t>(options.heartbeat_period_s * 1e6)) {
+  bus_->Subscribe<omni::pose2d_t>(options_.PoseChannel(), [this](const omni::pose2d_t& m, int64_t) {
+    if (!std::isfinite(m.x_m) || !std::isfinite(m.y_m) || !std::isfinite(m.yaw_rad)) {
+      ++bus_->counters().drops;
+      return;
+    }
+    pipeline_.AddPose(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
+  });
+  bus_->Subscribe<omni::depth_image_t>(
+      options_.depth_channel, [this](const omni::depth_image_t& m, int64_t) {
+        auto im = FromDepthMessage(m);
+        if (!im.ok()) {
+          ++depth_decode_errors_;
+          LOG_DEBUG << "depth frame " << m.seq << ": " << im.error().message;
+          return;
+        }
+        pipeline_.AddDepth(std::move(*im));
+      });
+  const auto& pc = pipeline_.poser_counters();
+  const auto& c = pipeline_.counters();
+  heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
+  heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });
+  heartbeat_.AddCounter("frames_dropped_no_pose", [&pc] { return pc.frames_dropped_no_pose; });
+  heartbeat_.AddCounter("frames_dropped_queue", [&pc] { return pc.frames_dropped_queue; });
+  heartbeat_.AddCounter("out_of_order",
+                        [&pc] { return pc.frames_out_of_order + pc.poses_out_of_order; });
+  heartbeat_.AddCounter("decode_errors", [this] {
+    return depth_decode_errors_ + bus_->counters().decode_errors.load();
+  });
+  heartbeat_.AddCounter("frames_inserted", [&c] { return c.frames_inserted; });
+  heartbeat_.AddCounter("frames_invalid", [&c] { return c.frames_invalid; });
+  heartbeat_.AddCounter("last_frame_us", [&c] { return c.last_frame_us; });
+  heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "waiting for depth and poses");
+}
+
+void OctomapNode::Tick(int64_t mono_us) {
+  pipeline_.Process(pipeline_.newest_utime());
+  const int64_t inserted = pipeline_.counters().frames_inserted;
+  auto due = [mono_us](int64_t* last, double period_s) {
+    if (*last < 0) *last = mono_us;  // periods count from the first tick
+    if (mono_us - *last < static_cast<int64_t>(period_s * 1e6)) return false;
+    *last = mono_us;
+    return true;
+  };
+  if (due(&last_octomap_us_, options_.octomap_interval_s) && inserted > published_octomap_frames_) {
+    PublishOctomap();
+    published_octomap_frames_ = inserted;
+  }
+  if (due(&last_grid_us_, options_.grid_interval_s) && inserted > published_grid_frames_) {
+    PublishGrid();
+    published_grid_frames_ = inserted;
+  }
+  if (due(&last_save_us_, options_.save_interval_s) && inserted > saved_frames_) {
+    Status s = SaveOutputs();
+    if (!s.ok()) {
+      LOG_WARN << s.message();
+    }
+    saved_frames_ = inserted;
+  }
+  if (inserted > 0) {
+    const auto& pc = pipeline_.poser_counters();
+    if (pc.frames_dropped_no_pose > pc.frames_posed)
+      heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, "most frames have no pose");
+    else
+      heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  }
+  heartbeat_.Tick();
+}
+
+bool OctomapNode::PublishOctomap() {
+  return bus_->Publish(
+      options_.octomap_channel,
+      ToOctomapMessage(pipeline_.builder().tree(), pipeline_.newest_inserted_utime(),
+                       options_.map_frame, options_.pose_source, options_.octomap_binary));
+}
+
+bool OctomapNode::PublishGrid() {
+  auto grid = ProjectToGrid(pipeline_.builder().tree(), options_.grid);
+  if (!grid.ok() || grid->width == 0) return false;
+  auto msg = bus::ToGridMessage(*grid, pipeline_.newest_inserted_utime(), "octomap");
+  msg.frame = options_.map_frame;
+  return bus_->Publish(options_.grid_channel, msg);
+}
+
+Status OctomapNode::SaveOutputs() {
+  std::error_code ec;
+  std::filesystem::create_directories(options_.out_dir, ec);
+  if (ec)
+    return MakeError(ErrorCode::kIo, "cannot create " + options_.out_dir + ": " + ec.message());
+  const octomap::OcTree& tree = pipeline_.builder().tree();
+  if (Status s = SaveTree(tree, options_.out_dir + "/map"); !s.ok()) return s;
+  auto grid = ProjectToGrid(tree, options_.grid);
+  if (!grid.ok()) return grid.error();
+  if (grid->width > 0) {
+    if (Status s = io::WriteMapServer(*grid, options_.out_dir + "/grid"); !s.ok()) return s;
+    if (Status s = io::WritePng(options_.out_dir + "/grid.png", io::RenderGrid(*grid)); !s.ok())
+      return s;
+  }
+  if (Status s =
+          io::WritePng(options_.out_dir + "/view.png", RenderTopView(tree, options_.grid.up));
+      !s.ok())
+    return s;
+  if (options_.keep_cloud)
+    return WritePcd(options_.out_dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true);
+  return Status::Ok();
+}
+
+}  // namespace omni::octo

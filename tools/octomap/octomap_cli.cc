@@ -1,0 +1,312 @@
+// omni-octomap: `./omni octomap build INPUT --out DIR [--resolution M] ...`
+//
+// INPUT is either an LCM log (DEPTH frames posed by POSE_<source>, as the octomap_builder
+// process would see them) or a folder of depth images with camera poses (the layout of
+// ../shared/datasets/rgbd/*: depth/N.png|pgm for N = 1.., pose.txt "tx ty tz qx qy qz qw"
+// camera-to-world per line; intrinsics and depth scale as options or in INPUT/intrinsics.yaml).
+// Writes DIR/map.bt, DIR/map.ot, DIR/grid.{pgm,yaml,png}, DIR/view.png (and DIR/map.pcd
+// with --pcd).
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/depth_image_t.hpp"
+#include "omni/io/grid.h"
+#include "omni/io/lcm_log.h"
+#include "omni/octomap_builder/depth_io.h"
+#include "omni/octomap_builder/octomap_builder.h"
+#include "omni/octomap_builder/octomap_node.h"
+#include "omni/pose2d_t.hpp"
+
+namespace fs = std::filesystem;
+using omni::octo::DepthImage;
+using omni::octo::OctomapBuilderOptions;
+
+namespace {
+
+void Usage(std::FILE* f) {
+  std::fprintf(
+      f,
+      "usage: omni-octomap build INPUT --out DIR [options]\n"
+      "  INPUT: an LCM log with DEPTH and POSE_<source> (camera mount, ranges, grid band from\n"
+      "         --config), or a folder with depth/N.png|pgm and pose.txt (camera-to-world\n"
+      "         \"tx ty tz qx qy qz qw\" per frame) and intrinsics given below or in\n"
+      "         INPUT/intrinsics.yaml (fx, fy, cx, cy, depth_scale).\n"
+      "  Writes DIR/map.bt, DIR/map.ot, DIR/grid.pgm/.yaml/.png (the --grid-min-z..--grid-max-z\n"
+      "  band, map frame z), DIR/view.png (top view) and with --pcd DIR/map.pcd.\n"
+      "options:\n"
+      "  --config FILE        octomap_builder YAML (default config/octomap_builder.yaml if "
+      "present)\n"
+      "  --resolution M       leaf size (default from config, 0.05)\n"
+      "  --max-range M        ray length limit, < 0 unlimited\n"
+      "  --min-depth M --max-depth M --stride N --voxel-filter M\n"
+      "  --exact              no discretize: the same key sets as "
+      "insertPointCloud(discretize=false)\n"
+      "  --threads N          threads for the key sets (default 2)\n"
+      "  --fx F --fy F --cx F --cy F --depth-scale S   intrinsics for a folder INPUT\n"
+      "  --grid-min-z M --grid-max-z M                  height band of the 2D grid\n"
+      "  --up x|y|z|-x|-y|-z  the map's up axis for the grid and view (default z; the camera-\n"
+      "                       posed rgbd datasets have -y)\n"
+      "  --source rbpf|pg     pose channel for a log INPUT (POSE_RBPF / POSE_PG)\n"
+      "  --pcd                also write the aggregate point cloud\n");
+}
+
+struct Args {
+  std::string input, out, config;
+  std::vector<std::pair<std::string, std::string>> opts;  // option -> value, in order
+  bool exact = false, pcd = false;
+};
+
+std::string Get(const Args& a, const std::string& key, const std::string& def = "") {
+  std::string v = def;
+  for (const auto& [k, val] : a.opts)
+    if (k == key) v = val;
+  return v;
+}
+
+bool ParseDouble(const std::string& s, double* out) {
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || *end != '\0' || !std::isfinite(v)) return false;
+  *out = v;
+  return true;
+}
+
+int Fail(const std::string& msg) {
+  std::fprintf(stderr, "omni-octomap: %s\n", msg.c_str());
+  return 1;
+}
+
+omni::Status LoadIntrinsicsYaml(const std::string& path, omni::octo::DepthIntrinsics* k) {
+  auto r = omni::ConfigReader::FromFile(path);
+  if (!r.ok()) return r.error();
+  r->Get("fx", &k->fx, omni::Required());
+  r->Get("fy", &k->fy, omni::Required());
+  r->Get("cx", &k->cx, omni::Required());
+  r->Get("cy", &k->cy, omni::Required());
+  r->Get("depth_scale", &k->depth_scale, omni::Required(), omni::Positive<double>());
+  return r->Finish();
+}
+
+omni::Status WriteOutputs(const omni::octo::OctomapBuilder& b, const OctomapBuilderOptions& o,
+                          const std::string& dir, bool pcd) {
+  const octomap::OcTree& tree = b.tree();
+  if (auto s = omni::octo::SaveTree(tree, dir + "/map"); !s.ok()) return s;
+  auto grid = omni::octo::ProjectToGrid(tree, o.grid);
+  if (!grid.ok()) return grid.error();
+  if (grid->width > 0) {
+    if (auto s = omni::io::WriteMapServer(*grid, dir + "/grid"); !s.ok()) return s;
+    if (auto s = omni::io::WritePng(dir + "/grid.png", omni::io::RenderGrid(*grid)); !s.ok())
+      return s;
+  } else {
+    std::fprintf(stderr,
+                 "omni-octomap: nothing known in the grid band [%g, %g] m: no grid written\n",
+                 o.grid.min_z_m, o.grid.max_z_m);
+  }
+  if (auto s = omni::io::WritePng(dir + "/view.png", omni::octo::RenderTopView(tree, o.grid.up));
+      !s.ok())
+    return s;
+  if (pcd) return omni::octo::WritePcd(dir + "/map.pcd", b.AggregateCloud(), true);
+  return omni::Status::Ok();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc >= 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
+    Usage(stdout);
+    return 0;
+  }
+  if (argc < 3 || std::string(argv[1]) != "build") {
+    Usage(stderr);
+    return 2;
+  }
+  Args a;
+  a.input = argv[2];
+  static const std::vector<std::string> kValued = {
+      "--out",    "--config",       "--resolution", "--max-range",  "--min-depth", "--max-depth",
+      "--stride", "--voxel-filter", "--threads",    "--fx",         "--fy",        "--cx",
+      "--cy",     "--depth-scale",  "--grid-min-z", "--grid-max-z", "--source",    "--up"};
+  for (int i = 3; i < argc; ++i) {
+    const std::string s = argv[i];
+    if (s == "--help" || s == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (s == "--exact") {
+      a.exact = true;
+    } else if (s == "--pcd") {
+      a.pcd = true;
+    } else if (std::find(kValued.begin(), kValued.end(), s) != kValued.end()) {
+      if (i + 1 >= argc) return Fail(s + " needs a value");
+      a.opts.emplace_back(s, argv[++i]);
+    } else {
+      std::fprintf(stderr, "omni-octomap: unknown option '%s'\n", s.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  a.out = Get(a, "--out");
+  if (a.out.empty()) return Fail("--out DIR is required");
+
+  // Options: config file, then command-line overrides.
+  OctomapBuilderOptions o;
+  std::string config = Get(a, "--config");
+  if (config.empty() && fs::exists("config/octomap_builder.yaml"))
+    config = "config/octomap_builder.yaml";
+  if (!config.empty()) {
+    auto loaded = OctomapBuilderOptions::LoadFile(config);
+    if (!loaded.ok()) return Fail("bad config:\n" + loaded.error().message);
+    o = *loaded;
+  }
+  struct Num {
+    const char* flag;
+    double* target;
+  };
+  double stride = o.depth.pixel_stride, threads = o.threads;
+  const Num nums[] = {{"--resolution", &o.resolution_m},
+                      {"--max-range", &o.max_range_m},
+                      {"--min-depth", &o.depth.min_depth_m},
+                      {"--max-depth", &o.depth.max_depth_m},
+                      {"--stride", &stride},
+                      {"--voxel-filter", &o.voxel_filter_m},
+                      {"--threads", &threads},
+                      {"--grid-min-z", &o.grid.min_z_m},
+                      {"--grid-max-z", &o.grid.max_z_m}};
+  for (const auto& n : nums) {
+    const std::string v = Get(a, n.flag);
+    if (!v.empty() && !ParseDouble(v, n.target))
+      return Fail(std::string(n.flag) + " '" + v + "' is not a number");
+  }
+  o.depth.pixel_stride = static_cast<int>(stride);
+  o.threads = static_cast<int>(threads);
+  if (a.exact) o.discretize = false;
+  o.keep_cloud = a.pcd;
+  if (!(o.resolution_m >= 0.001 && o.resolution_m <= 10))
+    return Fail("--resolution must be in [0.001, 10]");
+  if (o.depth.pixel_stride < 1 || o.threads < 1) return Fail("--stride and --threads must be >= 1");
+  if (!(o.depth.min_depth_m < o.depth.max_depth_m)) return Fail("need --min-depth < --max-depth");
+  if (!(o.grid.min_z_m < o.grid.max_z_m)) return Fail("need --grid-min-z < --grid-max-z");
+  if (const std::string up = Get(a, "--up");
+      !up.empty() && !omni::octo::UpAxis::Parse(up, &o.grid.up))
+    return Fail("--up must be one of x y z -x -y -z");
+  const std::string source = Get(a, "--source");
+  if (!source.empty()) {
+    if (source != "rbpf" && source != "pg") return Fail("--source must be rbpf or pg");
+    o.pose_source = source;
+    o.pose_channel.clear();
+  }
+
+  std::error_code ec;
+  fs::create_directories(a.out, ec);
+  if (ec) return Fail("cannot create " + a.out + ": " + ec.message());
+
+  const int64_t t0 = omni::octo::ParallelKeySetInserter::NowMicros();
+  if (fs::is_directory(a.input)) {
+    // A folder of depth images with camera poses.
+    omni::octo::DepthIntrinsics k;
+    const std::string yaml = a.input + "/intrinsics.yaml";
+    if (fs::exists(yaml)) {
+      if (auto s = LoadIntrinsicsYaml(yaml, &k); !s.ok()) return Fail(s.message());
+    }
+    const Num ks[] = {{"--fx", &k.fx},
+                      {"--fy", &k.fy},
+                      {"--cx", &k.cx},
+                      {"--cy", &k.cy},
+                      {"--depth-scale", &k.depth_scale}};
+    for (const auto& n : ks) {
+      const std::string v = Get(a, n.flag);
+      if (!v.empty() && !ParseDouble(v, n.target))
+        return Fail(std::string(n.flag) + " '" + v + "' is not a number");
+    }
+    if (const std::string bad = k.Validate(); !bad.empty())
+      return Fail("intrinsics: " + bad + " (give --fx --fy --cx --cy --depth-scale or " + yaml +
+                  ")");
+    auto poses = omni::octo::ReadPoseFile(a.input + "/pose.txt");
+    if (!poses.ok()) return Fail(poses.error().message);
+    if (poses->empty()) return Fail(a.input + "/pose.txt has no poses");
+    omni::octo::OctomapBuilder builder(o);
+    size_t points = 0;
+    for (size_t i = 0; i < poses->size(); ++i) {
+      std::string path = a.input + "/depth/" + std::to_string(i + 1) + ".png";
+      if (!fs::exists(path)) path = a.input + "/depth/" + std::to_string(i + 1) + ".pgm";
+      DepthImage im;
+      if (auto s = omni::octo::ReadDepthFile(path, &im); !s.ok()) return Fail(s.message());
+      im.intrinsics = k;
+      auto st = builder.InsertDepth(im, (*poses)[i]);
+      if (!st.ok()) return Fail(path + ": " + st.error().message);
+      points += st->points;
+      std::printf("frame %zu: %zu points, %zu rays, %zu free + %zu occupied keys, %.1f ms\n", i + 1,
+                  st->points, st->rays, st->insert.free_keys, st->insert.occupied_keys,
+                  (st->insert.keys_us + st->insert.update_us) * 1e-3);
+    }
+    if (auto s = WriteOutputs(builder, o, a.out, a.pcd); !s.ok()) return Fail(s.message());
+    std::printf(
+        "omni-octomap: %zu frames, %zu points, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",
+        poses->size(), points, (omni::octo::ParallelKeySetInserter::NowMicros() - t0) * 1e-6,
+        a.out.c_str(), builder.tree().getNumLeafNodes(), o.resolution_m);
+    return 0;
+  }
+
+  // An LCM log: replayed through the same pipeline as the process.
+  auto reader = omni::io::LcmLogReader::Open(a.input);
+  if (!reader.ok()) return Fail(reader.error().message);
+  omni::octo::OctomapPipeline pipeline(o);
+  const std::string pose_channel = o.PoseChannel();
+  int64_t decode_errors = 0, events = 0;
+  omni::io::LcmLogEvent ev;
+  for (;;) {
+    auto more = reader->Next(&ev, /*resync=*/true);
+    if (!more.ok()) return Fail(more.error().message);
+    if (!*more) break;
+    ++events;
+    if (ev.channel == pose_channel) {
+      omni::pose2d_t m;
+      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+        ++decode_errors;
+        continue;
+      }
+      pipeline.AddPose(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
+    } else if (ev.channel == o.depth_channel) {
+      omni::depth_image_t m;
+      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+        ++decode_errors;
+        continue;
+      }
+      auto im = omni::octo::FromDepthMessage(m);
+      if (!im.ok()) {
+        ++decode_errors;
+        continue;
+      }
+      pipeline.AddDepth(std::move(*im));
+    } else {
+      continue;
+    }
+    pipeline.Process(pipeline.newest_utime());
+  }
+  // End of log: whatever still waits for a pose can only be posed by what is there.
+  pipeline.Process(pipeline.newest_utime());
+  pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
+  const auto& pc = pipeline.poser_counters();
+  const auto& c = pipeline.counters();
+  if (c.frames_inserted == 0)
+    return Fail("no frame could be posed (" + std::to_string(pc.frames_in) + " depth frames on " +
+                o.depth_channel + ", " + std::to_string(pc.poses_in) + " poses on " + pose_channel +
+                ", " + std::to_string(decode_errors) + " decode errors)");
+  if (auto s = WriteOutputs(pipeline.builder(), o, a.out, a.pcd); !s.ok()) return Fail(s.message());
+  std::printf(
+      "omni-octomap: %lld events; %lld frames in, %lld inserted, %lld dropped without pose, %lld "
+      "out of order, %lld decode errors, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",
+      static_cast<long long>(events), static_cast<long long>(pc.frames_in),
+      static_cast<long long>(c.frames_inserted), static_cast<long long>(pc.frames_dropped_no_pose),
+      static_cast<long long>(pc.frames_out_of_order + pc.poses_out_of_order),
+      static_cast<long long>(decode_errors),
+      (omni::octo::ParallelKeySetInserter::NowMicros() - t0) * 1e-6, a.out.c_str(),
+      pipeline.builder().tree().getNumLeafNodes(), o.resolution_m);
+  return 0;
+}
