@@ -23,11 +23,24 @@ FwStatus Firmware::Init() {
     stall_ms_[w] = 0;
   }
   MotorsOff();
+  UpdateForwardMatrix();
   fault_bits_ = 0;
   uptime_ms_ = 0;
   step_accum_us_ = 0;
   state_ = State::kIdle;
   return FwStatus::kOk;
+}
+
+void Firmware::UpdateForwardMatrix() {
+  for (int w = 0; w < kNumWheels; ++w) {
+    omni::kinematics::WheelSpeeds<float> unit;
+    unit.v_m_s[w] = 1.f;
+    omni::kinematics::BodyTwist<float> col;
+    if (!omni::kinematics::WheelsToBody(Geometry(), unit, &col)) col = {};
+    forward_[0][w] = col.vx_m_s;
+    forward_[1][w] = col.vy_m_s;
+    forward_[2][w] = col.omega_rad_s;
+  }
 }
 
 void Firmware::MotorsOff() {
@@ -91,6 +104,7 @@ void Firmware::HandleParam(const CanFrame& f, bool set) {
   if (set) {
     s = SetParam(&params_, req.id, req.value);
     if (s != FwStatus::kOk) fault_bits_ |= kFaultBadCommand;
+    if (s == FwStatus::kOk) UpdateForwardMatrix();
   }
   if (s == FwStatus::kOk) s = GetParam(params_, req.id, &reply.value);
   switch (s) {
@@ -216,18 +230,21 @@ void Firmware::Step() {
 
   // 2. Encoders, speeds, currents, supply.
   const float counts_to_rad_s = kTwoPi / (params_.ticks_per_rev * dt);
-  omni::kinematics::WheelSpeeds<float> rim;
+  float rim[kNumWheels];
   for (int w = 0; w < kNumWheels; ++w) {
     WheelState& ws = wheels_[w];
     (void)counters16_[w].Update(hal_->ReadEncoder(w));
     ws.position = counters16_[w].position();
     ws.speed_rad_s = estimators_[w].Update(ws.position) * counts_to_rad_s;
     ws.current_a = hal_->ReadCurrentA(w);
-    rim.v_m_s[w] = ws.speed_rad_s * params_.wheel_radius_m;
+    rim[w] = ws.speed_rad_s * params_.wheel_radius_m;
   }
   bus_voltage_v_ = hal_->ReadBusVoltageV();
-  if (!omni::kinematics::WheelsToBody(Geometry(), rim, &measured_twist_)) {
-    measured_twist_ = {};
+  // Forward kinematics (wheel rim speeds -> body twist), see UpdateForwardMatrix().
+  float* twist[3] = {&measured_twist_.vx_m_s, &measured_twist_.vy_m_s,
+                     &measured_twist_.omega_rad_s};
+  for (int r = 0; r < 3; ++r) {
+    *twist[r] = forward_[r][0] * rim[0] + forward_[r][1] * rim[1] + forward_[r][2] * rim[2];
   }
 
   // 3. Watchdog, then faults.

@@ -12,7 +12,7 @@ void SpeedEstimator::Reset(int32_t position) {
 
 float SpeedEstimator::Update(int32_t position) {
   const bool changed = position != pos_[head_];
-  head_ = (head_ + 1) % kHistory;
+  head_ = (head_ + 1) & (kHistory - 1);
   pos_[head_] = position;
   if (filled_ < kHistory) ++filled_;
   since_change_ = changed ? 0 : (since_change_ < kHistory ? since_change_ + 1 : kHistory);

@@ -105,6 +105,10 @@ class Firmware {
   void CheckFaults(float dt_s);
   void SendFeedback();
   void Send(const CanFrame& f);
+  // Forward kinematics as a matrix: the shared WheelsToBody applied to unit wheel speeds
+  // (it is linear), computed at Init and whenever a geometry parameter changes, so the 1 kHz
+  // step does not redo the trigonometry and the 3x3 solve.
+  void UpdateForwardMatrix();
   omni::kinematics::OmniGeometry<float> Geometry() const {
     return {params_.alpha_rad, params_.center_to_wheel_m, params_.wheel_radius_m};
   }
@@ -130,6 +134,7 @@ class Firmware {
   uint16_t last_cmd_seq_ = 0;
   Counters counters_;
   omni::kinematics::BodyTwist<float> measured_twist_;
+  float forward_[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // body twist = forward_ * rim speeds
 };
 
 }  // namespace omni::firmware

@@ -33,7 +33,8 @@ class SpeedEstimator {
   int filled_ = 0;
   int since_change_ = kHistory;
   float speed_ = 0.f;
-  int32_t At(int age) const { return pos_[(head_ - age + kHistory) % kHistory]; }
+  int32_t At(int age) const { return pos_[(head_ - age) & (kHistory - 1)]; }
+  static_assert((kHistory & (kHistory - 1)) == 0, "kHistory must be a power of two");
 };
 
 }  // namespace omni::firmware
