@@ -24,10 +24,16 @@ void LogOddsGrid::EnsureContains(int64_t cx, int64_t cy) {
     nx1 = floor_chunk(cx) + 2 * kChunk;
     ny1 = floor_chunk(cy) + 2 * kChunk;
   } else {
-    nx0 = std::min(min_cx_, floor_chunk(cx) - kChunk);
-    ny0 = std::min(min_cy_, floor_chunk(cy) - kChunk);
-    nx1 = std::max(min_cx_ + w_, floor_chunk(cx) + 2 * kChunk);
-    ny1 = std::max(min_cy_ + h_, floor_chunk(cy) + 2 * kChunk);
+    // Grow by at least half the current size on the side that overflows, so a map that keeps
+    // expanding is copied O(log n) times, not once per chunk.
+    const int64_t gx = std::max<int64_t>(kChunk, floor_chunk(w_ / 2)),
+                  gy = std::max<int64_t>(kChunk, floor_chunk(h_ / 2));
+    nx0 = cx < min_cx_ ? std::min(min_cx_ - gx, floor_chunk(cx) - kChunk) : min_cx_;
+    ny0 = cy < min_cy_ ? std::min(min_cy_ - gy, floor_chunk(cy) - kChunk) : min_cy_;
+    nx1 = cx >= min_cx_ + w_ ? std::max(min_cx_ + w_ + gx, floor_chunk(cx) + 2 * kChunk)
+                             : min_cx_ + w_;
+    ny1 = cy >= min_cy_ + h_ ? std::max(min_cy_ + h_ + gy, floor_chunk(cy) + 2 * kChunk)
+                             : min_cy_ + h_;
   }
   const int64_t nw = nx1 - nx0, nh = ny1 - ny0;
   std::vector<float> lo(static_cast<size_t>(nw * nh), 0.f);

@@ -1,0 +1,109 @@
+// Bad input to the command-line tools: a clear message naming the file and line or offset,
+// and a non-zero exit. Nothing half-written is left behind.
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "../../unit/common/test_paths.h"
+#include "run.h"
+
+namespace omni {
+namespace {
+
+using testing::Bin;
+
+void Write(const std::string& path, const std::string& text) {
+  std::ofstream(path, std::ios::binary) << text;
+}
+
+TEST(CliErrors, TruncatedCarmenLine) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/bad.clf", "ODOM 0 0 0 0 0 0 1.0 h 1.0\nFLASER 180 1.0 1.0\n");
+  const auto r =
+      testing::Run(Bin("omni-import") + " carmen " + dir + "/bad.clf " + dir + "/out.lcmlog");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("bad.clf:2"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/out.lcmlog"));
+}
+
+TEST(CliErrors, G2oUnknownTag) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/g.g2o", "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_FOO 0 1\n");
+  const auto r = testing::Run(Bin("omni-posegraph-check") + " " + dir + "/g.g2o");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("g.g2o:3"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("EDGE_FOO"), std::string::npos) << r.output;
+}
+
+TEST(CliErrors, MisspelledConfigKey) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/odom.yaml", "resolution_m: 0.05\nmax_pose_gap: 0.5\n");
+  const auto r = testing::Run(Bin("odom_mapper") + " --config " + dir +
+                              "/odom.yaml --url memq:// --out " + dir);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("odom.yaml:2"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("'max_pose_gap'"), std::string::npos) << r.output;
+}
+
+TEST(CliErrors, ShippedOdomMapperConfigLoads) {
+  const std::string dir = testing::TempDir();
+  // An empty memq bus ends immediately; the config must load before that.
+  const auto r = testing::Run(Bin("odom_mapper") + " --config " + OMNI_SOURCE_DIR +
+                              "/config/odom_mapper.yaml --url memq:// --idle-exit 0.1 --out " +
+                              dir + " & sleep 0.5; kill -TERM $! ; wait $!");
+  EXPECT_EQ(r.output.find("bad config"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no scan was mapped"), std::string::npos) << r.output;
+}
+
+TEST(CliErrors, CorruptLcmLog) {
+  OMNI_REQUIRE_DATASET(src, "lcm/example.lcmlog");
+  const std::string dir = testing::TempDir();
+  std::filesystem::copy_file(src, dir + "/x.lcmlog");
+  {
+    std::fstream f(dir + "/x.lcmlog", std::ios::in | std::ios::out | std::ios::binary);
+    // Each event of this log is 28 header + 10 channel + 366 data bytes: hit the 2nd header.
+    f.seekp(404 + 2);
+    f.write("\xde\xad", 2);
+  }
+  const auto r = testing::Run(Bin("omni-logcat") + " " + dir + "/x.lcmlog");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("byte offset"), std::string::npos) << r.output;
+  const auto replay =
+      testing::Run(Bin("omni-replay") + " " + dir + "/x.lcmlog --url memq:// --speed 0");
+  EXPECT_NE(replay.exit_code, 0);
+  EXPECT_NE(replay.output.find("byte offset"), std::string::npos) << replay.output;
+}
+
+TEST(CliErrors, EvalOnMissingAndMalformedFiles) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/t.txt", "0 1.0 0 0 0\n1 2.0 1 x 0\n");
+  auto r = testing::Run(Bin("omni-eval") + " ate " + dir + "/t.txt " + dir + "/t.txt");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("t.txt:2"), std::string::npos) << r.output;
+  r = testing::Run(Bin("omni-eval") + " ate /nonexistent_ref.txt " + dir + "/t.txt");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("/nonexistent_ref.txt"), std::string::npos) << r.output;
+  r = testing::Run(Bin("omni-eval") + " nonsense a b");
+  EXPECT_EQ(r.exit_code, 2);
+}
+
+TEST(CliErrors, EvalAteOfIntelRawOdometry) {
+  OMNI_REQUIRE_DATASET(clf, "intel-raw/intel.clf");
+  OMNI_REQUIRE_DATASET(ref, "intel-raw/intel.reference.txt");
+  const std::string dir = testing::TempDir();
+  // Raw odometry as an indexed trajectory of every scan, via the FLASER odometry poses.
+  const auto w =
+      testing::Run("awk '$1==\"FLASER\" {n=$2; print i++, $(n+9), $(n+6), $(n+7), $(n+8)}' " + clf +
+                   " > " + dir + "/odom.txt");
+  ASSERT_EQ(w.exit_code, 0) << w.output;
+  const auto r = testing::Run(Bin("omni-eval") + " ate " + ref + " " + dir + "/odom.txt --json");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto pos = r.output.find("\"ate_rmse_m\": ");
+  ASSERT_NE(pos, std::string::npos) << r.output;
+  EXPECT_GT(std::stod(r.output.substr(pos + 14)), 10.0) << r.output;
+  EXPECT_NE(r.output.find("\"matched\": 174"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace omni
