@@ -99,6 +99,7 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   sent_.vy_m_s += k * dvy;
   const double dw = target.omega_rad_s - sent_.omega_rad_s,
                dw_max = o_.max_angular_accel_rad_s2 * dt;
+  if (k < 1.0 || std::fabs(dw) > dw_max) ++counters_.accel_limited;
   sent_.omega_rad_s += std::clamp(dw, -dw_max, dw_max);
   sending_ = true;
   fwcan::BodyTwist t{static_cast<float>(sent_.vx_m_s), static_cast<float>(sent_.vy_m_s),

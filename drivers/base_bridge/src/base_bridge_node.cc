@@ -32,6 +32,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   });
   const Counters* c = &bridge_.counters();
   heartbeat_.AddCounter("commands_clamped", [c] { return c->commands_clamped; });
+  heartbeat_.AddCounter("accel_limited", [c] { return c->accel_limited; });
   heartbeat_.AddCounter("commands_rejected", [c] { return c->commands_rejected; });
   heartbeat_.AddCounter("can_rx_errors", [c] { return c->can_rx_errors; });
   heartbeat_.AddCounter("unknown_frames", [c] { return c->unknown_frames; });

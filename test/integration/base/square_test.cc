@@ -40,21 +40,27 @@ namespace {
 constexpr const char* kNetnsEnv = "OMNI_BASE_E2E_NETNS";
 constexpr const char* kLcmUrl = "udpm://239.255.76.67:7667?ttl=0";
 
-// Re-runs the current test inside `unshare -n` with multicast routed on loopback.
-// Returns true when the caller is already inside (and should run the test body).
-bool InsidePrivateNetwork(int* child_status) {
+// The unshare invocation that gives a private network namespace: plain `unshare -n` as root,
+// `unshare -rn` (user namespace) otherwise; "" when neither is permitted.
+std::string UnshareCommand() {
+  if (std::system("unshare -n true >/dev/null 2>&1") == 0) return "unshare -n";
+  if (std::system("unshare -rn true >/dev/null 2>&1") == 0) return "unshare -rn";
+  return "";
+}
+
+// Re-runs the current test inside a private network namespace with multicast routed on
+// loopback. Returns true when the caller is already inside (and should run the test body).
+bool InsidePrivateNetwork(const std::string& unshare, int* child_status) {
   if (std::getenv(kNetnsEnv) != nullptr) return true;
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
   const std::string filter = std::string(info->test_suite_name()) + "." + info->name();
-  const std::string cmd =
-      "unshare -n sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo && " +
-      std::string(kNetnsEnv) + "=1 exec /proc/" + std::to_string(getpid()) +
-      "/exe --gtest_filter=" + filter + "'";
+  const std::string cmd = unshare +
+                          " sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo && " +
+                          std::string(kNetnsEnv) + "=1 exec /proc/" + std::to_string(getpid()) +
+                          "/exe --gtest_filter=" + filter + "'";
   *child_status = std::system(cmd.c_str());
   return false;
 }
-
-bool CanUnshare() { return std::system("unshare -n true >/dev/null 2>&1") == 0; }
 
 struct Child {
   pid_t pid = -1;
@@ -277,15 +283,16 @@ class BaseEndToEnd : public ::testing::Test {
   int64_t seq_ = 0;
 };
 
-#define OMNI_RUN_IN_NETNS()                                                   \
-  do {                                                                        \
-    if (std::getenv(kNetnsEnv) == nullptr && !CanUnshare())                   \
-      GTEST_SKIP() << "unshare -n not permitted: cannot isolate LCM";         \
-    int status = 0;                                                           \
-    if (!InsidePrivateNetwork(&status)) {                                     \
-      EXPECT_EQ(status, 0) << "the test failed inside the network namespace"; \
-      return;                                                                 \
-    }                                                                         \
+#define OMNI_RUN_IN_NETNS()                                                                    \
+  do {                                                                                         \
+    if (std::getenv(kNetnsEnv) == nullptr) {                                                   \
+      const std::string unshare = UnshareCommand();                                            \
+      if (unshare.empty()) GTEST_SKIP() << "unshare -n/-rn not permitted: cannot isolate LCM"; \
+      int status = 0;                                                                          \
+      InsidePrivateNetwork(unshare, &status);                                                  \
+      EXPECT_EQ(status, 0) << "the test failed inside the network namespace";                  \
+      return;                                                                                  \
+    }                                                                                          \
   } while (0)
 
 TEST_F(BaseEndToEnd, SquareForwardAndSidewaysWithinOnePercent) {

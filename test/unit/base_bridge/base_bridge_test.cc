@@ -84,6 +84,7 @@ TEST(BaseBridgeTest, FixedRateAndAccelerationRamp) {
     EXPECT_LE(sent[i].vx_m_s - sent[i - 1].vx_m_s, 1.0 * 0.01 + 1.5e-3);  // 1 m/s^2 at 100 Hz
   }
   EXPECT_NEAR(sent.back().vx_m_s, 0.5, 0.02);
+  EXPECT_GE(b.counters().accel_limited, 49);
 }
 
 TEST(BaseBridgeTest, StaleCommandRampsToZeroThenGoesQuiet) {

@@ -98,6 +98,7 @@ struct BaseStatus {
 struct Counters {
   int64_t commands_in = 0;
   int64_t commands_clamped = 0;   // above a speed limit: clamped
+  int64_t accel_limited = 0;      // send periods in which an acceleration limit held the twist back
   int64_t commands_rejected = 0;  // non-finite values or unknown mode
   int64_t frames_sent = 0;
   int64_t frames_in = 0;
