@@ -163,15 +163,17 @@ int main(int argc, char** argv) {
   omni::io::Polyline line;
   std::vector<omni::io::TrajectoryEntry> entries;
   for (size_t i = 0; i < mapper.trajectory().size(); ++i) {
-    const auto& [t, p] = mapper.trajectory()[i];
-    line.poses.push_back(p);
-    entries.push_back(omni::io::MakeEntry2D(static_cast<int64_t>(i), omni::UtimeToSeconds(t), p));
+    const auto& m = mapper.trajectory()[i];
+    line.poses.push_back(m.base_pose);
+    const int64_t index = m.seq >= 0 ? m.seq : static_cast<int64_t>(i);
+    entries.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(m.utime), m.base_pose));
   }
   if (s.ok())
     s = omni::io::WritePng(out_dir + "/odom_trajectory.png", omni::io::RenderGrid(map, {line}, 2));
   if (s.ok())
-    s = omni::io::WriteTrajectory2D(out_dir + "/odom_trajectory.txt", entries,
-                                    "mapped_scan_index timestamp x y theta (raw wheel odometry)");
+    s = omni::io::WriteTrajectory2D(
+        out_dir + "/odom_trajectory.txt", entries,
+        "scan_seq timestamp x y theta (raw wheel odometry at each mapped scan)");
   if (!s.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", s.message().c_str());
     return 1;

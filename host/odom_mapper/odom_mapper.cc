@@ -74,7 +74,7 @@ bool OdomMapper::AddScan(const Scan& scan) {
   const Pose2 sensor = *pose * scan.sensor_in_base;
   grid_.IntegrateScan(sensor, ranges, scan.angle_min_rad, scan.angle_increment_rad,
                       scan.range_max_m);
-  trajectory_.emplace_back(scan.utime, *pose);
+  trajectory_.push_back({scan.utime, scan.seq, *pose});
   ++counters_.scans_mapped;
   return true;
 }

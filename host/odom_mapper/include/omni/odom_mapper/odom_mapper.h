@@ -55,15 +55,20 @@ class OdomMapper {
   bool AddOdometry(int64_t utime, const Pose2& pose);
   bool AddScan(const Scan& scan);
   io::GridMap Map() const { return grid_.ToGridMap(); }
+  struct MappedScan {
+    int64_t utime;
+    int64_t seq;  // the scan's sequence number (-1 if unknown)
+    Pose2 base_pose;
+  };
   // Pose of the base at every mapped scan.
-  const std::vector<std::pair<int64_t, Pose2>>& trajectory() const { return trajectory_; }
+  const std::vector<MappedScan>& trajectory() const { return trajectory_; }
   const OdomMapperCounters& counters() const { return counters_; }
 
  private:
   OdomMapperOptions opt_;
   io::LogOddsGrid grid_;
   StampedBuffer<Pose2> odom_;
-  std::vector<std::pair<int64_t, Pose2>> trajectory_;
+  std::vector<MappedScan> trajectory_;
   OdomMapperCounters counters_;
   int64_t last_seq_ = -1;
 };
