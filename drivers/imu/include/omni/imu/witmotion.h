@@ -1,0 +1,101 @@
+// The WitMotion WT901/JY901 serial protocol ("0x55" frames): 11 bytes each,
+//   0x55, type, 4 little-endian int16 values, checksum = (sum of the first 10 bytes) & 0xFF.
+// Types: 0x50 time, 0x51 acceleration (±16 g), 0x52 angular rate (±2000 deg/s),
+// 0x53 angles (roll, pitch, yaw, ±180 deg), 0x54 magnetometer (raw LSB), 0x59 quaternion.
+// The 4th value of 0x51..0x54 is the temperature in 1/100 degrees Celsius.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace omni::imu {
+
+inline constexpr uint8_t kHeader = 0x55;
+inline constexpr size_t kFrameSize = 11;
+inline constexpr uint8_t kTypeTime = 0x50;
+inline constexpr uint8_t kTypeAccel = 0x51;
+inline constexpr uint8_t kTypeGyro = 0x52;
+inline constexpr uint8_t kTypeAngle = 0x53;
+inline constexpr uint8_t kTypeMag = 0x54;
+inline constexpr uint8_t kTypeQuaternion = 0x59;
+inline constexpr double kGravity = 9.80665;
+
+struct Frame {
+  uint8_t type = 0;
+  std::array<int16_t, 4> v{};
+  std::array<uint8_t, 8> raw{};  // the 8 payload bytes (0x50 time frames are bytes, not int16)
+};
+
+std::array<uint8_t, kFrameSize> EncodeFrame(uint8_t type, const std::array<int16_t, 4>& v);
+bool IsKnownType(uint8_t type);
+
+struct FrameCounters {
+  int64_t frames = 0;
+  int64_t checksum_errors = 0;  // header and type right, checksum wrong, while aligned
+  int64_t resyncs = 0;          // times alignment was lost and found again
+  int64_t bytes_skipped = 0;
+};
+
+// Streaming frame decoder: finds 0x55 + a known type + a matching checksum; never trusts
+// alignment, so garbage costs only the frames it corrupted.
+class FrameParser {
+ public:
+  void Feed(const uint8_t* data, size_t size, std::vector<Frame>* out);
+  void Reset();
+  const FrameCounters& counters() const { return counters_; }
+
+ private:
+  bool FrameAt(size_t at) const;
+  std::vector<uint8_t> buf_;
+  size_t pos_ = 0;
+  bool in_sync_ = false;
+  bool ever_synced_ = false;
+  FrameCounters counters_;
+};
+
+// One IMU sample in physical units, in the sensor's frame (x forward, y left, z up).
+struct ImuSample {
+  std::array<double, 3> accel_m_s2{};
+  std::array<double, 3> gyro_rad_s{};
+  std::array<double, 3> euler_rad{};  // roll, pitch, yaw
+  std::array<double, 4> orientation_wxyz{1, 0, 0, 0};
+  bool has_orientation = false;
+  std::array<double, 3> mag_raw{};  // magnetometer, sensor LSB
+  bool has_mag = false;
+  double temperature_c = 0;
+  bool has_temperature = false;
+};
+
+// Physical units of one frame's values.
+double AccelToMs2(int16_t v);
+double GyroToRadS(int16_t v);
+double AngleToRad(int16_t v);
+int16_t Ms2ToAccel(double a);
+int16_t RadSToGyro(double w);
+int16_t RadToAngle(double a);
+
+// Collects the frames of one output period into a sample. The sensor sends 0x51, 0x52, 0x53
+// (0x54, 0x59 if enabled) per period; a sample is complete when the frame of `trigger_type`
+// arrives after at least an acceleration and an angular rate.
+class SampleAssembler {
+ public:
+  explicit SampleAssembler(uint8_t trigger_type = kTypeAngle) : trigger_(trigger_type) {}
+  // Returns true and fills `out` when `f` completed a sample.
+  bool Add(const Frame& f, ImuSample* out);
+  int64_t incomplete() const { return incomplete_; }
+
+ private:
+  uint8_t trigger_;
+  ImuSample cur_;
+  bool have_accel_ = false;
+  bool have_gyro_ = false;
+  bool have_quat_ = false;
+  int64_t incomplete_ = 0;
+};
+
+// Rotation Rz(yaw) * Ry(pitch) * Rx(roll) as a unit quaternion w, x, y, z.
+std::array<double, 4> EulerToQuaternion(double roll, double pitch, double yaw);
+
+}  // namespace omni::imu

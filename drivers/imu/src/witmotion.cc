@@ -1,0 +1,158 @@
+#include "omni/imu/witmotion.h"
+
+#include <cmath>
+
+namespace omni::imu {
+
+std::array<uint8_t, kFrameSize> EncodeFrame(uint8_t type, const std::array<int16_t, 4>& v) {
+  std::array<uint8_t, kFrameSize> b{};
+  b[0] = kHeader;
+  b[1] = type;
+  for (size_t i = 0; i < 4; ++i) {
+    const uint16_t u = static_cast<uint16_t>(v[i]);
+    b[2 + 2 * i] = static_cast<uint8_t>(u & 0xFF);
+    b[3 + 2 * i] = static_cast<uint8_t>(u >> 8);
+  }
+  unsigned sum = 0;
+  for (size_t i = 0; i < 10; ++i) sum += b[i];
+  b[10] = static_cast<uint8_t>(sum & 0xFF);
+  return b;
+}
+
+bool IsKnownType(uint8_t type) { return type >= 0x50 && type <= 0x5A; }
+
+void FrameParser::Reset() {
+  buf_.clear();
+  pos_ = 0;
+  in_sync_ = false;
+  ever_synced_ = false;
+}
+
+bool FrameParser::FrameAt(size_t at) const {
+  if (buf_.size() < at + kFrameSize) return false;
+  const uint8_t* p = &buf_[at];
+  if (p[0] != kHeader || !IsKnownType(p[1])) return false;
+  unsigned sum = 0;
+  for (size_t i = 0; i < 10; ++i) sum += p[i];
+  return (sum & 0xFF) == p[10];
+}
+
+void FrameParser::Feed(const uint8_t* data, size_t size, std::vector<Frame>* out) {
+  buf_.insert(buf_.end(), data, data + size);
+  while (buf_.size() - pos_ >= kFrameSize) {
+    const uint8_t* p = &buf_[pos_];
+    bool ok = p[0] == kHeader && IsKnownType(p[1]);
+    if (ok) {
+      unsigned sum = 0;
+      for (size_t i = 0; i < 10; ++i) sum += p[i];
+      if ((sum & 0xFF) != p[10]) {
+        // Out of sync, wait for the next frame to tell a damaged frame from a chance match.
+        if (!in_sync_ && buf_.size() < pos_ + 2 * kFrameSize) break;
+        // A damaged frame: in a stream we were following, or followed by a good frame.
+        if (in_sync_ || FrameAt(pos_ + kFrameSize)) ++counters_.checksum_errors;
+        ok = false;
+      }
+    }
+    if (!ok) {
+      in_sync_ = false;
+      ++pos_;
+      ++counters_.bytes_skipped;
+      continue;
+    }
+    if (!in_sync_) {
+      if (ever_synced_) ++counters_.resyncs;
+      in_sync_ = ever_synced_ = true;
+    }
+    Frame f;
+    f.type = p[1];
+    for (size_t i = 0; i < 8; ++i) f.raw[i] = p[2 + i];
+    for (size_t i = 0; i < 4; ++i) {
+      f.v[i] = static_cast<int16_t>(static_cast<uint16_t>(p[2 + 2 * i] | (p[3 + 2 * i] << 8)));
+    }
+    out->push_back(f);
+    ++counters_.frames;
+    pos_ += kFrameSize;
+  }
+  if (pos_ > 4096 || pos_ == buf_.size()) {
+    buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(pos_));
+    pos_ = 0;
+  }
+}
+
+double AccelToMs2(int16_t v) { return v / 32768.0 * 16.0 * kGravity; }
+double GyroToRadS(int16_t v) { return v / 32768.0 * 2000.0 * M_PI / 180.0; }
+double AngleToRad(int16_t v) { return v / 32768.0 * M_PI; }
+
+namespace {
+int16_t ToI16(double x) {
+  const long r = std::lround(x);
+  return static_cast<int16_t>(r > 32767 ? 32767 : (r < -32768 ? -32768 : r));
+}
+}  // namespace
+
+int16_t Ms2ToAccel(double a) { return ToI16(a / (16.0 * kGravity) * 32768.0); }
+int16_t RadSToGyro(double w) { return ToI16(w * 180.0 / M_PI / 2000.0 * 32768.0); }
+int16_t RadToAngle(double a) { return ToI16(a / M_PI * 32768.0); }
+
+std::array<double, 4> EulerToQuaternion(double roll, double pitch, double yaw) {
+  const double cr = std::cos(roll / 2), sr = std::sin(roll / 2);
+  const double cp = std::cos(pitch / 2), sp = std::sin(pitch / 2);
+  const double cy = std::cos(yaw / 2), sy = std::sin(yaw / 2);
+  return {cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+          cr * cp * sy - sr * sp * cy};
+}
+
+bool SampleAssembler::Add(const Frame& f, ImuSample* out) {
+  switch (f.type) {
+    case kTypeAccel:
+      for (size_t i = 0; i < 3; ++i) cur_.accel_m_s2[i] = AccelToMs2(f.v[i]);
+      cur_.temperature_c = f.v[3] / 100.0;
+      cur_.has_temperature = true;
+      have_accel_ = true;
+      break;
+    case kTypeGyro:
+      for (size_t i = 0; i < 3; ++i) cur_.gyro_rad_s[i] = GyroToRadS(f.v[i]);
+      have_gyro_ = true;
+      break;
+    case kTypeAngle:
+      for (size_t i = 0; i < 3; ++i) cur_.euler_rad[i] = AngleToRad(f.v[i]);
+      if (!have_quat_) {
+        cur_.orientation_wxyz =
+            EulerToQuaternion(cur_.euler_rad[0], cur_.euler_rad[1], cur_.euler_rad[2]);
+      }
+      cur_.has_orientation = true;
+      break;
+    case kTypeMag:
+      for (size_t i = 0; i < 3; ++i) cur_.mag_raw[i] = f.v[i];
+      cur_.has_mag = true;
+      break;
+    case kTypeQuaternion: {
+      double n = 0;
+      std::array<double, 4> q;
+      for (size_t i = 0; i < 4; ++i) {
+        q[i] = f.v[i] / 32768.0;
+        n += q[i] * q[i];
+      }
+      n = std::sqrt(n);
+      if (n > 0.5) {
+        for (size_t i = 0; i < 4; ++i) cur_.orientation_wxyz[i] = q[i] / n;
+        cur_.has_orientation = true;
+        have_quat_ = true;
+      }
+      break;
+    }
+    default:
+      break;
+  }
+  if (f.type != trigger_) return false;
+  if (!have_accel_ || !have_gyro_) {
+    ++incomplete_;
+    return false;
+  }
+  *out = cur_;
+  have_accel_ = have_gyro_ = have_quat_ = false;
+  cur_.has_mag = false;
+  return true;
+}
+
+}  // namespace omni::imu

@@ -1,0 +1,95 @@
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "omni/imu/witmotion.h"
+
+namespace omni::imu {
+namespace {
+
+TEST(WitMotion, KnownFrameFromTheManual) {
+  // An acceleration frame at rest, z = 1 g: Az = 2048 (0x0800), T = 25.00 C (2500 = 0x09C4).
+  const auto b = EncodeFrame(kTypeAccel, {0, 0, 2048, 2500});
+  const std::array<uint8_t, 11> expected = {0x55, 0x51, 0x00, 0x00, 0x00, 0x00,
+                                            0x00, 0x08, 0xC4, 0x09, 0x00};
+  for (size_t i = 0; i < 10; ++i) EXPECT_EQ(b[i], expected[i]) << i;
+  EXPECT_EQ(b[10], static_cast<uint8_t>(0x55 + 0x51 + 0x08 + 0xC4 + 0x09));
+  FrameParser p;
+  std::vector<Frame> out;
+  p.Feed(b.data(), b.size(), &out);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_NEAR(AccelToMs2(out[0].v[2]), kGravity, 1e-9);
+  EXPECT_EQ(out[0].v[3], 2500);
+}
+
+TEST(WitMotion, UnitConversionsRoundTrip) {
+  EXPECT_EQ(Ms2ToAccel(AccelToMs2(1234)), 1234);
+  EXPECT_EQ(RadSToGyro(GyroToRadS(-321)), -321);
+  EXPECT_EQ(RadToAngle(AngleToRad(16384)), 16384);
+  EXPECT_NEAR(AngleToRad(16384), M_PI / 2, 1e-12);
+  EXPECT_NEAR(GyroToRadS(32767), 2000 * M_PI / 180 * 32767 / 32768, 1e-9);
+}
+
+std::vector<uint8_t> Stream(int periods) {
+  std::vector<uint8_t> s;
+  for (int k = 0; k < periods; ++k) {
+    for (const auto& f : {EncodeFrame(kTypeAccel, {static_cast<int16_t>(k), 0, 2048, 2500}),
+                          EncodeFrame(kTypeGyro, {0, 0, static_cast<int16_t>(100 + k), 2500}),
+                          EncodeFrame(kTypeAngle, {0, 0, 8192, 2500}),
+                          EncodeFrame(kTypeMag, {100, -200, 300, 2500})}) {
+      s.insert(s.end(), f.begin(), f.end());
+    }
+  }
+  return s;
+}
+
+TEST(WitMotion, AssemblesSamplesAndOrientation) {
+  const auto bytes = Stream(5);
+  FrameParser p;
+  std::vector<Frame> frames;
+  p.Feed(bytes.data(), bytes.size(), &frames);
+  ASSERT_EQ(frames.size(), 20u);
+  SampleAssembler a;
+  std::vector<ImuSample> samples;
+  for (const Frame& f : frames) {
+    ImuSample s;
+    if (a.Add(f, &s)) samples.push_back(s);
+  }
+  ASSERT_EQ(samples.size(), 5u);
+  EXPECT_NEAR(samples[3].gyro_rad_s[2], GyroToRadS(103), 1e-12);
+  // yaw = 8192/32768 * 180 = 45 deg about z: q = (cos 22.5, 0, 0, sin 22.5).
+  EXPECT_NEAR(samples[0].orientation_wxyz[0], std::cos(M_PI / 8), 1e-9);
+  EXPECT_NEAR(samples[0].orientation_wxyz[3], std::sin(M_PI / 8), 1e-9);
+  EXPECT_NEAR(samples[0].temperature_c, 25.0, 1e-9);
+}
+
+TEST(WitMotion, GarbageCostsOnlyCorruptedFrames) {
+  const auto clean = Stream(200);
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> byte(0, 255);
+  std::vector<uint8_t> dirty;
+  int damaged = 0;
+  for (size_t i = 0; i < clean.size(); i += kFrameSize) {
+    if (i % (kFrameSize * 37) == kFrameSize * 5) {
+      for (int k = 0; k < 23; ++k) dirty.push_back(static_cast<uint8_t>(byte(rng)));
+    }
+    dirty.insert(dirty.end(), clean.begin() + static_cast<long>(i),
+                 clean.begin() + static_cast<long>(i + kFrameSize));
+    if (i % (kFrameSize * 53) == kFrameSize * 9) {
+      dirty.back() ^= 0x01;  // flip one bit of a checksum
+      ++damaged;
+    }
+  }
+  FrameParser p;
+  std::vector<Frame> frames;
+  for (size_t i = 0; i < dirty.size(); i += 13) {
+    p.Feed(dirty.data() + i, std::min<size_t>(13, dirty.size() - i), &frames);
+  }
+  EXPECT_EQ(frames.size(), 800u - static_cast<size_t>(damaged));
+  EXPECT_EQ(p.counters().checksum_errors, damaged);
+  EXPECT_GT(p.counters().resyncs, 0);
+}
+
+}  // namespace
+}  // namespace omni::imu

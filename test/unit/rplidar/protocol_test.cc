@@ -1,0 +1,182 @@
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "omni/rplidar/parser.h"
+#include "omni/rplidar/protocol.h"
+#include "omni/rplidar/scan.h"
+
+namespace omni::rplidar {
+namespace {
+
+TEST(RplidarProtocol, RequestWithPayloadCarriesXorChecksum) {
+  // SET_MOTOR_PWM 660 as rplidar_sdk sends it: A5 F0 02 94 02 checksum.
+  const auto r = MakeMotorPwmRequest(660);
+  ASSERT_EQ(r.size(), 6u);
+  EXPECT_EQ(r[0], 0xA5);
+  EXPECT_EQ(r[1], 0xF0);
+  EXPECT_EQ(r[2], 0x02);
+  EXPECT_EQ(r[3], 0x94);
+  EXPECT_EQ(r[4], 0x02);
+  EXPECT_EQ(r[5], 0xA5 ^ 0xF0 ^ 0x02 ^ 0x94 ^ 0x02);
+  EXPECT_EQ(MakeRequest(kCmdGetHealth), (std::vector<uint8_t>{0xA5, 0x52}));
+}
+
+TEST(RplidarProtocol, DescriptorRoundTrip) {
+  // The SCAN answer of every RPLidar: A5 5A 05 00 00 40 81.
+  const auto b = EncodeDescriptor({5, kModeMulti, kAnsMeasurement});
+  EXPECT_EQ(b, (std::array<uint8_t, 7>{0xA5, 0x5A, 0x05, 0x00, 0x00, 0x40, 0x81}));
+  Descriptor d;
+  ASSERT_TRUE(DecodeDescriptor(b.data(), &d));
+  EXPECT_EQ(d.size, 5u);
+  EXPECT_EQ(d.mode, kModeMulti);
+  EXPECT_EQ(d.type, kAnsMeasurement);
+  const uint8_t bad[7] = {0xA5, 0x00, 0, 0, 0, 0, 0};
+  EXPECT_FALSE(DecodeDescriptor(bad, &d));
+}
+
+TEST(RplidarProtocol, StandardSampleRoundTripAndChecks) {
+  const auto b = EncodeStandardSample(351.296875, 2240.0, 15, true);
+  EXPECT_TRUE(StandardSampleChecksPass(b.data()));
+  const Sample s = DecodeStandardSample(b.data());
+  EXPECT_DOUBLE_EQ(s.angle_deg, 351.296875);
+  EXPECT_DOUBLE_EQ(s.distance_mm, 2240.0);
+  EXPECT_EQ(s.quality, 15);
+  EXPECT_TRUE(s.start);
+  auto broken = b;
+  broken[1] &= 0xFE;  // C bit cleared
+  EXPECT_FALSE(StandardSampleChecksPass(broken.data()));
+  broken = b;
+  broken[0] |= 0x3;  // S == !S
+  EXPECT_FALSE(StandardSampleChecksPass(broken.data()));
+}
+
+TEST(RplidarProtocol, InfoHealthRateRoundTrip) {
+  DeviceInfo info;
+  info.model = 0x31;
+  info.firmware_version = 0x011A;
+  info.hardware_version = 6;
+  info.serial_number[0] = 0xAB;
+  const auto ib = EncodeDeviceInfo(info);
+  ASSERT_EQ(ib.size(), kDevInfoSize);
+  const DeviceInfo back = DecodeDeviceInfo(ib.data());
+  EXPECT_EQ(back.MajorModel(), 3);
+  EXPECT_EQ(back.firmware_version, 0x011A);
+  EXPECT_EQ(back.SerialHex().substr(0, 2), "AB");
+  const auto hb = EncodeHealth({kHealthError, 0x1234});
+  EXPECT_EQ(DecodeHealth(hb.data()).status, kHealthError);
+  EXPECT_EQ(DecodeHealth(hb.data()).error_code, 0x1234);
+  const auto rb = EncodeSampleRate({250, 125});
+  EXPECT_EQ(DecodeSampleRate(rb.data()).standard_us, 250);
+  EXPECT_EQ(DecodeSampleRate(rb.data()).express_us, 125);
+}
+
+// Capsules built like a real A2 stream: 32 samples per capsule, angles evenly spaced.
+std::vector<uint8_t> MakeExpressStream(int capsules, double deg_per_capsule,
+                                       std::vector<double>* expected_dist) {
+  std::vector<uint8_t> bytes;
+  for (int c = 0; c < capsules; ++c) {
+    Capsule cap;
+    const double start = std::fmod(c * deg_per_capsule, 360.0);
+    cap.start_angle_q6 = static_cast<uint16_t>(std::lround(start * 64.0)) & 0x7FFF;
+    cap.start = (c == 0);
+    for (int i = 0; i < 16; ++i) {
+      const int d1 = 1000 + c * 32 + 2 * i;
+      const int d2 = d1 + 1;
+      cap.cabins[static_cast<size_t>(i)].distance_angle_1 = static_cast<uint16_t>(d1 * 4);
+      cap.cabins[static_cast<size_t>(i)].distance_angle_2 = static_cast<uint16_t>(d2 * 4);
+      if (c + 1 < capsules) {  // the last capsule's samples are never emitted
+        expected_dist->push_back(d1);
+        expected_dist->push_back(d2);
+      }
+    }
+    const auto b = EncodeCapsule(cap);
+    bytes.insert(bytes.end(), b.begin(), b.end());
+  }
+  return bytes;
+}
+
+TEST(RplidarExpress, DecodesAcrossConsecutiveCapsules) {
+  std::vector<double> expected;
+  const auto bytes = MakeExpressStream(30, 32 * 0.5, &expected);  // 0.5 deg per sample
+  MeasurementParser parser(StreamMode::kExpressLegacy);
+  std::vector<Sample> out;
+  parser.Feed(bytes.data(), bytes.size(), 7, &out);
+  ASSERT_EQ(out.size(), expected.size());
+  int starts = 0;
+  for (size_t i = 0; i < out.size(); ++i) {
+    EXPECT_DOUBLE_EQ(out[i].distance_mm, expected[i]) << i;
+    EXPECT_NEAR(out[i].angle_deg, std::fmod(i * 0.5, 360.0), 1.0 / 64) << i;
+    starts += out[i].start ? 1 : 0;
+  }
+  EXPECT_EQ(starts, 1);  // 29 capsules * 16 deg = 464 deg: one wrap through 0
+  EXPECT_EQ(parser.counters().checksum_errors, 0);
+  EXPECT_EQ(parser.counters().capsules, 30);
+}
+
+TEST(RplidarExpress, CorruptedCapsuleIsCountedAndSkipped) {
+  std::vector<double> expected;
+  auto bytes = MakeExpressStream(10, 16.0, &expected);
+  bytes[5 * kCapsuleSize + 40] ^= 0x5A;  // damage capsule 5
+  MeasurementParser parser(StreamMode::kExpressLegacy);
+  std::vector<Sample> out;
+  // Byte-by-byte feeding must give the same answer as one block.
+  for (uint8_t b : bytes) parser.Feed(&b, 1, 0, &out);
+  EXPECT_EQ(parser.counters().checksum_errors, 1);
+  EXPECT_EQ(parser.counters().capsules, 9);
+  // Capsules 4 and 5 lose their samples (4 has no valid successor); the rest decode.
+  EXPECT_EQ(out.size(), (9u - 1u - 1u) * 32u);
+}
+
+TEST(RplidarScan, ClockwiseSamplesBecomeCounterClockwiseBeams) {
+  std::vector<Sample> rev;
+  Sample s;
+  s.angle_deg = 90;  // clockwise 90 = the sensor's right = -90 deg CCW
+  s.distance_mm = 1000;
+  s.quality = 40;
+  s.utime = 100;
+  rev.push_back(s);
+  s.angle_deg = 0;
+  s.distance_mm = 2000;
+  s.utime = 200;
+  rev.push_back(s);
+  s.angle_deg = 10;
+  s.distance_mm = 50;  // closer than range_min: dropped
+  rev.push_back(s);
+  ScanOptions opt;
+  opt.beams = 360;
+  const PlanarScan scan = RevolutionToScan(rev, opt);
+  ASSERT_EQ(scan.ranges_m.size(), 360u);
+  auto beam_of = [&](double ccw_deg) {
+    return static_cast<size_t>(
+        std::lround((ccw_deg * M_PI / 180 - scan.angle_min_rad) / scan.angle_increment_rad));
+  };
+  EXPECT_FLOAT_EQ(scan.ranges_m[beam_of(-90)], 1.0f);
+  EXPECT_FLOAT_EQ(scan.intensities[beam_of(-90)], 40.0f);
+  EXPECT_FLOAT_EQ(scan.ranges_m[beam_of(0)], 2.0f);
+  EXPECT_TRUE(std::isnan(scan.ranges_m[beam_of(90)]));
+  EXPECT_EQ(scan.samples_used, 2);
+  EXPECT_EQ(scan.utime, 100);
+  EXPECT_DOUBLE_EQ(scan.scan_time_s, 100e-6);
+}
+
+TEST(RplidarAssembler, RevolutionsEndAtStartFlags) {
+  RevolutionAssembler a;
+  std::vector<Sample> done;
+  int completed = 0;
+  for (int rev = 0; rev < 4; ++rev) {
+    for (int i = 0; i < 10; ++i) {
+      Sample s;
+      s.start = (i == 0);
+      if (a.Add(s, &done)) {
+        ++completed;
+        EXPECT_EQ(done.size(), 10u);
+      }
+    }
+  }
+  EXPECT_EQ(completed, 3);  // the 4th is still open
+  EXPECT_EQ(a.revolutions(), 3);
+}
+
+}  // namespace
+}  // namespace omni::rplidar

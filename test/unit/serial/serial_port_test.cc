@@ -1,0 +1,99 @@
+#include <unistd.h>
+
+#include <cstdlib>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "omni/serial/pty.h"
+#include "omni/serial/serial_port.h"
+
+namespace omni::serial {
+namespace {
+
+std::string TempLink(const char* name) {
+  return std::string("/tmp/omni_serial_test_") + std::to_string(getpid()) + "_" + name;
+}
+
+TEST(SerialPort, MissingDeviceIsNotFoundNamingThePath) {
+  auto port = SerialPort::Open("/dev/does-not-exist-omni", 115200);
+  ASSERT_FALSE(port.ok());
+  EXPECT_EQ(port.error().code, ErrorCode::kNotFound);
+  EXPECT_NE(port.error().message.find("/dev/does-not-exist-omni"), std::string::npos);
+}
+
+TEST(SerialPort, RegularFileIsNotATerminal) {
+  auto port = SerialPort::Open("/proc/self/status", 115200);
+  ASSERT_FALSE(port.ok());
+  EXPECT_NE(port.error().message.find("/proc/self/status"), std::string::npos);
+}
+
+TEST(SerialPort, BytesPassBothWaysUnchangedAtCustomBaud) {
+  auto pty = Pty::Create(TempLink("a"));
+  ASSERT_TRUE(pty.ok()) << pty.error().message;
+  // 256000 is not a POSIX Bxxx constant: it needs termios2/BOTHER.
+  auto port = SerialPort::Open((*pty)->path(), 256000);
+  ASSERT_TRUE(port.ok()) << port.error().message;
+  // Every byte value, including CR, LF, XON/XOFF and ^C, must pass through raw.
+  uint8_t all[256];
+  for (int i = 0; i < 256; ++i) all[i] = static_cast<uint8_t>(i);
+  ASSERT_EQ(write((*pty)->master_fd(), all, sizeof(all)), 256);
+  uint8_t got[256];
+  size_t n = 0;
+  while (n < sizeof(got)) {
+    auto r = (*port)->Read(got + n, sizeof(got) - n, 1000);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    ASSERT_GT(*r, 0u) << "timeout after " << n << " bytes";
+    n += *r;
+  }
+  for (int i = 0; i < 256; ++i) EXPECT_EQ(got[i], i);
+  const uint8_t cmd[2] = {0xA5, 0x20};
+  ASSERT_TRUE((*port)->Write(cmd, 2).ok());
+  uint8_t back[2] = {0, 0};
+  ssize_t m = 0;
+  for (int tries = 0; tries < 100 && m < 2; ++tries) {
+    const ssize_t k = read((*pty)->master_fd(), back + m, 2 - static_cast<size_t>(m));
+    if (k > 0) {
+      m += k;
+    } else {
+      usleep(1000);
+    }
+  }
+  EXPECT_EQ(m, 2);
+  EXPECT_EQ(back[0], 0xA5);
+  EXPECT_EQ(back[1], 0x20);
+}
+
+TEST(SerialPort, DtrOnAPtyFailsWithoutHarm) {
+  auto pty = Pty::Create();
+  ASSERT_TRUE(pty.ok());
+  auto port = SerialPort::Open((*pty)->path(), 115200);
+  ASSERT_TRUE(port.ok());
+  const Status st = (*port)->SetDtr(true);
+  // A pty has no modem lines (ENOTTY); the error names the port and the port still works.
+  if (!st.ok()) {
+    EXPECT_NE(st.message().find((*pty)->path()), std::string::npos);
+  }
+  auto r = (*port)->Read(nullptr, 0, 1);
+  EXPECT_TRUE(r.ok());
+}
+
+TEST(SerialPort, VanishedDeviceIsUnavailable) {
+  const std::string link = TempLink("b");
+  auto pty = Pty::Create(link);
+  ASSERT_TRUE(pty.ok());
+  auto port = SerialPort::Open(link, 115200);
+  ASSERT_TRUE(port.ok());
+  pty->reset();  // the emulator closes the master: the device is unplugged
+  uint8_t b[16];
+  auto r = (*port)->Read(b, sizeof(b), 500);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kUnavailable);
+  EXPECT_NE(access(link.c_str(), F_OK), 0) << "the symlink goes with the device";
+  auto again = SerialPort::Open(link, 115200);
+  EXPECT_FALSE(again.ok());
+  EXPECT_EQ(again.error().code, ErrorCode::kNotFound);
+}
+
+}  // namespace
+}  // namespace omni::serial
