@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -109,10 +110,15 @@ bool LoadScanDat(const std::string& path, Dataset* out, std::string* err) {
 void Usage() {
   std::cout << "usage: omni-bench-octomap [--datasets DIR] [--out FILE] [--threads N]\n"
                "         [--resolutions 0.01,0.05] [--max-range M] [--only NAME]\n"
-               "Times OctoMap's OcTree::insertPointCloud and omni's parallel key-set insertion\n"
-               "on the same frames (rgbd/iclnuim-5frames, rgbd/kinect-5frames,\n"
-               "octomap/scan.dat.bz2), reports points/s, ms/frame, speedup and the IoU of the\n"
-               "occupied leaves, and writes one JSON row per dataset and resolution.\n";
+               "         [--subvoxel N]\n"
+               "Times OctoMap's OcTree::insertPointCloud (discretize off and on) and omni's\n"
+               "parallel key-set insertion (subvoxel N=2: the builder's default; discretize;\n"
+               "exact) on\n"
+               "the same frames in the same run (rgbd/iclnuim-5frames, rgbd/kinect-5frames with\n"
+               "their given poses, octomap/scan.dat.bz2 from the origin), at the same resolution\n"
+               "and max range (default 5 m). Reports points/s, ms/frame, speedups and the IoU of\n"
+               "the occupied voxels against plain insertPointCloud; writes one JSON row per\n"
+               "dataset and resolution (default out/bench/octomap.jsonl).\n";
 }
 
 }  // namespace
@@ -122,8 +128,8 @@ int main(int argc, char** argv) {
   std::string out_path = "out/bench/octomap.jsonl";
   std::string only;
   int threads = 2;
-  bool discretize = false;
-  double max_range = 8.0;
+  int subvoxel = 2;
+  double max_range = 5.0;
   std::vector<double> resolutions{0.01, 0.05};
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -145,8 +151,8 @@ int main(int argc, char** argv) {
       threads = std::stoi(next());
     } else if (a == "--max-range") {
       max_range = std::stod(next());
-    } else if (a == "--discretize") {
-      discretize = true;
+    } else if (a == "--subvoxel") {
+      subvoxel = std::stoi(next());
     } else if (a == "--only") {
       only = next();
     } else if (a == "--resolutions") {
@@ -195,67 +201,115 @@ int main(int argc, char** argv) {
     std::cerr << "cannot write " << out_path << "\n";
     return 1;
   }
-  std::printf("%-16s %6s %6s %9s | %12s %9s | %12s %9s | %7s %7s | %8s\n", "dataset", "res_m",
-              "frames", "points", "octomap pt/s", "ms/frame", "omni pt/s", "ms/frame", "speedup",
-              "iou", "leaves");
+  std::printf("%-16s %5s %6s %8s | %10s %9s | %10s %9s %7s %7s | %10s %9s %7s | %10s %9s %7s\n", "",
+              "", "", "", "octomap", "", "omni", "(subvox", "default)", "", "omni", "exact", "",
+              "octomap", "discret.", "");
+  std::printf("%-16s %5s %6s %8s | %10s %9s | %10s %9s %7s %7s | %10s %9s %7s | %10s %9s %7s\n",
+              "dataset", "res_m", "frames", "points", "points/s", "ms/frame", "points/s",
+              "ms/frame", "speedup", "iou", "points/s", "ms/frame", "speedup", "points/s",
+              "ms/frame", "iou");
   for (const Dataset& d : sets) {
     size_t points = 0;
     for (const auto& f : d.frames) points += f.points.size();
+    const double nf = static_cast<double>(d.frames.size());
     for (double res : resolutions) {
-      octomap::OcTree plain(res);
-      const int64_t t0 = NowUs();
-      for (const auto& f : d.frames) {
-        octomap::Pointcloud pc;
-        pc.reserve(f.points.size());
-        for (const auto& p : f.points) pc.push_back(p.x(), p.y(), p.z());
-        plain.insertPointCloud(pc, octomap::point3d(f.origin.x(), f.origin.y(), f.origin.z()),
-                               max_range, false, false);
-      }
-      const double plain_s = (NowUs() - t0) * 1e-6;
-
-      omni::octo::KeySetOptions ko;
-      ko.num_threads = threads;
-      ko.max_range_m = max_range;
-      ko.discretize = discretize;
-      omni::octo::ParallelKeySetInserter inserter(res, ko);
-      octomap::OcTree ours(res);
-      int64_t keys_us = 0, update_us = 0, rays_us = 0, merge_us = 0, sort_us = 0;
-      size_t free_keys = 0;
-      const int64_t t1 = NowUs();
-      for (const auto& f : d.frames) {
-        const auto st = inserter.Insert(&ours, f.points, f.origin);
-        keys_us += st.keys_us;
-        update_us += st.update_us;
-        rays_us += st.rays_us;
-        merge_us += st.merge_us;
-        sort_us += st.sort_us;
-        free_keys += st.free_keys;
-      }
-      const double ours_s = (NowUs() - t1) * 1e-6;
-      const auto cmp = omni::octo::CompareOccupied(ours, plain);
-      const double nf = static_cast<double>(d.frames.size());
-      const double plain_pps = points / plain_s, ours_pps = points / ours_s;
-      std::printf("%-16s %6.2f %6zu %9zu | %12.0f %9.1f | %12.0f %9.1f | %7.2f %7.4f | %8zu\n",
-                  d.name.c_str(), res, d.frames.size(), points, plain_pps, plain_s * 1e3 / nf,
-                  ours_pps, ours_s * 1e3 / nf, plain_s / ours_s, cmp.iou, cmp.occupied_b);
-      std::fprintf(
-          stderr,
-          "  omni phases per frame: rays %.1f ms, merge+sort %.1f ms, join %.1f ms, update %.1f "
-          "ms; %.0f free keys\n",
-          rays_us * 1e-3 / nf, merge_us * 1e-3 / nf, sort_us * 1e-3 / nf, update_us * 1e-3 / nf,
-          free_keys / nf);
+      // Each run builds its tree from scratch over all frames; the trees are kept for the IoU.
+      struct Run {
+        double seconds = 0;
+        std::unique_ptr<octomap::OcTree> tree;
+        int64_t rays_us = 0, merge_us = 0, update_us = 0;
+      };
+      auto run_plain = [&](bool disc) {
+        Run r;
+        r.tree = std::make_unique<octomap::OcTree>(res);
+        const int64_t t0 = NowUs();
+        for (const auto& f : d.frames) {
+          octomap::Pointcloud pc;
+          pc.reserve(f.points.size());
+          for (const auto& p : f.points) pc.push_back(p.x(), p.y(), p.z());
+          r.tree->insertPointCloud(pc, octomap::point3d(f.origin.x(), f.origin.y(), f.origin.z()),
+                                   max_range, false, disc);
+        }
+        r.seconds = (NowUs() - t0) * 1e-6;
+        return r;
+      };
+      enum class Mode { kExact, kDiscretize, kSubvoxel };
+      auto run_omni = [&](Mode mode) {
+        Run r;
+        r.tree = std::make_unique<octomap::OcTree>(res);
+        omni::octo::KeySetOptions ko;
+        ko.num_threads = threads;
+        ko.max_range_m = max_range;
+        ko.discretize = mode == Mode::kDiscretize;
+        ko.subvoxel = mode == Mode::kSubvoxel ? subvoxel : 0;
+        omni::octo::ParallelKeySetInserter inserter(res, ko);
+        const int64_t t0 = NowUs();
+        for (const auto& f : d.frames) {
+          const auto st = inserter.Insert(r.tree.get(), f.points, f.origin);
+          r.rays_us += st.rays_us;
+          r.merge_us += st.merge_us + st.sort_us;
+          r.update_us += st.update_us;
+        }
+        r.seconds = (NowUs() - t0) * 1e-6;
+        return r;
+      };
+      const Run plain = run_plain(false);
+      const Run plain_d = run_plain(true);
+      const Run omni_s = run_omni(Mode::kSubvoxel);
+      const Run omni_d = run_omni(Mode::kDiscretize);
+      const Run omni_x = run_omni(Mode::kExact);
+      const auto iou_s = omni::octo::CompareOccupied(*omni_s.tree, *plain.tree);
+      const auto iou_d = omni::octo::CompareOccupied(*omni_d.tree, *plain.tree);
+      const auto iou_pd = omni::octo::CompareOccupied(*plain_d.tree, *plain.tree);
+      const auto iou_x = omni::octo::CompareOccupied(*omni_x.tree, *plain.tree);
+      const bool same_x = omni::octo::SameLeaves(*omni_x.tree, *plain.tree);
+      const bool same_d = omni::octo::SameLeaves(*omni_d.tree, *plain_d.tree);
+      auto pps = [&](const Run& r) { return points / r.seconds; };
+      auto msf = [&](const Run& r) { return r.seconds * 1e3 / nf; };
+      std::printf(
+          "%-16s %5.2f %6zu %8zu | %10.0f %9.1f | %10.0f %9.1f %6.2fx %7.4f | %10.0f %9.1f %6.2fx "
+          "| "
+          "%10.0f %9.1f %7.4f\n",
+          d.name.c_str(), res, d.frames.size(), points, pps(plain), msf(plain), pps(omni_s),
+          msf(omni_s), plain.seconds / omni_s.seconds, iou_s.iou, pps(omni_x), msf(omni_x),
+          plain.seconds / omni_x.seconds, pps(plain_d), msf(plain_d), iou_pd.iou);
+      std::printf(
+          "%-16s   omni exact: IoU %.4f, same leaves as octomap: %s | omni discretize: %.1f "
+          "ms/frame, %.2fx octomap discretize, same leaves as it: %s, IoU vs plain %.4f\n",
+          "", iou_x.iou, same_x ? "yes" : "NO", msf(omni_d), plain_d.seconds / omni_d.seconds,
+          same_d ? "yes" : "NO", iou_d.iou);
+      std::printf("%-16s   omni per frame: rays %.1f ms, merge+sort %.1f ms, tree update %.1f ms\n",
+                  "", omni_s.rays_us * 1e-3 / nf, omni_s.merge_us * 1e-3 / nf,
+                  omni_s.update_us * 1e-3 / nf);
       std::fflush(stdout);
       jsonl << std::setprecision(6) << "{\"system\":\"omni_vs_octomap\",\"dataset\":\"" << d.name
             << "\",\"resolution_m\":" << res << ",\"max_range_m\":" << max_range
             << ",\"frames\":" << d.frames.size() << ",\"points\":" << points
-            << ",\"threads\":" << threads << ",\"omni_points_per_s\":" << ours_pps
-            << ",\"octomap_points_per_s\":" << plain_pps << ",\"speedup\":" << plain_s / ours_s
-            << ",\"iou\":" << cmp.iou << ",\"omni_ms_per_frame\":" << ours_s * 1e3 / nf
-            << ",\"octomap_ms_per_frame\":" << plain_s * 1e3 / nf
-            << ",\"omni_keys_ms_per_frame\":" << keys_us * 1e-3 / nf
-            << ",\"omni_update_ms_per_frame\":" << update_us * 1e-3 / nf
-            << ",\"occupied_voxels_omni\":" << cmp.occupied_a
-            << ",\"occupied_voxels_octomap\":" << cmp.occupied_b << "}\n";
+            << ",\"threads\":" << threads << ",\"omni_mode\":\"subvoxel" << subvoxel << "\""
+            << ",\"omni_points_per_s\":" << pps(omni_s)
+            << ",\"octomap_points_per_s\":" << pps(plain)
+            << ",\"speedup\":" << plain.seconds / omni_s.seconds << ",\"iou\":" << iou_s.iou
+            << ",\"omni_ms_per_frame\":" << msf(omni_s)
+            << ",\"octomap_ms_per_frame\":" << msf(plain)
+            << ",\"omni_exact_points_per_s\":" << pps(omni_x)
+            << ",\"omni_exact_ms_per_frame\":" << msf(omni_x)
+            << ",\"omni_exact_speedup\":" << plain.seconds / omni_x.seconds
+            << ",\"omni_exact_iou\":" << iou_x.iou
+            << ",\"omni_exact_same_leaves\":" << (same_x ? "true" : "false")
+            << ",\"octomap_discretize_points_per_s\":" << pps(plain_d)
+            << ",\"octomap_discretize_ms_per_frame\":" << msf(plain_d)
+            << ",\"octomap_discretize_iou\":" << iou_pd.iou
+            << ",\"omni_discretize_ms_per_frame\":" << msf(omni_d)
+            << ",\"omni_discretize_speedup_vs_octomap_discretize\":"
+            << plain_d.seconds / omni_d.seconds
+            << ",\"omni_discretize_same_leaves_as_octomap_discretize\":"
+            << (same_d ? "true" : "false") << ",\"omni_discretize_iou\":" << iou_d.iou
+            << ",\"omni_rays_ms_per_frame\":" << omni_s.rays_us * 1e-3 / nf
+            << ",\"omni_merge_ms_per_frame\":" << omni_s.merge_us * 1e-3 / nf
+            << ",\"omni_update_ms_per_frame\":" << omni_s.update_us * 1e-3 / nf
+            << ",\"occupied_voxels_octomap\":" << iou_s.occupied_b
+            << ",\"occupied_voxels_omni\":" << iou_s.occupied_a << "}\n";
+      jsonl.flush();
     }
   }
   std::printf("wrote %s\n", out_path.c_str());

@@ -60,7 +60,7 @@ void Usage(std::FILE* f) {
 struct Args {
   std::string input, out, config;
   std::vector<std::pair<std::string, std::string>> opts;  // option -> value, in order
-  bool exact = false, pcd = false;
+  bool exact = false, discretize = false, pcd = false;
 };
 
 std::string Get(const Args& a, const std::string& key, const std::string& def = "") {
@@ -140,6 +140,8 @@ int main(int argc, char** argv) {
       return 0;
     } else if (s == "--exact") {
       a.exact = true;
+    } else if (s == "--discretize") {
+      a.discretize = true;
     } else if (s == "--pcd") {
       a.pcd = true;
     } else if (std::find(kValued.begin(), kValued.end(), s) != kValued.end()) {
@@ -168,7 +170,7 @@ int main(int argc, char** argv) {
     const char* flag;
     double* target;
   };
-  double stride = o.depth.pixel_stride, threads = o.threads;
+  double stride = o.depth.pixel_stride, threads = o.threads, subvoxel = o.subvoxel;
   const Num nums[] = {{"--resolution", &o.resolution_m},
                       {"--max-range", &o.max_range_m},
                       {"--min-depth", &o.depth.min_depth_m},
@@ -177,7 +179,8 @@ int main(int argc, char** argv) {
                       {"--voxel-filter", &o.voxel_filter_m},
                       {"--threads", &threads},
                       {"--grid-min-z", &o.grid.min_z_m},
-                      {"--grid-max-z", &o.grid.max_z_m}};
+                      {"--grid-max-z", &o.grid.max_z_m},
+                      {"--subvoxel", &subvoxel}};
   for (const auto& n : nums) {
     const std::string v = Get(a, n.flag);
     if (!v.empty() && !ParseDouble(v, n.target))
@@ -185,7 +188,15 @@ int main(int argc, char** argv) {
   }
   o.depth.pixel_stride = static_cast<int>(stride);
   o.threads = static_cast<int>(threads);
-  if (a.exact) o.discretize = false;
+  o.subvoxel = static_cast<int>(subvoxel);
+  if (a.exact) {
+    o.discretize = false;
+    o.subvoxel = 0;
+  }
+  if (a.discretize) {
+    o.discretize = true;
+    o.subvoxel = 0;
+  }
   o.keep_cloud = a.pcd;
   if (!(o.resolution_m >= 0.001 && o.resolution_m <= 10))
     return Fail("--resolution must be in [0.001, 10]");

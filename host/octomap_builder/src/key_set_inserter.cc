@@ -172,14 +172,19 @@ inline bool CastRay(const octomap::OcTree& keyer, const octomap::point3d& origin
   uint64_t current = PackKey(key_origin);
   const uint64_t last = PackKey(key_end);
   const double len = length;
+  // The state lives in registers; the axis is chosen arithmetically (upstream's nested
+  // if/else: x if tx < ty and tx < tz; else y if ty < tz (and not tx < ty); else z).
+  double tx = t_max[0], ty = t_max[1], tz = t_max[2];
+  const double dx = t_delta[0], dy = t_delta[1], dz = t_delta[2];
   for (;;) {
-    const double t0 = t_max[0], t1 = t_max[1], t2 = t_max[2];
-    const unsigned a = t0 < t1, b = t0 < t2, c = t1 < t2;
-    const unsigned dim = a ? (b ? 0u : 2u) : (c ? 1u : 2u);
-    current += step[dim];
-    t_max[dim] += t_delta[dim];
+    const unsigned a = tx < ty, b = tx < tz, c = ty < tz;
+    const unsigned is_x = a & b, is_y = (a ^ 1u) & c, is_z = 1u - is_x - is_y;
+    current += step[2 - 2 * is_x - is_y];
+    tx += is_x ? dx : 0.0;
+    ty += is_y ? dy : 0.0;
+    tz += is_z ? dz : 0.0;
     if (current == last) break;
-    if (std::min(std::min(t_max[0], t_max[1]), t_max[2]) > len) break;
+    if (std::min(std::min(tx, ty), tz) > len) break;
     emit(current);
   }
   return true;
@@ -244,13 +249,82 @@ std::vector<Eigen::Vector3f> ParallelKeySetInserter::Discretize(
   return out;
 }
 
+std::vector<Eigen::Vector3f> ParallelKeySetInserter::SubvoxelCentroids(
+    const std::vector<Eigen::Vector3f>& points) const {
+  // Cell index per axis: floor(coord * n / resolution), offset into 20 bits (+-2^19 cells).
+  const double scale = options_.subvoxel / keyer_.getResolution();
+  constexpr int64_t kOffset = int64_t{1} << 19;
+  struct Acc {
+    double x = 0, y = 0, z = 0;
+    int n = 0;
+  };
+  // Open-addressing map cell -> index of its accumulator (first-appearance order).
+  std::vector<Acc> acc;
+  acc.reserve(points.size() / 4 + 64);
+  size_t cap = 64;
+  while (cap < points.size() / 2) cap *= 2;
+  std::vector<uint64_t> slot_key(cap * 2, ~uint64_t{0});
+  std::vector<uint32_t> slot_val(cap * 2, 0);
+  size_t mask = cap * 2 - 1;
+  auto grow = [&]() {
+    std::vector<uint64_t> nk(slot_key.size() * 2, ~uint64_t{0});
+    std::vector<uint32_t> nv(nk.size(), 0);
+    const size_t nm = nk.size() - 1;
+    for (size_t i = 0; i < slot_key.size(); ++i) {
+      if (slot_key[i] == ~uint64_t{0}) continue;
+      size_t j = Mix(slot_key[i]) & nm;
+      while (nk[j] != ~uint64_t{0}) j = (j + 1) & nm;
+      nk[j] = slot_key[i];
+      nv[j] = slot_val[i];
+    }
+    slot_key.swap(nk);
+    slot_val.swap(nv);
+    mask = nm;
+  };
+  for (const auto& p : points) {
+    const int64_t ix = static_cast<int64_t>(std::floor(p.x() * scale)) + kOffset;
+    const int64_t iy = static_cast<int64_t>(std::floor(p.y() * scale)) + kOffset;
+    const int64_t iz = static_cast<int64_t>(std::floor(p.z() * scale)) + kOffset;
+    if (ix < 0 || iy < 0 || iz < 0 || ix >= 2 * kOffset || iy >= 2 * kOffset || iz >= 2 * kOffset)
+      continue;  // beyond +-2^19 cells: outside any tree of this resolution anyway
+    const uint64_t k = static_cast<uint64_t>(ix) | (static_cast<uint64_t>(iy) << 20) |
+                       (static_cast<uint64_t>(iz) << 40);
+    size_t j = Mix(k) & mask;
+    while (slot_key[j] != ~uint64_t{0} && slot_key[j] != k) j = (j + 1) & mask;
+    if (slot_key[j] == ~uint64_t{0}) {
+      slot_key[j] = k;
+      slot_val[j] = static_cast<uint32_t>(acc.size());
+      acc.emplace_back();
+      if (acc.size() * 2 > slot_key.size()) grow();
+      // Re-find after a possible growth.
+      j = Mix(k) & mask;
+      while (slot_key[j] != k) j = (j + 1) & mask;
+    }
+    Acc& a = acc[slot_val[j]];
+    a.x += p.x();
+    a.y += p.y();
+    a.z += p.z();
+    ++a.n;
+  }
+  std::vector<Eigen::Vector3f> out;
+  out.reserve(acc.size());
+  for (const Acc& a : acc)
+    out.emplace_back(static_cast<float>(a.x / a.n), static_cast<float>(a.y / a.n),
+                     static_cast<float>(a.z / a.n));
+  return out;
+}
+
 KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f>& input,
                                                const Eigen::Vector3f& origin_in,
                                                InsertStats* stats) const {
   const int64_t t0 = NowMicros();
   std::vector<Eigen::Vector3f> discrete;
-  if (options_.discretize) discrete = Discretize(input);
-  const std::vector<Eigen::Vector3f>& points = options_.discretize ? discrete : input;
+  const bool reduce = options_.discretize || options_.subvoxel > 1;
+  if (options_.discretize)
+    discrete = Discretize(input);
+  else if (options_.subvoxel > 1)
+    discrete = SubvoxelCentroids(input);
+  const std::vector<Eigen::Vector3f>& points = reduce ? discrete : input;
 
   const int nt = options_.num_threads;
   const octomap::point3d origin(origin_in.x(), origin_in.y(), origin_in.z());

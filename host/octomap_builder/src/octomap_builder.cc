@@ -11,6 +11,7 @@ KeySetOptions ToKeySetOptions(const OctomapBuilderOptions& o) {
   k.num_threads = o.threads;
   k.max_range_m = o.max_range_m;
   k.discretize = o.discretize;
+  k.subvoxel = o.subvoxel;
   return k;
 }
 
@@ -48,6 +49,9 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   depth.Get("pixel_stride", &o.depth.pixel_stride, Optional(), InRange(1, 64));
   depth.Get("voxel_filter_m", &o.voxel_filter_m, Optional(), NonNegative<double>());
   depth.Get("discretize", &o.discretize, Optional());
+  depth.Get("subvoxel", &o.subvoxel, Optional(), InRange(0, 16));
+  if (o.discretize && o.subvoxel > 1)
+    depth.AddError("discretize", "discretize and subvoxel > 1 exclude each other");
   if (o.depth.min_depth_m >= o.depth.max_depth_m)
     depth.AddError("min_depth_m", "must be < max_depth_m");
   r.Get("threads", &o.threads, Optional(), InRange(1, 64));

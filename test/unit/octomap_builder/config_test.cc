@@ -11,7 +11,8 @@ TEST(OctomapBuilderConfig, ShippedFileLoads) {
   ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(o->PoseChannel(), "POSE_RBPF");
   EXPECT_DOUBLE_EQ(o->resolution_m, 0.05);
-  EXPECT_TRUE(o->discretize);
+  EXPECT_FALSE(o->discretize);
+  EXPECT_EQ(o->subvoxel, 2);
   EXPECT_EQ(o->poser.max_latency_us, 500000);
   EXPECT_GT(o->mount.height_m, 0.0);
   EXPECT_LT(o->grid.min_z_m, o->grid.max_z_m);

@@ -6,7 +6,10 @@
 // endpoint's own voxel excluded) and the endpoint's key as occupied; a point beyond max_range
 // gives only the free ray up to max_range; keys that are occupied in this scan are removed
 // from the free set. With `discretize` the points are first replaced by the centres of their
-// voxels (one per voxel), as insertPointCloud(..., discretize=true) does. Every key is then
+// voxels (one per voxel), as insertPointCloud(..., discretize=true) does. With `subvoxel` = n > 1
+// the points are replaced by the centroids of the cells of edge resolution / n (aligned with the
+// tree's voxels, so each centroid stays in the voxel of its points: the same occupied keys, rays
+// close to the original ones). Every key is then
 // updated once with clamping and pruning on, giving the tree insertPointCloud(lazy_eval=false)
 // builds from the same points (same leaves, same inner values, same pruning).
 //
@@ -31,6 +34,7 @@ struct KeySetOptions {
   int num_threads = 2;      // threads for ray casting and merging (>= 1)
   double max_range_m = -1;  // rays longer than this are cut here and add no occupied key; < 0: none
   bool discretize = false;  // one ray per voxel of the tree (octomap's `discretize`)
+  int subvoxel = 0;         // > 1: one ray per (resolution / subvoxel) cell, to its centroid
 };
 
 // Morton code of a key: bit 3*i is bit i of x, 3*i+1 of y, 3*i+2 of z. The child index of a
@@ -92,6 +96,7 @@ class ParallelKeySetInserter {
   static void ApplyRecurs(Tree* tree, Node* node, bool just_created, unsigned depth,
                           const uint64_t* begin, const uint64_t* end);
   std::vector<Eigen::Vector3f> Discretize(const std::vector<Eigen::Vector3f>& points) const;
+  std::vector<Eigen::Vector3f> SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points) const;
 
   KeySetOptions options_;
   octomap::OcTree keyer_;  // empty tree: only its key arithmetic (computeRayKeys) is used

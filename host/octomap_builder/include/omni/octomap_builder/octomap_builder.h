@@ -40,7 +40,8 @@ struct OctomapBuilderOptions {
   // Depth to points (eq. 6-8) and filtering before ray casting.
   DepthToPointsOptions depth;
   double voxel_filter_m = 0;  // centroid voxel filter; 0: off
-  bool discretize = true;     // one ray per tree voxel (octomap's discretize)
+  bool discretize = false;    // one ray per tree voxel (octomap's discretize)
+  int subvoxel = 2;           // > 1: one ray per (resolution / subvoxel) cell, to its centroid
   int threads = 2;
 
   CameraMount mount;
