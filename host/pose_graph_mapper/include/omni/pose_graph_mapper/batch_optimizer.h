@@ -1,0 +1,52 @@
+// Batch optimisation of a whole 2D (SE2) or 3D (SE3:QUAT) pose graph with Ceres:
+// initialisation (see initialization.h), then Levenberg-Marquardt with sparse Cholesky
+// (SuiteSparse), the root vertex held constant as the gauge. chi^2 before/after are computed
+// by chi2.h's evaluator, not by Ceres, so they compare with any other system's output.
+#pragma once
+
+#include <string>
+
+#include "omni/common/config.h"
+#include "omni/common/result.h"
+#include "omni/io/g2o.h"
+#include "omni/pose_graph_mapper/initialization.h"
+
+namespace omni::pgm {
+
+struct BatchOptions {
+  Initialization initialization = Initialization::kChordal;
+  int max_iterations = 100;
+  // Ceres' convergence tests: relative cost decrease, and max |gradient| (tangent space).
+  double function_tolerance = 1e-10;
+  double gradient_tolerance = 1e-12;
+  double parameter_tolerance = 1e-10;
+  std::string loss = "none";  // none | huber | cauchy (on the whitened residual norm)
+  double loss_scale = 1.0;
+  int num_threads = 1;  // the caller decides (main passes the number of cores)
+
+  // Reads the `batch` section's keys from `r` (ConfigReader::Finish is the caller's).
+  static Result<BatchOptions> Load(ConfigReader& r);
+  Status Validate() const;
+};
+
+// Reads config/pose_graph_mapper.yaml's `batch` section; unknown keys anywhere in the file are
+// errors naming file, line and key.
+Result<BatchOptions> LoadBatchOptionsFile(const std::string& path);
+
+struct BatchResult {
+  double chi2_input = 0;        // the graph as given
+  double chi2_initialized = 0;  // after the initialisation
+  double chi2_final = 0;
+  int iterations = 0;  // Ceres iterations (successful + unsuccessful)
+  double init_s = 0, solve_s = 0;
+  std::string termination;  // Ceres' termination type and message
+  bool converged = false;
+  int root_id = 0;
+};
+
+// Optimises `graph` in place (vertex poses). Errors: invalid options, a graph without
+// vertices or edges, an edge to a missing vertex, a disconnected graph with an initialisation
+// that needs a spanning tree.
+Result<BatchResult> OptimizeGraph(io::PoseGraph* graph, const BatchOptions& options);
+
+}  // namespace omni::pgm

@@ -1,0 +1,24 @@
+// SE(2) and SE(3) exponential / logarithm maps used by the manifolds and the initialisation.
+// Conventions: an SE(2) pose is (x_m, y_m, theta_rad); an SE(3) pose is stored as 7 doubles
+// (tx, ty, tz, qx, qy, qz, qw), Eigen's quaternion memory order. Tangent vectors are
+// (v_x, v_y, omega) for SE(2) and (v_x, v_y, v_z, w_x, w_y, w_z) for SE(3).
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "omni/common/geometry.h"
+
+namespace omni::pgm {
+
+// Exp of an se(2) tangent vector (v, omega): translation V(omega) v, rotation omega.
+Pose2 ExpSE2(const Eigen::Vector3d& tangent);
+// Log of an SE(2) pose; the inverse of ExpSE2 for |theta| < pi.
+Eigen::Vector3d LogSE2(const Pose2& pose);
+
+// Unit quaternion of a rotation vector (angle = norm, axis = direction).
+Eigen::Quaterniond ExpSO3(const Eigen::Vector3d& rotation_vector);
+// Rotation vector of a unit quaternion (angle in [0, pi]).
+Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q);
+
+}  // namespace omni::pgm

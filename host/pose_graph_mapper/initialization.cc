@@ -1,0 +1,343 @@
+#include "omni/pose_graph_mapper/initialization.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/SVD>
+#include <Eigen/Sparse>
+#include <Eigen/SparseCholesky>
+
+namespace omni::pgm {
+namespace {
+
+// Dense vertex indices and, per vertex, the incident edges (2D or 3D, whichever the graph has).
+struct Topology {
+  std::unordered_map<int, int> index;      // id -> dense index
+  std::vector<std::pair<int, int>> edges;  // dense (from, to)
+  std::vector<std::vector<int>> incident;  // dense vertex -> edge numbers
+};
+
+Topology BuildTopology(const io::PoseGraph& g) {
+  Topology t;
+  const bool is3d = g.is_3d();
+  const size_t n = is3d ? g.vertices3.size() : g.vertices2.size();
+  for (size_t i = 0; i < n; ++i)
+    t.index[is3d ? g.vertices3[i].id : g.vertices2[i].id] = static_cast<int>(i);
+  t.incident.resize(n);
+  const size_t m = is3d ? g.edges3.size() : g.edges2.size();
+  for (size_t k = 0; k < m; ++k) {
+    const int from = is3d ? g.edges3[k].from : g.edges2[k].from;
+    const int to = is3d ? g.edges3[k].to : g.edges2[k].to;
+    const int a = t.index.at(from), b = t.index.at(to);
+    t.edges.emplace_back(a, b);
+    t.incident[a].push_back(static_cast<int>(k));
+    if (b != a) t.incident[b].push_back(static_cast<int>(k));
+  }
+  return t;
+}
+
+// Breadth-first order from root; parent_edge[v] = edge that reached v (-1 for the root).
+// Returns an error naming an unreachable vertex id.
+Status Bfs(const io::PoseGraph& g, const Topology& t, int root_id, std::vector<int>* order,
+           std::vector<int>* parent_edge) {
+  auto it = t.index.find(root_id);
+  if (it == t.index.end())
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "root vertex " + std::to_string(root_id) + " is not in the graph");
+  const size_t n = t.incident.size();
+  parent_edge->assign(n, -2);
+  order->clear();
+  std::deque<int> q{it->second};
+  (*parent_edge)[it->second] = -1;
+  while (!q.empty()) {
+    const int v = q.front();
+    q.pop_front();
+    order->push_back(v);
+    for (int k : t.incident[v]) {
+      const int w = t.edges[k].first == v ? t.edges[k].second : t.edges[k].first;
+      if ((*parent_edge)[w] != -2) continue;
+      (*parent_edge)[w] = k;
+      q.push_back(w);
+    }
+  }
+  if (order->size() != n) {
+    for (const auto& [id, idx] : t.index)
+      if ((*parent_edge)[idx] == -2)
+        return MakeError(ErrorCode::kInvalidArgument,
+                         "the graph is not connected: vertex " + std::to_string(id) +
+                             " cannot be reached from root " + std::to_string(root_id) +
+                             (g.is_3d() ? " (3D)" : ""));
+  }
+  return Status::Ok();
+}
+
+// Sparse linear least squares min ||A x - b||^2 where some variables are fixed to known values.
+class LinearLeastSquares {
+ public:
+  explicit LinearLeastSquares(int num_vars) : col_(num_vars, 0), fixed_(num_vars, 0.0) {}
+  void Fix(int var, double value) {
+    col_[var] = -1;
+    fixed_[var] = value;
+  }
+  void AddRow(const std::vector<std::pair<int, double>>& terms, double rhs) {
+    rows_.push_back({terms, rhs});
+  }
+  // Returns all variable values (fixed ones as given).
+  Result<std::vector<double>> Solve() {
+    int cols = 0;
+    for (auto& c : col_) c = c == -1 ? -1 : cols++;
+    std::vector<Eigen::Triplet<double>> trips;
+    Eigen::VectorXd b(rows_.size());
+    for (size_t r = 0; r < rows_.size(); ++r) {
+      double rhs = rows_[r].second;
+      for (const auto& [var, coef] : rows_[r].first) {
+        if (col_[var] < 0)
+          rhs -= coef * fixed_[var];
+        else
+          trips.emplace_back(static_cast<int>(r), col_[var], coef);
+      }
+      b[r] = rhs;
+    }
+    Eigen::SparseMatrix<double> a(static_cast<int>(rows_.size()), cols);
+    a.setFromTriplets(trips.begin(), trips.end());
+    const Eigen::SparseMatrix<double> at = a.transpose();
+    Eigen::SparseMatrix<double> h = at * a;
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(h);
+    if (ldlt.info() != Eigen::Success)
+      return MakeError(ErrorCode::kInvalidArgument,
+                       "linear initialisation is singular (is the graph connected?)");
+    const Eigen::VectorXd x = ldlt.solve(at * b);
+    std::vector<double> out(col_.size());
+    for (size_t v = 0; v < col_.size(); ++v) out[v] = col_[v] < 0 ? fixed_[v] : x[col_[v]];
+    return out;
+  }
+
+ private:
+  std::vector<int> col_;
+  std::vector<double> fixed_;
+  std::vector<std::pair<std::vector<std::pair<int, double>>, double>> rows_;
+};
+
+// Information of a sub-vector after marginalising the rest: inverse of the covariance block.
+template <int N, int K>
+Eigen::Matrix<double, K, K> MarginalInfo(const Eigen::Matrix<double, N, N>& info, int start) {
+  const Eigen::Matrix<double, N, N> cov = info.inverse();
+  return cov.template block<K, K>(start, start).inverse();
+}
+
+template <int K>
+Eigen::Matrix<double, K, K> SqrtOf(const Eigen::Matrix<double, K, K>& m) {
+  Eigen::LLT<Eigen::Matrix<double, K, K>> llt(0.5 * (m + m.transpose()));
+  return llt.matrixU();
+}
+
+Status Chordal2(io::PoseGraph* g, const Topology& t, int root) {
+  std::vector<int> order, parent;
+  if (Status s = Bfs(*g, t, g->vertices2[root].id, &order, &parent); !s.ok()) return s;
+  const int n = static_cast<int>(g->vertices2.size());
+  // Unwrapped tree orientations.
+  std::vector<double> th_tree(n, 0.0);
+  th_tree[root] = g->vertices2[root].pose.theta;
+  for (int v : order) {
+    if (parent[v] < 0) continue;
+    const auto& e = g->edges2[parent[v]];
+    const auto [a, b] = t.edges[parent[v]];
+    if (b == v)
+      th_tree[v] = th_tree[a] + e.measurement.theta;
+    else
+      th_tree[v] = th_tree[b] - e.measurement.theta;
+  }
+  // Orientations: th_b - th_a = dth + 2 pi k, k from the tree estimate.
+  LinearLeastSquares rot(n);
+  rot.Fix(root, th_tree[root]);
+  for (size_t k = 0; k < g->edges2.size(); ++k) {
+    const auto& e = g->edges2[k];
+    const auto [a, b] = t.edges[k];
+    if (a == b) continue;
+    const double d = e.measurement.theta;
+    const double wraps = std::round((th_tree[b] - th_tree[a] - d) / (2 * M_PI));
+    const double w = std::sqrt(1.0 / e.information.inverse()(2, 2));
+    rot.AddRow({{a, -w}, {b, w}}, w * (d + 2 * M_PI * wraps));
+  }
+  auto th = rot.Solve();
+  if (!th.ok()) return th.error();
+  // Positions: p_b - p_a = R(th_a) p_z, weighted by the rotated marginal xy information.
+  LinearLeastSquares pos(2 * n);
+  pos.Fix(2 * root, g->vertices2[root].pose.x);
+  pos.Fix(2 * root + 1, g->vertices2[root].pose.y);
+  for (size_t k = 0; k < g->edges2.size(); ++k) {
+    const auto& e = g->edges2[k];
+    const auto [a, b] = t.edges[k];
+    if (a == b) continue;
+    const double c = std::cos((*th)[a]), s = std::sin((*th)[a]);
+    Eigen::Matrix2d r;
+    r << c, -s, s, c;
+    const Eigen::Matrix2d info = r * MarginalInfo<3, 2>(e.information, 0) * r.transpose();
+    const Eigen::Matrix2d sq = SqrtOf<2>(info);
+    const Eigen::Vector2d rhs = sq * (r * Eigen::Vector2d(e.measurement.x, e.measurement.y));
+    for (int row = 0; row < 2; ++row)
+      pos.AddRow({{2 * a, -sq(row, 0)},
+                  {2 * a + 1, -sq(row, 1)},
+                  {2 * b, sq(row, 0)},
+                  {2 * b + 1, sq(row, 1)}},
+                 rhs[row]);
+  }
+  auto p = pos.Solve();
+  if (!p.ok()) return p.error();
+  for (int v = 0; v < n; ++v)
+    g->vertices2[v].pose = Pose2((*p)[2 * v], (*p)[2 * v + 1], WrapAngle((*th)[v]));
+  return Status::Ok();
+}
+
+Eigen::Matrix3d ProjectToSO3(const Eigen::Matrix3d& m) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
+  d(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  return svd.matrixU() * d * svd.matrixV().transpose();
+}
+
+Status Chordal3(io::PoseGraph* g, const Topology& t, int root) {
+  const int n = static_cast<int>(g->vertices3.size());
+  std::vector<int> order, parent;
+  if (Status s = Bfs(*g, t, g->vertices3[root].id, &order, &parent); !s.ok()) return s;
+  // Rotations: variable 9 v + 3 m + c is R_v(m, c). R_b(m, c) - sum_l R_a(m, l) Z(l, c) = 0.
+  LinearLeastSquares rot(9 * n);
+  const Eigen::Matrix3d r_root = g->vertices3[root].pose.linear();
+  for (int m = 0; m < 3; ++m)
+    for (int c = 0; c < 3; ++c) rot.Fix(9 * root + 3 * m + c, r_root(m, c));
+  for (size_t k = 0; k < g->edges3.size(); ++k) {
+    const auto& e = g->edges3[k];
+    const auto [a, b] = t.edges[k];
+    if (a == b) continue;
+    const Eigen::Matrix3d z = e.measurement.linear();
+    const double w = std::sqrt(MarginalInfo<6, 3>(e.information, 3).trace() / 3.0);
+    for (int m = 0; m < 3; ++m)
+      for (int c = 0; c < 3; ++c) {
+        std::vector<std::pair<int, double>> terms{{9 * b + 3 * m + c, w}};
+        for (int l = 0; l < 3; ++l) terms.push_back({9 * a + 3 * m + l, -w * z(l, c)});
+        rot.AddRow(terms, 0.0);
+      }
+  }
+  auto rv = rot.Solve();
+  if (!rv.ok()) return rv.error();
+  std::vector<Eigen::Matrix3d> r(n);
+  for (int v = 0; v < n; ++v) {
+    Eigen::Matrix3d m;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) m(i, j) = (*rv)[9 * v + 3 * i + j];
+    r[v] = v == root ? r_root : ProjectToSO3(m);
+  }
+  // Positions: t_b - t_a = R_a t_z.
+  LinearLeastSquares pos(3 * n);
+  for (int i = 0; i < 3; ++i) pos.Fix(3 * root + i, g->vertices3[root].pose.translation()[i]);
+  for (size_t k = 0; k < g->edges3.size(); ++k) {
+    const auto& e = g->edges3[k];
+    const auto [a, b] = t.edges[k];
+    if (a == b) continue;
+    const Eigen::Matrix3d info = r[a] * MarginalInfo<6, 3>(e.information, 0) * r[a].transpose();
+    const Eigen::Matrix3d sq = SqrtOf<3>(info);
+    const Eigen::Vector3d rhs = sq * (r[a] * e.measurement.translation());
+    for (int row = 0; row < 3; ++row) {
+      std::vector<std::pair<int, double>> terms;
+      for (int i = 0; i < 3; ++i) {
+        terms.push_back({3 * a + i, -sq(row, i)});
+        terms.push_back({3 * b + i, sq(row, i)});
+      }
+      pos.AddRow(terms, rhs[row]);
+    }
+  }
+  auto p = pos.Solve();
+  if (!p.ok()) return p.error();
+  for (int v = 0; v < n; ++v) {
+    Eigen::Isometry3d x = Eigen::Isometry3d::Identity();
+    x.linear() = r[v];
+    x.translation() = Eigen::Vector3d((*p)[3 * v], (*p)[3 * v + 1], (*p)[3 * v + 2]);
+    g->vertices3[v].pose = x;
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+const char* InitializationName(Initialization init) {
+  switch (init) {
+    case Initialization::kNone:
+      return "none";
+    case Initialization::kSpanningTree:
+      return "spanning-tree";
+    case Initialization::kChordal:
+      return "chordal";
+  }
+  return "?";
+}
+
+Result<Initialization> ParseInitialization(const std::string& name) {
+  if (name == "none") return Initialization::kNone;
+  if (name == "spanning-tree") return Initialization::kSpanningTree;
+  if (name == "chordal") return Initialization::kChordal;
+  return MakeError(ErrorCode::kInvalidArgument,
+                   "initialisation '" + name + "' must be one of: none spanning-tree chordal");
+}
+
+int ChooseRoot(const io::PoseGraph& g) {
+  std::vector<int> ids;
+  for (const auto& v : g.vertices2) ids.push_back(v.id);
+  for (const auto& v : g.vertices3) ids.push_back(v.id);
+  for (int f : g.fixed)
+    if (std::find(ids.begin(), ids.end(), f) != ids.end()) return f;
+  return ids.empty() ? 0 : *std::min_element(ids.begin(), ids.end());
+}
+
+Status InitializeSpanningTree(io::PoseGraph* g, int root_id) {
+  const Topology t = BuildTopology(*g);
+  std::vector<int> order, parent;
+  if (Status s = Bfs(*g, t, root_id, &order, &parent); !s.ok()) return s;
+  for (int v : order) {
+    const int k = parent[v];
+    if (k < 0) continue;
+    const auto [a, b] = t.edges[k];
+    if (g->is_3d()) {
+      const auto& z = g->edges3[k].measurement;
+      if (b == v)
+        g->vertices3[v].pose = g->vertices3[a].pose * z;
+      else
+        g->vertices3[v].pose = g->vertices3[b].pose * z.inverse();
+    } else {
+      const auto& z = g->edges2[k].measurement;
+      if (b == v)
+        g->vertices2[v].pose = g->vertices2[a].pose * z;
+      else
+        g->vertices2[v].pose = g->vertices2[b].pose * z.Inverse();
+    }
+  }
+  return Status::Ok();
+}
+
+Status InitializeChordal(io::PoseGraph* g, int root_id) {
+  const Topology t = BuildTopology(*g);
+  auto it = t.index.find(root_id);
+  if (it == t.index.end())
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "root vertex " + std::to_string(root_id) + " is not in the graph");
+  return g->is_3d() ? Chordal3(g, t, it->second) : Chordal2(g, t, it->second);
+}
+
+Status Initialize(io::PoseGraph* g, Initialization init, int root_id) {
+  switch (init) {
+    case Initialization::kNone:
+      return Status::Ok();
+    case Initialization::kSpanningTree:
+      return InitializeSpanningTree(g, root_id);
+    case Initialization::kChordal:
+      return InitializeChordal(g, root_id);
+  }
+  return Status::Ok();
+}
+
+}  // namespace omni::pgm
