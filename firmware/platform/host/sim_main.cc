@@ -4,8 +4,10 @@
 //   omni-firmware-sim --config config/firmware_sim.yaml [--can shm:NAME] [--slip a,b,c]
 //                     [--truth-out FILE] [--duration-s S]
 //
-// --truth-out writes the plant's true pose every 10 ms as CSV (t_s,x_m,y_m,theta_rad,
-// distance_m), so tests can compare odometry with the ground truth.
+// --truth-out writes, every 10 ms, CSV lines t_s,x_m,y_m,theta_rad,distance_m,cmd_x_m,
+// cmd_y_m,cmd_theta_rad: the plant's true pose, and the pose the firmware was commanded to
+// reach (its wheel targets integrated through the forward kinematics in firmware time), so
+// tests can compare odometry with both the truth and the command as the base received it.
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -114,7 +116,7 @@ int main(int argc, char** argv) {
       LOG_ERROR << "cannot write " << truth_path;
       return 1;
     }
-    std::fprintf(truth, "t_s,x_m,y_m,theta_rad,distance_m\n");
+    std::fprintf(truth, "t_s,x_m,y_m,theta_rad,distance_m,cmd_x_m,cmd_y_m,cmd_theta_rad\n");
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
@@ -149,6 +151,9 @@ int main(int argc, char** argv) {
   auto next = std::chrono::steady_clock::now();
   const auto start = next;
   int64_t steps = 0, late = 0;
+  const omni::kinematics::OmniGeometry<double> geom{
+      opts->firmware.alpha_rad, opts->firmware.center_to_wheel_m, opts->firmware.wheel_radius_m};
+  double cmd_x = 0, cmd_y = 0, cmd_theta = 0;
   while (!g_stop) {
     // Frames that arrived since the last period go to the controller's receive FIFO.
     if (bus) {
@@ -170,6 +175,18 @@ int main(int argc, char** argv) {
     fw.Step();
     plant.Advance(dt);
     ++steps;
+    {
+      omni::kinematics::WheelSpeeds<double> rim;
+      for (int w = 0; w < 3; ++w) rim.v_m_s[w] = fw.wheel(w).target_rad_s * geom.wheel_radius_m;
+      omni::kinematics::BodyTwist<double> body;
+      if (fw.state() == State::kRunning && omni::kinematics::WheelsToBody(geom, rim, &body)) {
+        const auto world =
+            omni::kinematics::BodyToWorld(cmd_theta + 0.5 * dt * body.omega_rad_s, body);
+        cmd_x += dt * world.xdot_m_s;
+        cmd_y += dt * world.ydot_m_s;
+        cmd_theta += dt * world.thetadot_rad_s;
+      }
+    }
     while (!hal.tx.empty()) {
       if (bus && !bus->Send(FromFw(hal.tx.front())).ok()) {
         bus.reset();
@@ -178,8 +195,8 @@ int main(int argc, char** argv) {
       hal.tx.pop_front();
     }
     if (truth != nullptr && steps % 10 == 0) {
-      std::fprintf(truth, "%.3f,%.6f,%.6f,%.6f,%.6f\n", steps * dt, plant.x_m(), plant.y_m(),
-                   plant.theta_rad(), plant.distance_m());
+      std::fprintf(truth, "%.3f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f\n", steps * dt, plant.x_m(),
+                   plant.y_m(), plant.theta_rad(), plant.distance_m(), cmd_x, cmd_y, cmd_theta);
       std::fflush(truth);
     }
     if (duration_s > 0 && steps * dt >= duration_s) break;
