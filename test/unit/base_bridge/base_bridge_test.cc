@@ -212,6 +212,29 @@ TEST(BaseBridgeTest, MalformedAndForeignFramesCounted) {
   EXPECT_FALSE(b.status(0).firmware_alive);
 }
 
+TEST(BaseBridgeTest, RandomFramesNeverCrash) {
+  BaseBridge b(TestOptions());
+  uint32_t state = 12345;
+  auto next = [&state] {
+    state = state * 1664525u + 1013904223u;
+    return state >> 8;
+  };
+  std::vector<CanFrame> out;
+  for (int i = 0; i < 50000; ++i) {
+    CanFrame f;
+    f.id = static_cast<uint16_t>(i % 3 == 0 ? fwcan::MakeId(1, next() % 32) : next() & 0x7FF);
+    f.dlc = static_cast<uint8_t>(next() % 12);  // also DLCs > 8
+    for (auto& byte : f.data) byte = static_cast<uint8_t>(next());
+    b.OnFrame(f, i * 1000);
+    if (i % 10 == 0) b.Tick(i * 1000, &out);
+  }
+  Odometry od;
+  if (b.TakeOdometry(&od)) {
+    EXPECT_TRUE(std::isfinite(od.x_m) && std::isfinite(od.y_m) && std::isfinite(od.yaw_rad));
+  }
+  EXPECT_GT(b.counters().can_rx_errors + b.counters().unknown_frames, 0);
+}
+
 TEST(BaseBridgeTest, GeometryMismatchReported) {
   BaseBridge b(TestOptions());
   b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), 2000000);

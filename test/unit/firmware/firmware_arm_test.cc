@@ -62,6 +62,35 @@ TEST(FirmwareArmTest, NoHeapNoExceptions) {
   }
 }
 
+// The vector table sits at the start of flash: initial stack pointer in RAM, reset vector on
+// Reset_Handler (Thumb bit set), and the ELF entry point is the same handler.
+TEST(FirmwareArmTest, VectorTableAtFlashStart) {
+  if (kElf.empty()) GTEST_SKIP() << "ARM build disabled (OMNI_BUILD_FIRMWARE_ARM=OFF)";
+  const std::string cmd = "arm-none-eabi-objdump -s -j .isr_vector '" + kElf +
+                          "' 2>&1 | grep -m1 '^ 8000000'; arm-none-eabi-nm '" + kElf +
+                          "' | grep ' Reset_Handler$'";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  char a[512] = {0}, b[512] = {0};
+  ASSERT_NE(std::fgets(a, sizeof(a), p), nullptr) << "no .isr_vector at 0x08000000";
+  ASSERT_NE(std::fgets(b, sizeof(b), p), nullptr) << "no Reset_Handler";
+  pclose(p);
+  // objdump line: " 8000000 SSSSSSSS RRRRRRRR ..." (little-endian words).
+  std::istringstream line(a);
+  std::string addr, sp_le, reset_le;
+  line >> addr >> sp_le >> reset_le;
+  auto le = [](const std::string& h) {
+    unsigned long v = 0;
+    for (int i = 3; i >= 0; --i) v = (v << 8) | std::stoul(h.substr(2 * i, 2), nullptr, 16);
+    return v;
+  };
+  const unsigned long sp = le(sp_le), reset = le(reset_le);
+  const unsigned long handler = std::stoul(std::string(b).substr(0, 8), nullptr, 16);
+  EXPECT_GE(sp, 0x20000000ul);
+  EXPECT_LE(sp, 0x20000000ul + 128 * 1024);
+  EXPECT_EQ(reset, handler | 1ul) << "reset vector must point at Reset_Handler (Thumb)";
+}
+
 TEST(FirmwareArmTest, WithinFlashAndRamBudget) {
   if (kElf.empty()) GTEST_SKIP() << "ARM build disabled (OMNI_BUILD_FIRMWARE_ARM=OFF)";
   const std::string size_file = kElf.substr(0, kElf.rfind('/')) + "/size.txt";
