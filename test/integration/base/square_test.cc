@@ -374,4 +374,40 @@ TEST_F(BaseEndToEnd, EstopAndSilentFirmwareReported) {
   EXPECT_NE(bridge_hb_.status_text.find("silent"), std::string::npos) << bridge_hb_.status_text;
 }
 
+int64_t Counter(const omni::heartbeat_t& hb, const std::string& name) {
+  for (int i = 0; i < hb.num_counters; ++i) {
+    if (hb.counter_names[i] == name) return hb.counter_values[i];
+  }
+  return -1;
+}
+
+// The CAN interface goes down under both processes and comes back: the firmware latches
+// CAN_BUS_OFF (motors off), the bridge reports the link loss, reconnects, and after
+// CLEAR_FAULTS the base drives again.
+TEST_F(BaseEndToEnd, CanLinkLossAndReconnect) {
+  OMNI_RUN_IN_NETNS();
+  Start("");
+  Drive(30, [this](int) { Command(0.3, 0, 0); });
+  ASSERT_TRUE(omni::can::ShmCanBus::SetLinkUp(name_, false).ok());
+  Drive(130, [](int) {});  // > 1 bridge heartbeat period
+  EXPECT_FALSE(status_.firmware_alive);
+  EXPECT_EQ(bridge_hb_.state, omni::heartbeat_t::STATE_ERROR) << bridge_hb_.status_text;
+  EXPECT_NE(bridge_hb_.status_text.find("down"), std::string::npos) << bridge_hb_.status_text;
+  ASSERT_TRUE(omni::can::ShmCanBus::SetLinkUp(name_, true).ok());
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (std::chrono::steady_clock::now() < until &&
+         !(status_.firmware_alive && Counter(bridge_hb_, "reconnects") >= 1)) {
+    bus_->HandleTimeout(20);
+  }
+  EXPECT_TRUE(status_.firmware_alive);
+  EXPECT_GE(Counter(bridge_hb_, "reconnects"), 1);
+  EXPECT_GE(Counter(bridge_hb_, "link_losses"), 1);
+  EXPECT_TRUE(status_.fault_bits & omni::base_status_t::FAULT_CAN_BUS_OFF);
+  EXPECT_EQ(status_.state, omni::base_status_t::STATE_FAULT);
+  Command(0, 0, 0, omni::base_cmd_t::MODE_CLEAR_FAULTS);
+  Drive(50, [this](int) { Command(0.3, 0, 0); });
+  EXPECT_EQ(status_.fault_bits & omni::base_status_t::FAULT_CAN_BUS_OFF, 0);
+  EXPECT_EQ(status_.state, omni::base_status_t::STATE_RUNNING);
+}
+
 }  // namespace
