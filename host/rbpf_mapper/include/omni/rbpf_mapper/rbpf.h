@@ -1,0 +1,192 @@
+// Rao-Blackwellized particle filter SLAM (GMapping's class) for an omnidirectional base: the
+// library behind the rbpf_mapper process and `omni slam rbpf`. No LCM, no wall clock, no global
+// RNG: time comes with the data, randomness from `RbpfOptions::seed`.
+//
+// Per update (gated by distance / angle / time travelled): every particle draws its pose from
+// the omni motion model, refines it by scan matching against its own map (improved proposal;
+// a failed match falls back to the odometry sample and is counted), multiplies its weight by
+// the scan likelihood at that pose and integrates the scan into its map. Then, when the
+// effective sample size Neff falls below `resample_threshold * particles`, the particles are
+// resampled with the low-variance resampler. Maps are TiledGrids (copy-on-write tiles shared
+// between particles); paths live in a trajectory tree shared the same way.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/geometry.h"
+#include "omni/common/result.h"
+#include "omni/common/time.h"
+#include "omni/io/grid.h"
+#include "omni/rbpf_mapper/motion_model.h"
+#include "omni/rbpf_mapper/scan_matcher.h"
+#include "omni/rbpf_mapper/thread_pool.h"
+#include "omni/rbpf_mapper/tiled_grid.h"
+
+namespace omni::rbpf {
+
+struct RbpfOptions {
+  int particles = 30;
+  int threads = 2;
+  uint64_t seed = 1;
+  GridOptions grid;
+  MotionNoise motion;
+  MatcherOptions matcher;
+  double linear_update_m = 0.25;     // process a scan after this much travel ...
+  double angular_update_rad = 0.2;   // ... or this much turning ...
+  double temporal_update_s = 0.0;    // ... or this much time (0: never on time alone)
+  double resample_threshold = 0.5;   // resample when Neff < threshold * particles
+  double likelihood_gain = 0.33;     // weight exponent on the scan likelihood (GMapping 1/3)
+  double proposal_sigma_xy_m = 0.0;  // noise drawn around the matched pose
+  double proposal_sigma_theta_rad = 0.0;
+  int min_valid_beams = 20;       // scans with fewer valid returns are rejected
+  double max_range_m = 30.0;      // returns at or beyond this are "no return"
+  double max_hit_range_m = 25.0;  // longer returns clear free space but are not walls
+  double max_free_range_m = 0.0;  // > 0: no-return beams clear free space up to this
+  double max_odom_jump_m = 3.0;   // larger odometry increments between scans are jumps
+  double max_odom_jump_rad = 2.0;
+  double max_odom_gap_s = 0.5;  // scan without its own odometry: max distance in time
+  bool use_imu = false;         // fuse the gyro's yaw increment into the motion model
+  std::string scan_channel = "LIDAR_SCAN";
+  std::string odom_channel = "WHEEL_ODOM";
+  std::string imu_channel = "IMU";
+  std::string pose_channel = "POSE_RBPF";
+  std::string grid_channel = "GRID_RBPF";
+  double grid_publish_interval_s = 5.0;
+
+  // Reads the keys (all optional) from `reader` and calls Finish(); errors name the key.
+  static Result<RbpfOptions> Load(ConfigReader& reader);
+  // Cross-field checks; the message names the violated rule.
+  Status Validate() const;
+};
+
+struct RbpfCounters {
+  int64_t scans_in = 0;
+  int64_t scans_processed = 0;  // particle filter updates
+  int64_t scans_gated = 0;      // not enough motion since the last update (pose from odometry)
+  int64_t scans_too_few_beams = 0;
+  int64_t scans_time_backwards = 0;
+  int64_t scans_no_odom = 0;
+  int64_t scans_bad_geometry = 0;  // non-finite angles / mount
+  int64_t invalid_beams = 0;       // NaN, inf, negative or below range_min
+  int64_t odom_in = 0;
+  int64_t odom_invalid = 0;
+  int64_t odom_out_of_order = 0;
+  int64_t odom_jumps = 0;
+  int64_t imu_in = 0;
+  int64_t imu_invalid = 0;
+  int64_t match_failures = 0;  // particle updates that fell back to odometry
+  int64_t match_searches = 0;  // particle updates that needed the correlative search
+  int64_t resamplings = 0;
+};
+
+// One laser scan as the filter takes it.
+struct ScanInput {
+  int64_t utime = 0;
+  Pose2 sensor_in_base;
+  float angle_min_rad = 0;
+  float angle_increment_rad = 0;
+  float range_min_m = 0;
+  float range_max_m = 0;  // readings at or above: no return
+  std::vector<float> ranges_m;
+  std::optional<Pose2> odom;  // the base's odometry pose at this scan, when the source has it
+};
+
+struct TrajectoryNode {
+  Pose2 pose;
+  int64_t scan_index = 0;
+  std::shared_ptr<const TrajectoryNode> parent;
+  ~TrajectoryNode();  // releases long parent chains iteratively (no deep recursion)
+};
+
+struct Particle {
+  Pose2 pose;
+  double log_weight = 0;
+  TiledGrid map;
+  std::shared_ptr<const TrajectoryNode> node;
+  std::mt19937_64 rng;
+};
+
+struct ScanResult {
+  bool accepted = false;   // the scan has a pose (processed or placed by odometry)
+  bool processed = false;  // a particle filter update ran
+  int64_t scan_index = -1;
+  Pose2 pose;  // best particle's estimate of the base
+};
+
+struct EstimatedPose {
+  int64_t scan_index;
+  int64_t utime;
+  Pose2 pose;
+};
+
+// Effective sample size of normalised weights: 1 / sum(w^2).
+double EffectiveSampleSize(const std::vector<double>& normalized_weights);
+// Low-variance (systematic) resampling: `n` indices drawn with probability proportional to the
+// normalised weights, using one uniform offset from `rng`.
+std::vector<int> LowVarianceResample(const std::vector<double>& normalized_weights, int n,
+                                     std::mt19937_64& rng);
+
+class RbpfSlam {
+ public:
+  explicit RbpfSlam(const RbpfOptions& options);
+
+  bool AddOdometry(int64_t utime, const Pose2& pose);
+  // Gyro yaw rate about the base's z axis (rad/s, CCW).
+  bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
+  ScanResult AddScan(const ScanInput& scan);
+
+  // Best particle (largest weight).
+  int best_index() const;
+  Pose2 BestPose() const { return particles_[static_cast<size_t>(best_index())].pose; }
+  io::GridMap BestMap() const {
+    return particles_[static_cast<size_t>(best_index())].map.ToGridMap();
+  }
+  // The best particle's path at every accepted scan (processed scans from its trajectory tree,
+  // the others placed by odometry relative to the nearest processed scan).
+  std::vector<EstimatedPose> BestTrajectory() const;
+  const std::vector<Particle>& particles() const { return particles_; }
+  const RbpfCounters& counters() const { return counters_; }
+  const RbpfOptions& options() const { return opt_; }
+  // Tiles referenced by all particles, and distinct tile objects among them.
+  size_t total_tile_refs() const;
+  size_t distinct_tiles() const;
+
+ private:
+  struct ScanRecord {
+    int64_t index;
+    int64_t utime;
+    Pose2 odom;  // jump-free odometry
+    bool processed;
+  };
+  std::optional<Pose2> CorrectedOdom(const ScanInput& scan);
+  std::optional<double> ImuYawIncrement(int64_t t0, int64_t t1) const;
+  void Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first);
+  void Resample();
+
+  RbpfOptions opt_;
+  OmniMotionModel motion_;
+  ScanMatcher matcher_;
+  ThreadPool pool_;
+  std::mt19937_64 master_rng_;
+  std::vector<Particle> particles_;
+  RbpfCounters counters_;
+  StampedBuffer<Pose2> odom_buffer_;
+  std::deque<std::pair<int64_t, double>> imu_;  // (utime, yaw rate)
+  std::vector<ScanRecord> records_;
+  int64_t next_scan_index_ = 0;
+  int64_t last_scan_utime_ = INT64_MIN;
+  std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
+  Pose2 odom_correction_;               // jump-free odometry = correction * raw
+  bool have_update_ = false;
+  Pose2 last_update_odom_;
+  int64_t last_update_utime_ = 0;
+};
+
+}  // namespace omni::rbpf

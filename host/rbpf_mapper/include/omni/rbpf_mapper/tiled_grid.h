@@ -1,0 +1,100 @@
+// A log-odds occupancy grid made of fixed-size tiles held by shared pointers, so particle maps
+// share memory: copying a TiledGrid copies only the tile table (one pointer per tile), and a
+// tile is copied the first time a grid writes to it while another grid still holds it
+// (copy-on-write). Coordinates: cell (cx, cy) covers [cx*res, (cx+1)*res) x [cy*res, ...) in
+// the map frame; the grid grows in any direction as cells are written.
+//
+// Thread safety: distinct TiledGrid objects may be used from different threads at the same time
+// even when they share tiles (a shared tile is never written; the copy decision uses the
+// reference count with an acquire fence). One TiledGrid must not be used by two threads at once.
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "omni/common/geometry.h"
+#include "omni/io/grid.h"
+
+namespace omni::rbpf {
+
+struct GridOptions {
+  double resolution_m = 0.05;
+  float hit_log_odds = 0.85f;   // added at a beam's end point
+  float miss_log_odds = -0.4f;  // added to the cells a beam passes through
+  float min_log_odds = -2.0f;   // clamp (keeps the map adaptable)
+  float max_log_odds = 3.5f;
+  float occupied_threshold = 0.5f;  // log odds above this: occupied (for matching)
+  float free_threshold = -0.3f;     // log odds below this: free (for matching)
+};
+
+class TiledGrid {
+ public:
+  static constexpr int kTileBits = 6;
+  static constexpr int kTileSize = 1 << kTileBits;  // cells per tile side
+  static constexpr int kTileMask = kTileSize - 1;
+  struct Tile {
+    std::array<float, kTileSize * kTileSize> log_odds{};  // 0 = never observed
+  };
+
+  explicit TiledGrid(const GridOptions& options = {});
+
+  // Cell index of a map-frame point.
+  int64_t CellX(double x_m) const { return FloorToCell(x_m); }
+  int64_t CellY(double y_m) const { return FloorToCell(y_m); }
+  double resolution() const { return opt_.resolution_m; }
+  const GridOptions& options() const { return opt_; }
+
+  // Log odds of a cell (0 outside the allocated area).
+  float LogOdds(int64_t cx, int64_t cy) const {
+    const Tile* t = TileAt(cx >> kTileBits, cy >> kTileBits);
+    return t ? t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))]
+             : 0.f;
+  }
+  bool Occupied(int64_t cx, int64_t cy) const { return LogOdds(cx, cy) > opt_.occupied_threshold; }
+  bool Free(int64_t cx, int64_t cy) const { return LogOdds(cx, cy) < opt_.free_threshold; }
+
+  // Adds `delta` to a cell (clamped), copying its tile first if another grid shares it.
+  void Update(int64_t cx, int64_t cy, float delta);
+
+  // Integrates one scan: misses along each beam (Bresenham), a hit at each end point.
+  // `sensor_pose` is the sensor frame in the map frame; `points` are the beam end points in the
+  // sensor frame; `hit[i]` false means "no return" (only free space up to the point).
+  void IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen::Vector2d>& points,
+                     const std::vector<uint8_t>& hit);
+
+  // Occupancy in percent, -1 unknown, cropped to the observed area.
+  io::GridMap ToGridMap() const;
+
+  // Memory accounting: tiles this grid references, and how many of them it holds alone.
+  size_t num_tiles() const;
+  size_t num_unique_tiles() const;
+  // Appends the tile objects this grid references.
+  void CollectTiles(std::vector<const Tile*>* out) const {
+    for (const auto& t : tiles_)
+      if (t) out->push_back(t.get());
+  }
+  // Whether this grid and `other` hold the same tile object for tile (tx, ty).
+  bool SharesTileWith(const TiledGrid& other, int64_t tx, int64_t ty) const;
+  const Tile* TileAt(int64_t tx, int64_t ty) const {
+    const int64_t ix = tx - tx0_, iy = ty - ty0_;
+    if (ix < 0 || iy < 0 || ix >= ntx_ || iy >= nty_) return nullptr;
+    return tiles_[static_cast<size_t>(iy * ntx_ + ix)].get();
+  }
+
+ private:
+  int64_t FloorToCell(double v) const {
+    return static_cast<int64_t>(std::floor(v / opt_.resolution_m));
+  }
+  Tile* MutableTile(int64_t tx, int64_t ty);
+  void EnsureTile(int64_t tx, int64_t ty);
+
+  GridOptions opt_;
+  int64_t tx0_ = 0, ty0_ = 0;  // tile index of tiles_[0]
+  int64_t ntx_ = 0, nty_ = 0;
+  std::vector<std::shared_ptr<Tile>> tiles_;  // row-major, null = never written
+};
+
+}  // namespace omni::rbpf

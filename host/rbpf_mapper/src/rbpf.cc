@@ -1,0 +1,414 @@
+#include "omni/rbpf_mapper/rbpf.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+namespace omni::rbpf {
+
+TrajectoryNode::~TrajectoryNode() {
+  // Unlink the chain iteratively: a long path would otherwise be released recursively.
+  std::shared_ptr<const TrajectoryNode> p = std::move(parent);
+  while (p && p.use_count() == 1) {
+    std::shared_ptr<const TrajectoryNode> next =
+        std::move(const_cast<TrajectoryNode*>(p.get())->parent);
+    p = std::move(next);
+  }
+}
+
+double EffectiveSampleSize(const std::vector<double>& w) {
+  double s = 0;
+  for (double v : w) s += v * v;
+  return s > 0 ? 1.0 / s : 0.0;
+}
+
+std::vector<int> LowVarianceResample(const std::vector<double>& w, int n, std::mt19937_64& rng) {
+  std::vector<int> out;
+  out.reserve(static_cast<size_t>(n));
+  if (w.empty() || n <= 0) return out;
+  std::uniform_real_distribution<double> u01(0.0, 1.0 / n);
+  const double r = u01(rng);
+  double c = w[0];
+  size_t i = 0;
+  for (int m = 0; m < n; ++m) {
+    const double target = r + static_cast<double>(m) / n;
+    while (target > c && i + 1 < w.size()) c += w[++i];
+    out.push_back(static_cast<int>(i));
+  }
+  return out;
+}
+
+Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
+  RbpfOptions o;
+  r.Get("particles", &o.particles, Optional(), InRange(1, 1000));
+  r.Get("threads", &o.threads, Optional(), InRange(1, 256));
+  int64_t seed = static_cast<int64_t>(o.seed);
+  r.Get("seed", &seed, Optional(), NonNegative<int64_t>());
+  o.seed = static_cast<uint64_t>(seed);
+  r.Get("linear_update_m", &o.linear_update_m, Optional(), NonNegative<double>());
+  r.Get("angular_update_rad", &o.angular_update_rad, Optional(), NonNegative<double>());
+  r.Get("temporal_update_s", &o.temporal_update_s, Optional(), NonNegative<double>());
+  r.Get("resample_threshold", &o.resample_threshold, Optional(), InRange(0.0, 1.0));
+  r.Get("likelihood_gain", &o.likelihood_gain, Optional(), InRange(1e-6, 100.0));
+  r.Get("proposal_sigma_xy_m", &o.proposal_sigma_xy_m, Optional(), NonNegative<double>());
+  r.Get("proposal_sigma_theta_rad", &o.proposal_sigma_theta_rad, Optional(), NonNegative<double>());
+  r.Get("min_valid_beams", &o.min_valid_beams, Optional(), InRange(1, 100000));
+  r.Get("max_range_m", &o.max_range_m, Optional(), Positive<double>());
+  r.Get("max_hit_range_m", &o.max_hit_range_m, Optional(), Positive<double>());
+  r.Get("max_free_range_m", &o.max_free_range_m, Optional(), NonNegative<double>());
+  r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
+  r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
+  r.Get("max_odom_gap_s", &o.max_odom_gap_s, Optional(), InRange(0.0, 60.0));
+  r.Get("use_imu", &o.use_imu, Optional());
+  r.Get("scan_channel", &o.scan_channel, Optional(), NonEmpty());
+  r.Get("odom_channel", &o.odom_channel, Optional(), NonEmpty());
+  r.Get("imu_channel", &o.imu_channel, Optional(), NonEmpty());
+  r.Get("pose_channel", &o.pose_channel, Optional(), NonEmpty());
+  r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
+  r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  auto g = r.Section("grid");
+  g.Get("resolution_m", &o.grid.resolution_m, Optional(), InRange(0.005, 1.0));
+  g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), Positive<float>());
+  g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-100.f, -1e-6f));
+  g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-100.f, -1e-6f));
+  g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), Positive<float>());
+  g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional());
+  g.Get("free_threshold", &o.grid.free_threshold, Optional());
+  auto m = r.Section("motion");
+  m.Get("a_xx", &o.motion.a_xx, Optional(), NonNegative<double>());
+  m.Get("a_xy", &o.motion.a_xy, Optional(), NonNegative<double>());
+  m.Get("a_xt", &o.motion.a_xt, Optional(), NonNegative<double>());
+  m.Get("a_yx", &o.motion.a_yx, Optional(), NonNegative<double>());
+  m.Get("a_yy", &o.motion.a_yy, Optional(), NonNegative<double>());
+  m.Get("a_yt", &o.motion.a_yt, Optional(), NonNegative<double>());
+  m.Get("a_tt", &o.motion.a_tt, Optional(), NonNegative<double>());
+  m.Get("a_td", &o.motion.a_td, Optional(), NonNegative<double>());
+  m.Get("min_xy_m", &o.motion.min_xy_m, Optional(), NonNegative<double>());
+  m.Get("min_theta_rad", &o.motion.min_theta_rad, Optional(), NonNegative<double>());
+  m.Get("imu_yaw_sigma_per_rad", &o.motion.imu_yaw_sigma_per_rad, Optional(),
+        NonNegative<double>());
+  m.Get("imu_yaw_sigma_min_rad", &o.motion.imu_yaw_sigma_min_rad, Optional(), Positive<double>());
+  auto s = r.Section("matcher");
+  s.Get("kernel_cells", &o.matcher.kernel_cells, Optional(), InRange(0, 5));
+  s.Get("sigma_score_m", &o.matcher.sigma_score_m, Optional(), Positive<double>());
+  s.Get("sigma_likelihood_m", &o.matcher.sigma_likelihood_m, Optional(), Positive<double>());
+  s.Get("null_log_likelihood", &o.matcher.null_log_likelihood, Optional(), InRange(-1e3, 0.0));
+  s.Get("beam_step", &o.matcher.beam_step, Optional(), InRange(1, 100));
+  s.Get("max_match_range_m", &o.matcher.max_match_range_m, Optional(), Positive<double>());
+  s.Get("refine_step_xy_m", &o.matcher.refine_step_xy_m, Optional(), Positive<double>());
+  s.Get("refine_step_theta_rad", &o.matcher.refine_step_theta_rad, Optional(), Positive<double>());
+  s.Get("refine_halvings", &o.matcher.refine_halvings, Optional(), InRange(0, 20));
+  s.Get("search_xy_m", &o.matcher.search_xy_m, Optional(), InRange(0.0, 5.0));
+  s.Get("search_theta_rad", &o.matcher.search_theta_rad, Optional(), InRange(0.0, 3.2));
+  s.Get("search_theta_step_rad", &o.matcher.search_theta_step_rad, Optional(), InRange(1e-4, 1.0));
+  s.Get("search_beam_step", &o.matcher.search_beam_step, Optional(), InRange(1, 100));
+  s.Get("search_below_fraction", &o.matcher.search_below_fraction, Optional(), InRange(0.0, 1.0));
+  s.Get("prior_weight", &o.matcher.prior_weight, Optional(), NonNegative<double>());
+  s.Get("min_match_fraction", &o.matcher.min_match_fraction, Optional(), InRange(0.0, 1.0));
+  if (o.max_hit_range_m > o.max_range_m) r.AddError("max_hit_range_m", "must be <= max_range_m");
+  if (o.grid.min_log_odds >= o.grid.max_log_odds)
+    r.AddError("grid.min_log_odds", "must be < grid.max_log_odds");
+  if (Status st = r.Finish(); !st.ok()) return st.error();
+  if (Status st = o.Validate(); !st.ok()) return st.error();
+  return o;
+}
+
+Status RbpfOptions::Validate() const {
+  auto bad = [](const std::string& m) { return MakeError(ErrorCode::kInvalidArgument, m); };
+  if (particles < 1) return bad("particles must be >= 1");
+  if (threads < 1) return bad("threads must be >= 1");
+  if (!(grid.resolution_m > 0)) return bad("grid.resolution_m must be > 0");
+  if (!(grid.free_threshold <= grid.occupied_threshold))
+    return bad("grid.free_threshold must be <= grid.occupied_threshold");
+  if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
+  return Status::Ok();
+}
+
+RbpfSlam::RbpfSlam(const RbpfOptions& options)
+    : opt_(options),
+      motion_(options.motion),
+      matcher_(options.matcher),
+      pool_(options.threads),
+      master_rng_(options.seed),
+      odom_buffer_(100000) {
+  particles_.resize(static_cast<size_t>(std::max(1, opt_.particles)));
+  for (size_t i = 0; i < particles_.size(); ++i) {
+    particles_[i].map = TiledGrid(opt_.grid);
+    std::seed_seq seq{opt_.seed, static_cast<uint64_t>(i), uint64_t{0x5eed}};
+    particles_[i].rng.seed(seq);
+  }
+}
+
+bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
+  ++counters_.odom_in;
+  if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.theta)) {
+    ++counters_.odom_invalid;
+    return false;
+  }
+  if (!odom_buffer_.Insert(utime, p)) {
+    ++counters_.odom_out_of_order;
+    return false;
+  }
+  return true;
+}
+
+bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
+  ++counters_.imu_in;
+  if (!std::isfinite(rate) || (!imu_.empty() && utime < imu_.back().first)) {
+    ++counters_.imu_invalid;
+    return false;
+  }
+  imu_.emplace_back(utime, rate);
+  while (imu_.size() > 100000) imu_.pop_front();
+  return true;
+}
+
+std::optional<double> RbpfSlam::ImuYawIncrement(int64_t t0, int64_t t1) const {
+  if (imu_.size() < 2 || imu_.front().first > t0 || imu_.back().first < t1 || t1 <= t0)
+    return std::nullopt;
+  // Trapezoid over the samples, with the rate held piecewise-linear between samples.
+  double sum = 0;
+  for (size_t i = 1; i < imu_.size(); ++i) {
+    const int64_t a = std::max(imu_[i - 1].first, t0), b = std::min(imu_[i].first, t1);
+    if (b <= a) continue;
+    const double span = static_cast<double>(imu_[i].first - imu_[i - 1].first);
+    auto rate_at = [&](int64_t t) {
+      const double f = span > 0 ? static_cast<double>(t - imu_[i - 1].first) / span : 0.0;
+      return imu_[i - 1].second + f * (imu_[i].second - imu_[i - 1].second);
+    };
+    sum += 0.5 * (rate_at(a) + rate_at(b)) * static_cast<double>(b - a) * 1e-6;
+  }
+  return sum;
+}
+
+std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
+  std::optional<Pose2> raw = scan.odom;
+  if (raw && !(std::isfinite(raw->x) && std::isfinite(raw->y) && std::isfinite(raw->theta))) {
+    ++counters_.odom_invalid;
+    raw.reset();
+  }
+  if (!raw) raw = odom_buffer_.At(scan.utime, static_cast<int64_t>(opt_.max_odom_gap_s * 1e6));
+  if (!raw) return std::nullopt;
+  if (last_raw_odom_) {
+    const Pose2 d = last_raw_odom_->Between(*raw);
+    if (std::hypot(d.x, d.y) > opt_.max_odom_jump_m || std::abs(d.theta) > opt_.max_odom_jump_rad) {
+      // A jump (reset, wrap, glitch): keep the jump-free odometry where it was.
+      ++counters_.odom_jumps;
+      odom_correction_ = (odom_correction_ * *last_raw_odom_) * raw->Inverse();
+    }
+  }
+  last_raw_odom_ = raw;
+  return odom_correction_ * *raw;
+}
+
+ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
+  ScanResult res;
+  ++counters_.scans_in;
+  const int64_t index = next_scan_index_++;
+  res.scan_index = index;
+  if (scan.utime < last_scan_utime_) {
+    ++counters_.scans_time_backwards;
+    return res;
+  }
+  if (!std::isfinite(scan.angle_min_rad) || !std::isfinite(scan.angle_increment_rad) ||
+      !std::isfinite(scan.sensor_in_base.x) || !std::isfinite(scan.sensor_in_base.y) ||
+      !std::isfinite(scan.sensor_in_base.theta) || !std::isfinite(scan.range_max_m) ||
+      scan.ranges_m.size() > 100000) {
+    ++counters_.scans_bad_geometry;
+    return res;
+  }
+  const std::optional<Pose2> odom = CorrectedOdom(scan);
+  if (!odom) {
+    ++counters_.scans_no_odom;
+    return res;
+  }
+  last_scan_utime_ = scan.utime;
+  // Accepted: it gets a pose, from the filter or by odometry.
+  res.accepted = true;
+  const bool first = !have_update_;
+  bool process = first;
+  if (!first) {
+    const Pose2 d = last_update_odom_.Between(*odom);
+    process = std::hypot(d.x, d.y) >= opt_.linear_update_m ||
+              std::abs(d.theta) >= opt_.angular_update_rad ||
+              (opt_.temporal_update_s > 0 &&
+               UtimeToSeconds(scan.utime - last_update_utime_) >= opt_.temporal_update_s);
+  }
+  if (process) {
+    int valid = 0;
+    for (float r : scan.ranges_m) {
+      if (std::isfinite(r) && r > 0.f && r >= scan.range_min_m) {
+        if (r < scan.range_max_m && r < opt_.max_range_m) ++valid;
+      } else {
+        ++counters_.invalid_beams;  // NaN, inf, <= 0 or below range_min
+      }
+    }
+    if (valid < opt_.min_valid_beams) {
+      ++counters_.scans_too_few_beams;
+      process = false;
+    }
+  }
+  if (process) {
+    Update(scan, *odom, index, first);
+    ++counters_.scans_processed;
+    records_.push_back({index, scan.utime, *odom, true});
+    res.processed = true;
+    res.pose = BestPose();
+  } else {
+    if (!first) ++counters_.scans_gated;
+    records_.push_back({index, scan.utime, *odom, false});
+    res.pose = have_update_ ? BestPose() * last_update_odom_.Between(*odom) : *odom;
+  }
+  return res;
+}
+
+void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first) {
+  // End points in the sensor frame (shared by all particles).
+  std::vector<Eigen::Vector2d> points;
+  std::vector<uint8_t> hit;
+  points.reserve(scan.ranges_m.size());
+  hit.reserve(scan.ranges_m.size());
+  const double max_hit = std::min(opt_.max_hit_range_m, opt_.max_range_m);
+  for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const float r = scan.ranges_m[i];
+    const double a = static_cast<double>(scan.angle_min_rad) +
+                     static_cast<double>(i) * static_cast<double>(scan.angle_increment_rad);
+    const bool finite = std::isfinite(r) && r > 0.f && r >= scan.range_min_m;
+    double range = 0;
+    bool is_hit = false;
+    if (finite && r < scan.range_max_m && r < opt_.max_range_m) {
+      range = std::min<double>(r, max_hit);
+      is_hit = r <= max_hit;
+    } else if (opt_.max_free_range_m > 0 && (finite || std::isnan(r) || (std::isinf(r) && r > 0))) {
+      range = opt_.max_free_range_m;  // no return: free space up to max_free_range_m
+    }
+    if (range <= 0) continue;
+    points.emplace_back(range * std::cos(a), range * std::sin(a));
+    hit.push_back(is_hit ? 1 : 0);
+  }
+  const MatchScan mscan =
+      MakeMatchScan(points, hit, scan.sensor_in_base, opt_.grid.resolution_m, opt_.matcher);
+  const Pose2 delta = first ? Pose2() : last_update_odom_.Between(odom);
+  std::optional<double> imu_dtheta;
+  if (opt_.use_imu && !first) imu_dtheta = ImuYawIncrement(last_update_utime_, scan.utime);
+  const int n = static_cast<int>(particles_.size());
+  std::vector<uint8_t> failed(static_cast<size_t>(n), 0), searched(static_cast<size_t>(n), 0);
+  pool_.ParallelFor(n, [&](int i) {
+    Particle& p = particles_[static_cast<size_t>(i)];
+    if (!first) {
+      const Pose2 pred = motion_.Sample(p.pose, delta, p.rng, imu_dtheta);
+      const MatchResult m = matcher_.Match(p.map, pred, mscan);
+      searched[static_cast<size_t>(i)] = m.searched;
+      double log_lik;
+      if (m.ok) {
+        p.pose = m.pose;
+        if (opt_.proposal_sigma_xy_m > 0 || opt_.proposal_sigma_theta_rad > 0) {
+          std::normal_distribution<double> n01(0.0, 1.0);
+          p.pose = Pose2(p.pose.x + opt_.proposal_sigma_xy_m * n01(p.rng),
+                         p.pose.y + opt_.proposal_sigma_xy_m * n01(p.rng),
+                         WrapAngle(p.pose.theta + opt_.proposal_sigma_theta_rad * n01(p.rng)));
+        }
+        log_lik = m.score.log_likelihood;
+      } else {
+        failed[static_cast<size_t>(i)] = 1;
+        p.pose = pred;
+        log_lik = matcher_.Score(p.map, pred, mscan).log_likelihood;
+      }
+      p.log_weight += opt_.likelihood_gain * log_lik;
+    }
+    p.map.IntegrateScan(p.pose * scan.sensor_in_base, points, hit);
+    auto node = std::make_shared<TrajectoryNode>();
+    node->pose = p.pose;
+    node->scan_index = index;
+    node->parent = std::move(p.node);
+    p.node = std::move(node);
+  });
+  for (int i = 0; i < n; ++i) {
+    counters_.match_failures += failed[static_cast<size_t>(i)];
+    counters_.match_searches += searched[static_cast<size_t>(i)];
+  }
+  have_update_ = true;
+  last_update_odom_ = odom;
+  last_update_utime_ = scan.utime;
+  if (!first) Resample();
+}
+
+void RbpfSlam::Resample() {
+  const size_t n = particles_.size();
+  double mx = -std::numeric_limits<double>::infinity();
+  for (const auto& p : particles_) mx = std::max(mx, p.log_weight);
+  std::vector<double> w(n);
+  double sum = 0;
+  for (size_t i = 0; i < n; ++i) sum += (w[i] = std::exp(particles_[i].log_weight - mx));
+  for (auto& v : w) v /= sum;
+  // Keep log weights bounded without changing their ratios.
+  for (auto& p : particles_) p.log_weight -= mx;
+  if (EffectiveSampleSize(w) >= opt_.resample_threshold * static_cast<double>(n)) return;
+  ++counters_.resamplings;
+  const std::vector<int> pick = LowVarianceResample(w, static_cast<int>(n), master_rng_);
+  std::vector<Particle> next;
+  next.reserve(n);
+  for (size_t j = 0; j < n; ++j) {
+    Particle c;
+    const Particle& src = particles_[static_cast<size_t>(pick[j])];
+    c.pose = src.pose;
+    c.log_weight = 0;
+    c.map = src.map;  // shares every tile
+    c.node = src.node;
+    c.rng.seed(master_rng_());
+    next.push_back(std::move(c));
+  }
+  particles_ = std::move(next);
+}
+
+int RbpfSlam::best_index() const {
+  int best = 0;
+  for (size_t i = 1; i < particles_.size(); ++i)
+    if (particles_[i].log_weight > particles_[static_cast<size_t>(best)].log_weight)
+      best = static_cast<int>(i);
+  return best;
+}
+
+std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
+  std::vector<EstimatedPose> out;
+  if (records_.empty()) return out;
+  const Particle& b = particles_[static_cast<size_t>(best_index())];
+  // Processed scan index -> pose on the best particle's path.
+  std::vector<std::pair<int64_t, Pose2>> path;
+  for (const TrajectoryNode* n = b.node.get(); n; n = n->parent.get())
+    path.emplace_back(n->scan_index, n->pose);
+  std::reverse(path.begin(), path.end());
+  size_t k = 0;  // index into path of the processed record at or before the current one
+  // Processed records in order, to pair with the path.
+  std::vector<size_t> processed;
+  for (size_t i = 0; i < records_.size(); ++i)
+    if (records_[i].processed) processed.push_back(i);
+  if (processed.empty() || path.size() != processed.size()) {
+    for (const auto& r : records_) out.push_back({r.index, r.utime, r.odom});
+    return out;
+  }
+  for (size_t i = 0; i < records_.size(); ++i) {
+    const ScanRecord& r = records_[i];
+    while (k + 1 < processed.size() && processed[k + 1] <= i) ++k;
+    const ScanRecord& anchor = records_[processed[k]];
+    const Pose2 pose = path[k].second * anchor.odom.Between(r.odom);
+    out.push_back({r.index, r.utime, pose});
+  }
+  return out;
+}
+
+size_t RbpfSlam::total_tile_refs() const {
+  size_t n = 0;
+  for (const auto& p : particles_) n += p.map.num_tiles();
+  return n;
+}
+
+size_t RbpfSlam::distinct_tiles() const {
+  std::vector<const TiledGrid::Tile*> all;
+  for (const auto& p : particles_) p.map.CollectTiles(&all);
+  std::sort(all.begin(), all.end());
+  return static_cast<size_t>(std::unique(all.begin(), all.end()) - all.begin());
+}
+
+}  // namespace omni::rbpf

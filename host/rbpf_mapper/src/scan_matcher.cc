@@ -1,0 +1,189 @@
+#include "omni/rbpf_mapper/scan_matcher.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace omni::rbpf {
+
+MatchScan MakeMatchScan(const std::vector<Eigen::Vector2d>& points, const std::vector<uint8_t>& hit,
+                        const Pose2& sensor_in_base, double res, const MatcherOptions& opt) {
+  MatchScan m;
+  int valid = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (!hit[i]) continue;
+    const double r = points[i].norm();
+    if (r > opt.max_match_range_m || r < 1e-3) continue;
+    const int k = valid++;
+    // One free step back along the beam: sqrt(2) cells, as GMapping does.
+    const Eigen::Vector2d back = points[i] * (1.0 - std::sqrt(2.0) * res / r);
+    const Eigen::Vector2d h = sensor_in_base.Transform(points[i]);
+    const Eigen::Vector2d f = sensor_in_base.Transform(back);
+    if (k % std::max(1, opt.beam_step) == 0) {
+      m.hits.push_back(h);
+      m.frees.push_back(f);
+    }
+    if (k % std::max(1, opt.search_beam_step) == 0) {
+      m.coarse_hits.push_back(h);
+      m.coarse_frees.push_back(f);
+    }
+  }
+  return m;
+}
+
+ScanMatcher::ScanMatcher(const MatcherOptions& options) : opt_(options) {}
+
+ScoreResult ScanMatcher::Score(const TiledGrid& grid, const Pose2& p, const MatchScan& scan) const {
+  ScoreResult out;
+  const double c = std::cos(p.theta), s = std::sin(p.theta);
+  const double res = grid.resolution();
+  const double inv_score = 1.0 / (2.0 * opt_.sigma_score_m * opt_.sigma_score_m);
+  const double inv_lik = 1.0 / (2.0 * opt_.sigma_likelihood_m * opt_.sigma_likelihood_m);
+  const int k = opt_.kernel_cells;
+  out.beams = static_cast<int>(scan.hits.size());
+  for (size_t i = 0; i < scan.hits.size(); ++i) {
+    const Eigen::Vector2d& h = scan.hits[i];
+    const Eigen::Vector2d& f = scan.frees[i];
+    const double hx = p.x + c * h.x() - s * h.y(), hy = p.y + s * h.x() + c * h.y();
+    const double fx = p.x + c * f.x() - s * f.y(), fy = p.y + s * f.x() + c * f.y();
+    const int64_t hcx = grid.CellX(hx), hcy = grid.CellY(hy);
+    const int64_t fcx = grid.CellX(fx), fcy = grid.CellY(fy);
+    double best = std::numeric_limits<double>::infinity();
+    for (int dy = -k; dy <= k; ++dy)
+      for (int dx = -k; dx <= k; ++dx) {
+        if (!grid.Occupied(hcx + dx, hcy + dy)) continue;
+        if (!grid.Free(fcx + dx, fcy + dy)) continue;
+        const double ex = (static_cast<double>(hcx + dx) + 0.5) * res - hx;
+        const double ey = (static_cast<double>(hcy + dy) + 0.5) * res - hy;
+        best = std::min(best, ex * ex + ey * ey);
+      }
+    if (best < std::numeric_limits<double>::infinity()) {
+      ++out.matched;
+      out.score += std::exp(-best * inv_score);
+      out.log_likelihood -= best * inv_lik;
+    } else {
+      out.log_likelihood += opt_.null_log_likelihood;
+    }
+  }
+  return out;
+}
+
+Pose2 ScanMatcher::CorrelativeSearch(const TiledGrid& grid, const Pose2& start,
+                                     const MatchScan& scan) const {
+  const double res = grid.resolution();
+  const int n_xy = static_cast<int>(std::ceil(opt_.search_xy_m / res));
+  const int n_t = static_cast<int>(std::ceil(opt_.search_theta_rad / opt_.search_theta_step_rad));
+  const size_t nb = scan.coarse_hits.size();
+  std::vector<int64_t> hx(nb), hy(nb), fx(nb), fy(nb);
+  const int side = 2 * n_xy + 1;
+  std::vector<float> acc(static_cast<size_t>(side * side));
+  double best_score = -1;
+  Pose2 best = start;
+  for (int it = -n_t; it <= n_t; ++it) {
+    const double th = start.theta + it * opt_.search_theta_step_rad;
+    const double c = std::cos(th), s = std::sin(th);
+    for (size_t i = 0; i < nb; ++i) {
+      const auto& h = scan.coarse_hits[i];
+      const auto& f = scan.coarse_frees[i];
+      hx[i] = grid.CellX(start.x + c * h.x() - s * h.y());
+      hy[i] = grid.CellY(start.y + s * h.x() + c * h.y());
+      fx[i] = grid.CellX(start.x + c * f.x() - s * f.y());
+      fy[i] = grid.CellY(start.y + s * f.x() + c * f.y());
+    }
+    std::fill(acc.begin(), acc.end(), 0.f);
+    for (size_t i = 0; i < nb; ++i) {
+      // Each beam votes for the shifts that put its end point on (or next to) an occupied cell
+      // seen from the beam's side; walk the occupied cells of the window once per beam.
+      for (int sy = -n_xy - 1; sy <= n_xy + 1; ++sy)
+        for (int sx = -n_xy - 1; sx <= n_xy + 1; ++sx) {
+          if (!grid.Occupied(hx[i] + sx, hy[i] + sy)) continue;
+          if (grid.Free(fx[i] + sx, fy[i] + sy) == false &&
+              grid.LogOdds(fx[i] + sx, fy[i] + sy) != 0.f)
+            continue;  // seen from behind (occupied or unknown-behind is allowed)
+          // Full vote at the exact shift, half to the 4-neighbours.
+          for (int k = 0; k < 5; ++k) {
+            static const int kdx[5] = {0, 1, -1, 0, 0}, kdy[5] = {0, 0, 0, 1, -1};
+            const int ux = sx + kdx[k], uy = sy + kdy[k];
+            if (ux < -n_xy || ux > n_xy || uy < -n_xy || uy > n_xy) continue;
+            float& a = acc[static_cast<size_t>((uy + n_xy) * side + (ux + n_xy))];
+            a += k == 0 ? 1.f : 0.25f;
+          }
+        }
+    }
+    for (int uy = -n_xy; uy <= n_xy; ++uy)
+      for (int ux = -n_xy; ux <= n_xy; ++ux) {
+        // Votes per beam, charged for the distance from the start (aliasing in corridors).
+        const Pose2 cand(start.x + ux * res, start.y + uy * res, th);
+        const double score =
+            acc[static_cast<size_t>((uy + n_xy) * side + (ux + n_xy))] / static_cast<double>(nb) -
+            Prior(start, cand);
+        if (score > best_score) {
+          best_score = score;
+          best = Pose2(start.x + ux * res, start.y + uy * res, WrapAngle(th));
+        }
+      }
+  }
+  return best;
+}
+
+double ScanMatcher::Prior(const Pose2& start, const Pose2& p) const {
+  const double dx = p.x - start.x, dy = p.y - start.y, dt = WrapAngle(p.theta - start.theta);
+  const double sxy = std::max(opt_.search_xy_m, 1e-3), st = std::max(opt_.search_theta_rad, 1e-3);
+  return opt_.prior_weight * ((dx * dx + dy * dy) / (sxy * sxy) + dt * dt / (st * st));
+}
+
+ScoreResult ScanMatcher::Refine(const TiledGrid& grid, const MatchScan& scan, Pose2* pose) const {
+  // Hill climbing: try a step along each axis both ways, move to the best, halve when stuck.
+  Pose2 cur = *pose;
+  ScoreResult cur_s = Score(grid, cur, scan);
+  double step_xy = opt_.refine_step_xy_m, step_t = opt_.refine_step_theta_rad;
+  int halvings = 0;
+  while (halvings <= opt_.refine_halvings) {
+    Pose2 best = cur;
+    ScoreResult best_s = cur_s;
+    const Pose2 moves[6] = {{step_xy, 0, 0},  {-step_xy, 0, 0}, {0, step_xy, 0},
+                            {0, -step_xy, 0}, {0, 0, step_t},   {0, 0, -step_t}};
+    for (const Pose2& m : moves) {
+      const Pose2 cand(cur.x + m.x, cur.y + m.y, WrapAngle(cur.theta + m.theta));
+      const ScoreResult s = Score(grid, cand, scan);
+      if (s.score > best_s.score) {
+        best = cand;
+        best_s = s;
+      }
+    }
+    if (best_s.score > cur_s.score) {
+      cur = best;
+      cur_s = best_s;
+    } else {
+      step_xy *= 0.5;
+      step_t *= 0.5;
+      ++halvings;
+    }
+  }
+  *pose = cur;
+  return cur_s;
+}
+
+MatchResult ScanMatcher::Match(const TiledGrid& grid, const Pose2& start,
+                               const MatchScan& scan) const {
+  MatchResult r;
+  r.pose = start;
+  r.score = Refine(grid, scan, &r.pose);
+  if (opt_.search_below_fraction > 0 && r.score.fraction() < opt_.search_below_fraction &&
+      !scan.coarse_hits.empty()) {
+    // Poor local match: search the window, refine its best, keep whichever explains the scan
+    // better once the distance from the start is charged.
+    r.searched = true;
+    Pose2 cand = CorrelativeSearch(grid, start, scan);
+    const ScoreResult cs = Refine(grid, scan, &cand);
+    const double n = std::max(1, r.score.beams);
+    if (cs.score / n - Prior(start, cand) > r.score.score / n - Prior(start, r.pose)) {
+      r.pose = cand;
+      r.score = cs;
+    }
+  }
+  r.ok = r.score.beams > 0 && r.score.fraction() >= opt_.min_match_fraction;
+  return r;
+}
+
+}  // namespace omni::rbpf

@@ -1,0 +1,156 @@
+#include "omni/rbpf_mapper/tiled_grid.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+
+namespace omni::rbpf {
+
+TiledGrid::TiledGrid(const GridOptions& options) : opt_(options) {}
+
+void TiledGrid::EnsureTile(int64_t tx, int64_t ty) {
+  if (ntx_ == 0) {
+    // First tile: start with a small block around it so early growth is cheap.
+    tx0_ = tx - 2;
+    ty0_ = ty - 2;
+    ntx_ = nty_ = 5;
+    tiles_.assign(25, nullptr);
+    return;
+  }
+  if (tx >= tx0_ && ty >= ty0_ && tx < tx0_ + ntx_ && ty < ty0_ + nty_) return;
+  // Grow with a margin of a few tiles on the side that needs it.
+  const int64_t margin = 4;
+  const int64_t nx0 = std::min(tx0_, tx - (tx < tx0_ ? margin : 0));
+  const int64_t ny0 = std::min(ty0_, ty - (ty < ty0_ ? margin : 0));
+  const int64_t nx1 = std::max(tx0_ + ntx_, tx + 1 + (tx >= tx0_ + ntx_ ? margin : 0));
+  const int64_t ny1 = std::max(ty0_ + nty_, ty + 1 + (ty >= ty0_ + nty_ ? margin : 0));
+  std::vector<std::shared_ptr<Tile>> grown(static_cast<size_t>((nx1 - nx0) * (ny1 - ny0)));
+  for (int64_t iy = 0; iy < nty_; ++iy)
+    for (int64_t ix = 0; ix < ntx_; ++ix)
+      grown[static_cast<size_t>((iy + ty0_ - ny0) * (nx1 - nx0) + (ix + tx0_ - nx0))] =
+          std::move(tiles_[static_cast<size_t>(iy * ntx_ + ix)]);
+  tiles_ = std::move(grown);
+  tx0_ = nx0;
+  ty0_ = ny0;
+  ntx_ = nx1 - nx0;
+  nty_ = ny1 - ny0;
+}
+
+TiledGrid::Tile* TiledGrid::MutableTile(int64_t tx, int64_t ty) {
+  EnsureTile(tx, ty);
+  auto& slot = tiles_[static_cast<size_t>((ty - ty0_) * ntx_ + (tx - tx0_))];
+  if (!slot) {
+    slot = std::make_shared<Tile>();
+  } else if (slot.use_count() > 1) {
+    slot = std::make_shared<Tile>(*slot);  // copy-on-write
+  } else {
+    // Sole owner: pairs with the release of the last other owner's decrement, so that owner's
+    // reads (e.g. while copying) happen before our writes.
+    std::atomic_thread_fence(std::memory_order_acquire);
+  }
+  return slot.get();
+}
+
+void TiledGrid::Update(int64_t cx, int64_t cy, float delta) {
+  Tile* t = MutableTile(cx >> kTileBits, cy >> kTileBits);
+  float& v = t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))];
+  v = std::clamp(v + delta, opt_.min_log_odds, opt_.max_log_odds);
+  if (v == 0.f) v = -1e-6f;  // observed cells never read as "unknown"
+}
+
+void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen::Vector2d>& points,
+                              const std::vector<uint8_t>& hit) {
+  const int64_t x0 = CellX(sensor_pose.x), y0 = CellY(sensor_pose.y);
+  // Cache of the tile being written, so a ray does not look up its tile for every cell.
+  int64_t cached_tx = std::numeric_limits<int64_t>::min(), cached_ty = 0;
+  Tile* cached = nullptr;
+  auto add = [&](int64_t cx, int64_t cy, float delta) {
+    const int64_t tx = cx >> kTileBits, ty = cy >> kTileBits;
+    if (tx != cached_tx || ty != cached_ty || !cached) {
+      cached = MutableTile(tx, ty);
+      cached_tx = tx;
+      cached_ty = ty;
+    }
+    float& v =
+        cached->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))];
+    v = std::clamp(v + delta, opt_.min_log_odds, opt_.max_log_odds);
+    if (v == 0.f) v = -1e-6f;
+  };
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector2d w = sensor_pose.Transform(points[i]);
+    const int64_t x1 = CellX(w.x()), y1 = CellY(w.y());
+    // Bresenham from the sensor cell to the end cell (exclusive).
+    int64_t x = x0, y = y0;
+    const int64_t dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0);
+    const int64_t sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
+    int64_t err = dx + dy;
+    while (x != x1 || y != y1) {
+      add(x, y, opt_.miss_log_odds);
+      const int64_t e2 = 2 * err;
+      if (e2 >= dy) {
+        err += dy;
+        x += sx;
+      }
+      if (e2 <= dx) {
+        err += dx;
+        y += sy;
+      }
+    }
+    if (hit[i]) add(x1, y1, opt_.hit_log_odds);
+  }
+}
+
+io::GridMap TiledGrid::ToGridMap() const {
+  io::GridMap map;
+  map.resolution_m = opt_.resolution_m;
+  int64_t min_cx = std::numeric_limits<int64_t>::max(), min_cy = min_cx;
+  int64_t max_cx = std::numeric_limits<int64_t>::min(), max_cy = max_cx;
+  for (int64_t iy = 0; iy < nty_; ++iy)
+    for (int64_t ix = 0; ix < ntx_; ++ix) {
+      const Tile* t = tiles_[static_cast<size_t>(iy * ntx_ + ix)].get();
+      if (!t) continue;
+      for (int r = 0; r < kTileSize; ++r)
+        for (int c = 0; c < kTileSize; ++c) {
+          if (t->log_odds[static_cast<size_t>(r * kTileSize + c)] == 0.f) continue;
+          const int64_t cx = (tx0_ + ix) * kTileSize + c, cy = (ty0_ + iy) * kTileSize + r;
+          min_cx = std::min(min_cx, cx);
+          max_cx = std::max(max_cx, cx);
+          min_cy = std::min(min_cy, cy);
+          max_cy = std::max(max_cy, cy);
+        }
+    }
+  if (min_cx > max_cx) return map;
+  map.width = static_cast<int>(max_cx - min_cx + 1);
+  map.height = static_cast<int>(max_cy - min_cy + 1);
+  map.origin_x_m = static_cast<double>(min_cx) * opt_.resolution_m;
+  map.origin_y_m = static_cast<double>(min_cy) * opt_.resolution_m;
+  map.cells.assign(static_cast<size_t>(map.width) * map.height, -1);
+  for (int row = 0; row < map.height; ++row)
+    for (int col = 0; col < map.width; ++col) {
+      const float l = LogOdds(min_cx + col, min_cy + row);
+      if (l == 0.f) continue;
+      const double p = 1.0 - 1.0 / (1.0 + std::exp(static_cast<double>(l)));
+      map.at(col, row) = static_cast<int8_t>(std::lround(100.0 * p));
+    }
+  return map;
+}
+
+size_t TiledGrid::num_tiles() const {
+  size_t n = 0;
+  for (const auto& t : tiles_) n += t != nullptr;
+  return n;
+}
+
+size_t TiledGrid::num_unique_tiles() const {
+  size_t n = 0;
+  for (const auto& t : tiles_) n += t && t.use_count() == 1;
+  return n;
+}
+
+bool TiledGrid::SharesTileWith(const TiledGrid& other, int64_t tx, int64_t ty) const {
+  const Tile* a = TileAt(tx, ty);
+  return a != nullptr && a == other.TileAt(tx, ty);
+}
+
+}  // namespace omni::rbpf

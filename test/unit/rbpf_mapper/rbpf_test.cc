@@ -1,0 +1,362 @@
+// Unit tests of the RBPF library: motion model moments, Neff, low-variance resampling,
+// copy-on-write map sharing, the scan matcher on real corrected scans, determinism and bad
+// input handling.
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "../common/test_paths.h"
+#include "omni/common/config.h"
+#include "omni/io/carmen.h"
+#include "omni/rbpf_mapper/motion_model.h"
+#include "omni/rbpf_mapper/rbpf.h"
+#include "omni/rbpf_mapper/scan_matcher.h"
+#include "omni/rbpf_mapper/thread_pool.h"
+#include "omni/rbpf_mapper/tiled_grid.h"
+
+namespace omni::rbpf {
+namespace {
+
+TEST(MotionModel, SampleMomentsMatchTheModel) {
+  MotionNoise noise;
+  OmniMotionModel model(noise);
+  const Pose2 delta(0.8, 0.3, 0.25);  // forward, sideways (omni) and turning at once
+  const MotionSigma sigma = model.Sigma(delta);
+  EXPECT_NEAR(sigma.x, noise.min_xy_m + noise.a_xx * 0.8 + noise.a_xy * 0.3 + noise.a_xt * 0.25,
+              1e-12);
+  EXPECT_NEAR(sigma.y, noise.min_xy_m + noise.a_yx * 0.8 + noise.a_yy * 0.3 + noise.a_yt * 0.25,
+              1e-12);
+  std::mt19937_64 rng(42);
+  const int n = 40000;
+  double sx = 0, sy = 0, st = 0, sxx = 0, syy = 0, stt = 0, sxy = 0;
+  for (int i = 0; i < n; ++i) {
+    const Pose2 p = model.Sample(Pose2(), delta, rng);  // from the origin: p is the noisy delta
+    const double dx = p.x - delta.x, dy = p.y - delta.y, dt = WrapAngle(p.theta - delta.theta);
+    sx += dx;
+    sy += dy;
+    st += dt;
+    sxx += dx * dx;
+    syy += dy * dy;
+    stt += dt * dt;
+    sxy += dx * dy;
+  }
+  const double se = 4.0 / std::sqrt(static_cast<double>(n));  // ~4 standard errors
+  EXPECT_NEAR(sx / n, 0.0, se * sigma.x);
+  EXPECT_NEAR(sy / n, 0.0, se * sigma.y);
+  EXPECT_NEAR(st / n, 0.0, se * sigma.theta);
+  EXPECT_NEAR(std::sqrt(sxx / n), sigma.x, 0.03 * sigma.x);
+  EXPECT_NEAR(std::sqrt(syy / n), sigma.y, 0.03 * sigma.y);
+  EXPECT_NEAR(std::sqrt(stt / n), sigma.theta, 0.03 * sigma.theta);
+  EXPECT_NEAR(sxy / n / (sigma.x * sigma.y), 0.0, 0.03);  // independent axes
+}
+
+TEST(MotionModel, PureSidewaysMotionHasLateralSlip) {
+  OmniMotionModel model;
+  const MotionSigma s = model.Sigma(Pose2(0, 1.0, 0));
+  EXPECT_GT(s.y, s.x);  // slip grows along the direction of travel, forward or sideways
+  EXPECT_GT(s.theta, model.noise().min_theta_rad);
+}
+
+TEST(MotionModel, ImuFusionPullsHeadingTowardsTheGyro) {
+  OmniMotionModel model;
+  double sigma = 0;
+  const Pose2 fused = model.FuseImuYaw(Pose2(0.5, 0, 0.30), 0.20, &sigma);
+  EXPECT_LT(fused.theta, 0.30);
+  EXPECT_GT(fused.theta, 0.20);
+  EXPECT_LT(sigma, model.Sigma(Pose2(0.5, 0, 0.30)).theta);
+}
+
+TEST(Resampling, EffectiveSampleSize) {
+  EXPECT_NEAR(EffectiveSampleSize(std::vector<double>(10, 0.1)), 10.0, 1e-9);
+  EXPECT_NEAR(EffectiveSampleSize({1.0, 0, 0, 0}), 1.0, 1e-12);
+  EXPECT_NEAR(EffectiveSampleSize({0.5, 0.5, 0, 0}), 2.0, 1e-12);
+}
+
+TEST(Resampling, LowVarianceIsUnbiasedAndLowVariance) {
+  const std::vector<double> w = {0.05, 0.40, 0.15, 0.0, 0.30, 0.10};
+  const int n = 20;
+  std::mt19937_64 rng(3);
+  std::vector<double> mean_count(w.size(), 0.0);
+  const int trials = 20000;
+  for (int t = 0; t < trials; ++t) {
+    std::vector<int> count(w.size(), 0);
+    for (int i : LowVarianceResample(w, n, rng)) ++count[static_cast<size_t>(i)];
+    for (size_t i = 0; i < w.size(); ++i) {
+      // Systematic resampling: each count is floor or ceil of n * w.
+      EXPECT_GE(count[i], static_cast<int>(std::floor(n * w[i] - 1e-9)));
+      EXPECT_LE(count[i], static_cast<int>(std::ceil(n * w[i] + 1e-9)));
+      mean_count[i] += count[i];
+    }
+  }
+  for (size_t i = 0; i < w.size(); ++i) EXPECT_NEAR(mean_count[i] / trials, n * w[i], 0.02);
+  EXPECT_EQ(mean_count[3], 0.0);  // a zero weight is never drawn
+}
+
+TEST(TiledGrid, CopiesOnlyTheTileThatIsWritten) {
+  TiledGrid a;
+  // Write cells in three different tiles.
+  const int64_t s = TiledGrid::kTileSize;
+  a.Update(1, 1, 1.0f);
+  a.Update(s + 1, 1, 1.0f);
+  a.Update(1, s + 1, 1.0f);
+  ASSERT_EQ(a.num_tiles(), 3u);
+  TiledGrid b = a;  // a particle copy: shares every tile
+  EXPECT_TRUE(a.SharesTileWith(b, 0, 0));
+  EXPECT_TRUE(a.SharesTileWith(b, 1, 0));
+  EXPECT_TRUE(a.SharesTileWith(b, 0, 1));
+  EXPECT_EQ(a.num_unique_tiles(), 0u);
+  b.Update(2, 2, 2.0f);  // tile (0, 0)
+  EXPECT_FALSE(a.SharesTileWith(b, 0, 0));
+  EXPECT_TRUE(a.SharesTileWith(b, 1, 0));
+  EXPECT_TRUE(a.SharesTileWith(b, 0, 1));
+  EXPECT_EQ(b.num_unique_tiles(), 1u);
+  EXPECT_FLOAT_EQ(a.LogOdds(2, 2), 0.0f);  // the original is untouched
+  EXPECT_FLOAT_EQ(b.LogOdds(2, 2), 2.0f);
+  EXPECT_FLOAT_EQ(b.LogOdds(1, 1), 1.0f);  // the copy carries the old contents
+  b.Update(3, 3, 1.0f);                    // sole owner now: no further copy
+  EXPECT_EQ(b.num_unique_tiles(), 1u);
+  // Negative coordinates and growth keep working.
+  b.Update(-5 * s, -3 * s, 1.0f);
+  EXPECT_FLOAT_EQ(b.LogOdds(-5 * s, -3 * s), 1.0f);
+  EXPECT_FLOAT_EQ(b.LogOdds(2, 2), 2.0f);
+  EXPECT_TRUE(a.SharesTileWith(b, 1, 0));
+}
+
+TEST(TiledGrid, IntegrateScanMarksFreeAndOccupied) {
+  TiledGrid g;
+  std::vector<Eigen::Vector2d> pts = {{2.0, 0.0}, {0.0, 1.0}};
+  g.IntegrateScan(Pose2(0.02, 0.02, 0), pts, {1, 0});
+  EXPECT_TRUE(g.Occupied(g.CellX(2.02), g.CellY(0.02)));
+  EXPECT_TRUE(g.Free(g.CellX(1.0), g.CellY(0.02)) || g.LogOdds(g.CellX(1.0), g.CellY(0.02)) < 0);
+  EXPECT_LT(g.LogOdds(g.CellX(0.02), g.CellY(0.5)), 0.f);  // no-return beam: free only
+  EXPECT_FALSE(g.Occupied(g.CellX(0.02), g.CellY(1.02)));
+  const io::GridMap m = g.ToGridMap();
+  EXPECT_GT(m.width, 30);
+}
+
+// Scans of the corrected Intel log: FLASER poses are the corrected poses.
+struct CorrectedScan {
+  Pose2 pose;
+  std::vector<Eigen::Vector2d> points;
+  std::vector<uint8_t> hit;
+};
+
+std::vector<CorrectedScan> LoadCorrected(const std::string& path, size_t count) {
+  std::vector<CorrectedScan> out;
+  auto log = io::ReadCarmenLog(path);
+  if (!log.ok()) return out;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    CorrectedScan s;
+    s.pose = r.laser.laser_pose;
+    for (size_t i = 0; i < r.laser.ranges_m.size(); ++i) {
+      const double a = r.laser.angle_min_rad + i * r.laser.angle_increment_rad;
+      const double range = r.laser.ranges_m[i];
+      if (!(range > 0 && range < r.laser.max_range_m)) continue;
+      s.points.emplace_back(range * std::cos(a), range * std::sin(a));
+      s.hit.push_back(1);
+    }
+    out.push_back(std::move(s));
+    if (out.size() >= count) break;
+  }
+  return out;
+}
+
+TEST(ScanMatcher, RecoversAKnownOffsetBetweenTwoCorrectedScans) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/intel-corrected.log.gz");
+  const auto scans = LoadCorrected(path, 40);
+  ASSERT_GE(scans.size(), 40u);
+  MatcherOptions mo;
+  ScanMatcher matcher(mo);
+  int checked = 0;
+  // Consecutive scans (pairs that are not corridor-degenerate: along a bare corridor a single
+  // scan cannot fix the position along it).
+  for (size_t a : {5u, 15u, 20u, 25u, 35u}) {
+    const size_t b = a + 1;
+    TiledGrid grid;
+    grid.IntegrateScan(scans[a].pose, scans[a].points, scans[a].hit);
+    const MatchScan ms = MakeMatchScan(scans[b].points, scans[b].hit, Pose2(), 0.05, mo);
+    const Pose2 truth = scans[b].pose;
+    for (const Pose2& off : {Pose2(0.15, -0.10, 0.05), Pose2(-0.2, 0.1, -0.08)}) {
+      const Pose2 start(truth.x + off.x, truth.y + off.y, WrapAngle(truth.theta + off.theta));
+      const MatchResult m = matcher.Match(grid, start, ms);
+      ++checked;
+      EXPECT_TRUE(m.ok) << "scan " << a << " -> " << b;
+      EXPECT_NEAR(m.pose.x, truth.x, 0.05) << "scan " << a << " -> " << b;
+      EXPECT_NEAR(m.pose.y, truth.y, 0.05) << "scan " << a << " -> " << b;
+      EXPECT_NEAR(WrapAngle(m.pose.theta - truth.theta), 0.0, 0.02) << "scan " << a;
+      // The matched pose explains the scan better than the offset start.
+      EXPECT_GT(m.score.score, matcher.Score(grid, start, ms).score);
+    }
+  }
+  EXPECT_EQ(checked, 10);
+}
+
+TEST(ThreadPool, RunsEveryItemOnce) {
+  ThreadPool pool(3);
+  std::vector<int> hits(1000, 0);
+  for (int rep = 0; rep < 20; ++rep)
+    pool.ParallelFor(1000, [&](int i) { ++hits[static_cast<size_t>(i)]; });
+  for (int h : hits) EXPECT_EQ(h, 20);
+}
+
+ScanInput ToInput(const io::CarmenLaser& l) {
+  ScanInput s;
+  s.utime = SecondsToUtime(l.timestamp_s);
+  s.sensor_in_base = l.robot_pose.Between(l.laser_pose);
+  s.angle_min_rad = l.angle_min_rad;
+  s.angle_increment_rad = l.angle_increment_rad;
+  s.range_max_m = l.max_range_m;
+  s.ranges_m = l.ranges_m;
+  s.odom = l.robot_pose;
+  return s;
+}
+
+std::vector<EstimatedPose> RunPrefix(const std::string& path, size_t scans, int threads,
+                                     uint64_t seed, RbpfCounters* counters = nullptr) {
+  RbpfOptions o;
+  o.particles = 8;
+  o.threads = threads;
+  o.seed = seed;
+  RbpfSlam slam(o);
+  auto log = io::ReadCarmenLog(path);
+  EXPECT_TRUE(log.ok());
+  size_t n = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    slam.AddScan(ToInput(r.laser));
+    if (++n >= scans) break;
+  }
+  if (counters) *counters = slam.counters();
+  return slam.BestTrajectory();
+}
+
+TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
+  RbpfCounters c1;
+  const auto a = RunPrefix(path, 80, 1, 7, &c1);
+  const auto b = RunPrefix(path, 80, 2, 7);
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_GT(a.size(), 70u);
+  EXPECT_GT(c1.scans_processed, 20);
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].scan_index, b[i].scan_index);
+    EXPECT_EQ(a[i].pose.x, b[i].pose.x) << i;
+    EXPECT_EQ(a[i].pose.y, b[i].pose.y) << i;
+    EXPECT_EQ(a[i].pose.theta, b[i].pose.theta) << i;
+  }
+  const auto c = RunPrefix(path, 80, 2, 8);  // another seed: another sample path
+  bool differs = false;
+  for (size_t i = 0; i < std::min(a.size(), c.size()); ++i)
+    differs |= a[i].pose.x != c[i].pose.x || a[i].pose.theta != c[i].pose.theta;
+  EXPECT_TRUE(differs);
+}
+
+ScanInput SyntheticScan(int64_t utime, const Pose2& odom) {
+  // A robot in a 10 m x 10 m square room centred on the origin, 180 beams.
+  ScanInput s;
+  s.utime = utime;
+  s.odom = odom;
+  s.angle_min_rad = static_cast<float>(-M_PI / 2);
+  s.angle_increment_rad = static_cast<float>(M_PI / 180);
+  s.range_max_m = 30.f;
+  for (int i = 0; i < 180; ++i) {
+    const double a = odom.theta + s.angle_min_rad + i * s.angle_increment_rad;
+    const double c = std::cos(a), sn = std::sin(a);
+    double t = 1e9;
+    if (c > 1e-9) t = std::min(t, (5 - odom.x) / c);
+    if (c < -1e-9) t = std::min(t, (-5 - odom.x) / c);
+    if (sn > 1e-9) t = std::min(t, (5 - odom.y) / sn);
+    if (sn < -1e-9) t = std::min(t, (-5 - odom.y) / sn);
+    s.ranges_m.push_back(static_cast<float>(t));
+  }
+  return s;
+}
+
+TEST(RbpfSlam, BadInputIsRejectedAndCounted) {
+  RbpfOptions o;
+  o.particles = 4;
+  o.threads = 2;
+  RbpfSlam slam(o);
+  int64_t t = 1000000;
+  EXPECT_TRUE(slam.AddScan(SyntheticScan(t, Pose2(0, 0, 0))).processed);
+  // NaN / inf / negative beams: counted, the rest of the scan is used.
+  ScanInput s = SyntheticScan(t += 100000, Pose2(0.3, 0, 0));
+  s.ranges_m[3] = std::nanf("");
+  s.ranges_m[4] = INFINITY;
+  s.ranges_m[5] = -1.f;
+  EXPECT_TRUE(slam.AddScan(s).processed);
+  EXPECT_GE(slam.counters().invalid_beams, 3);
+  // Too few valid beams.
+  ScanInput empty = SyntheticScan(t += 100000, Pose2(0.6, 0, 0));
+  for (auto& r : empty.ranges_m) r = std::nanf("");
+  EXPECT_FALSE(slam.AddScan(empty).processed);
+  EXPECT_EQ(slam.counters().scans_too_few_beams, 1);
+  // Time going backwards.
+  EXPECT_FALSE(slam.AddScan(SyntheticScan(t - 500000, Pose2(0.6, 0, 0))).accepted);
+  EXPECT_EQ(slam.counters().scans_time_backwards, 1);
+  // An odometry jump of 50 m: counted, the filter does not move the particles by it.
+  const ScanResult jump = slam.AddScan(SyntheticScan(t += 100000, Pose2(50.6, 0, 0)));
+  EXPECT_EQ(slam.counters().odom_jumps, 1);
+  EXPECT_LT(std::abs(jump.pose.x), 2.0);
+  // Non-finite odometry and geometry.
+  ScanInput bad = SyntheticScan(t += 100000, Pose2(0.6, 0, 0));
+  bad.odom = Pose2(NAN, 0, 0);
+  EXPECT_FALSE(slam.AddScan(bad).accepted);
+  EXPECT_EQ(slam.counters().odom_invalid, 1);
+  ScanInput bad_angle = SyntheticScan(t += 100000, Pose2(0.6, 0, 0));
+  bad_angle.angle_increment_rad = NAN;
+  EXPECT_FALSE(slam.AddScan(bad_angle).accepted);
+  EXPECT_FALSE(slam.AddOdometry(t, Pose2(INFINITY, 0, 0)));
+  EXPECT_FALSE(slam.AddImuYawRate(t, NAN));
+  // The map is still a room: the estimate stays near the odometry of the clean scans.
+  const io::GridMap map = slam.BestMap();
+  EXPECT_GT(map.width, 95);  // the room's front half (beams cover -90..90 deg)
+  EXPECT_LT(map.width, 160);
+  EXPECT_GT(map.height, 190);
+  EXPECT_LT(map.height, 260);
+  for (const auto& p : slam.BestTrajectory()) EXPECT_LT(std::abs(p.pose.x), 2.0);
+}
+
+TEST(RbpfSlam, MapsShareTilesAcrossParticles) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
+  RbpfOptions o;
+  o.particles = 30;
+  o.threads = 2;
+  RbpfSlam slam(o);
+  auto log = io::ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok());
+  size_t n = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    slam.AddScan(ToInput(r.laser));
+    if (++n >= 120) break;
+  }
+  // 30 particles' maps cost far less than 30 full maps: most tiles are shared.
+  EXPECT_GT(slam.total_tile_refs(), 30u * 20u);
+  EXPECT_LT(slam.distinct_tiles() * 4, slam.total_tile_refs())
+      << slam.distinct_tiles() << " distinct tiles for " << slam.total_tile_refs() << " refs";
+}
+
+TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
+  const std::string path = std::string(OMNI_SOURCE_DIR) + "/config/rbpf_mapper.yaml";
+  auto reader = ConfigReader::FromFile(path);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+  auto opt = RbpfOptions::Load(*reader);
+  ASSERT_TRUE(opt.ok()) << opt.error().message;
+  EXPECT_GE(opt->particles, 1);
+  auto typo = ConfigReader::FromString("particles: 30\nmatcher:\n  kernel_cell: 1\n", "t.yaml");
+  ASSERT_TRUE(typo.ok());
+  auto r = RbpfOptions::Load(*typo);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("matcher.kernel_cell"), std::string::npos) << r.error().message;
+  auto range = ConfigReader::FromString("particles: 0\n", "t.yaml");
+  ASSERT_TRUE(range.ok());
+  EXPECT_FALSE(RbpfOptions::Load(*range).ok());
+}
+
+}  // namespace
+}  // namespace omni::rbpf

@@ -1,0 +1,337 @@
+// omni-slam: `./omni slam rbpf INPUT --out DIR [--seed N] [--config FILE]` maps a recorded log
+// offline with the same library the rbpf_mapper process runs (no bus).
+//
+// INPUT: a CARMEN log (.clf, .log, optionally .gz; FLASER/RLASER/ROBOTLASER1 with the odometry
+// pose on each laser line, ODOM lines) or an LCM log (LIDAR_SCAN laser_scan_t, WHEEL_ODOM
+// odometry_t, IMU imu_t; detected by its sync word). Writes DIR/trajectory.txt
+// (`scan_index timestamp x y theta` of every accepted scan, 0-based in input order, the best
+// particle's final path), DIR/map.{pgm,yaml,png} and DIR/stats.json.
+//
+// `omni-slam posegraph ...` hands over to build/bin/omni-posegraph-slam (the pose-graph
+// mapper's own runner) when it exists.
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/time.h"
+#include "omni/imu_t.hpp"
+#include "omni/io/carmen.h"
+#include "omni/io/grid.h"
+#include "omni/io/image_io.h"
+#include "omni/io/lcm_log.h"
+#include "omni/io/trajectory_io.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odometry_t.hpp"
+#include "omni/rbpf_mapper/rbpf.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+void Usage(std::FILE* f) {
+  std::fprintf(
+      f,
+      "usage: omni-slam rbpf INPUT --out DIR [--seed N] [--config FILE] [--particles N]\n"
+      "                 [--threads N] [--max-scans N] [--quiet]\n"
+      "  Maps INPUT offline with the RBPF mapper library (the rbpf_mapper process's algorithm).\n"
+      "  INPUT: CARMEN log (.clf/.log, optionally gzip) or LCM log (LIDAR_SCAN, WHEEL_ODOM, IMU).\n"
+      "  Writes DIR/trajectory.txt (scan_index timestamp x y theta, every accepted scan, 0-based\n"
+      "  in input order), DIR/map.pgm + map.yaml (ROS map_server), DIR/map.png, DIR/stats.json.\n"
+      "  --config FILE   rbpf_mapper YAML (default: built-in defaults = config/rbpf_mapper.yaml)\n"
+      "  --seed N        overrides the config's seed\n"
+      "  --particles N, --threads N   override the config\n"
+      "  --max-scans N   stop after N laser scans (a prefix of the log)\n"
+      "usage: omni-slam posegraph ...   runs omni-posegraph-slam (pose-graph mapper) if built\n");
+}
+
+bool IsLcmLog(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[4] = {0, 0, 0, 0};
+  in.read(reinterpret_cast<char*>(b), 4);
+  return in.gcount() == 4 && b[0] == 0xED && b[1] == 0xA1 && b[2] == 0xDA && b[3] == 0x01;
+}
+
+struct Input {
+  std::vector<double> scan_time_s;  // by scan index
+};
+
+double YawRateFromImu(const omni::imu_t& m) { return m.angular_velocity_rad_s[2]; }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc >= 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
+    Usage(stdout);
+    return 0;
+  }
+  if (argc < 2) {
+    Usage(stderr);
+    return 2;
+  }
+  const std::string mapper = argv[1];
+  if (mapper == "posegraph") {
+    const fs::path self = fs::path(argv[0]).parent_path();
+    const fs::path pg = self / "omni-posegraph-slam";
+    if (!fs::exists(pg)) {
+      std::fprintf(stderr,
+                   "omni-slam: the pose-graph mapper's runner (%s) is not built; `omni-slam "
+                   "posegraph` is provided by host/pose_graph_mapper\n",
+                   pg.c_str());
+      return 2;
+    }
+    std::vector<char*> args;
+    std::string name = pg.string();
+    args.push_back(name.data());
+    for (int i = 2; i < argc; ++i) args.push_back(argv[i]);
+    args.push_back(nullptr);
+    execv(name.c_str(), args.data());
+    std::fprintf(stderr, "omni-slam: cannot run %s: %s\n", name.c_str(), std::strerror(errno));
+    return 1;
+  }
+  if (mapper != "rbpf") {
+    std::fprintf(stderr,
+                 "omni-slam: mapper '%s' is not implemented here (this runner knows 'rbpf'; "
+                 "'posegraph' is handed to omni-posegraph-slam)\n",
+                 mapper.c_str());
+    return 2;
+  }
+  std::string input, out_dir, config_path;
+  long long seed = -1, particles = -1, threads = -1, max_scans = -1;
+  bool quiet = false;
+  for (int i = 2; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "omni-slam: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    auto num = [&](const std::string& v) -> long long {
+      char* end = nullptr;
+      const long long x = std::strtoll(v.c_str(), &end, 10);
+      if (v.empty() || *end != '\0' || x < 0) {
+        std::fprintf(stderr, "omni-slam: %s expects a non-negative integer, got '%s'\n", a.c_str(),
+                     v.c_str());
+        std::exit(2);
+      }
+      return x;
+    };
+    if (a == "--help" || a == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--out")
+      out_dir = val();
+    else if (a == "--config")
+      config_path = val();
+    else if (a == "--seed")
+      seed = num(val());
+    else if (a == "--particles")
+      particles = num(val());
+    else if (a == "--threads")
+      threads = num(val());
+    else if (a == "--max-scans")
+      max_scans = num(val());
+    else if (a == "--quiet")
+      quiet = true;
+    else if (!a.empty() && a[0] == '-') {
+      std::fprintf(stderr, "omni-slam: unknown option '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    } else if (input.empty())
+      input = a;
+    else {
+      std::fprintf(stderr, "omni-slam: unexpected argument '%s'\n", a.c_str());
+      return 2;
+    }
+  }
+  if (input.empty() || out_dir.empty()) {
+    std::fprintf(stderr, "omni-slam: INPUT and --out DIR are required\n");
+    Usage(stderr);
+    return 2;
+  }
+  if (!fs::exists(input)) {
+    std::fprintf(stderr, "omni-slam: input '%s' does not exist\n", input.c_str());
+    return 1;
+  }
+  omni::rbpf::RbpfOptions opt;
+  if (!config_path.empty()) {
+    auto reader = omni::ConfigReader::FromFile(config_path);
+    if (!reader.ok()) {
+      std::fprintf(stderr, "omni-slam: %s\n", reader.error().message.c_str());
+      return 1;
+    }
+    auto loaded = omni::rbpf::RbpfOptions::Load(*reader);
+    if (!loaded.ok()) {
+      std::fprintf(stderr, "omni-slam: bad config:\n%s\n", loaded.error().message.c_str());
+      return 1;
+    }
+    opt = *loaded;
+  }
+  if (seed >= 0) opt.seed = static_cast<uint64_t>(seed);
+  if (particles > 0) opt.particles = static_cast<int>(particles);
+  if (threads > 0) opt.threads = static_cast<int>(threads);
+  if (omni::Status s = opt.Validate(); !s.ok()) {
+    std::fprintf(stderr, "omni-slam: %s\n", s.message().c_str());
+    return 2;
+  }
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  if (ec) {
+    std::fprintf(stderr, "omni-slam: cannot create '%s': %s\n", out_dir.c_str(),
+                 ec.message().c_str());
+    return 1;
+  }
+
+  const int64_t t_start = omni::MonotonicMicros();
+  omni::rbpf::RbpfSlam slam(opt);
+  int64_t scans = 0, decode_errors = 0;
+  auto report = [&](const omni::rbpf::ScanResult& r) {
+    if (!quiet && r.scan_index % 500 == 0)
+      std::fprintf(stderr, "omni-slam: scan %lld  pose %.2f %.2f %.3f\n",
+                   static_cast<long long>(r.scan_index), r.pose.x, r.pose.y, r.pose.theta);
+  };
+  if (IsLcmLog(input)) {
+    auto reader = omni::io::LcmLogReader::Open(input);
+    if (!reader.ok()) {
+      std::fprintf(stderr, "omni-slam: %s\n", reader.error().message.c_str());
+      return 1;
+    }
+    omni::io::LcmLogEvent ev;
+    for (;;) {
+      auto more = reader->Next(&ev, /*resync=*/true);
+      if (!more.ok()) {
+        std::fprintf(stderr, "omni-slam: %s (stopping there)\n", more.error().message.c_str());
+        break;
+      }
+      if (!*more) break;
+      const int size = static_cast<int>(ev.data.size());
+      if (ev.channel == opt.scan_channel) {
+        omni::laser_scan_t m;
+        if (m.decode(ev.data.data(), 0, size) < 0) {
+          ++decode_errors;
+          continue;
+        }
+        omni::rbpf::ScanInput s;
+        s.utime = m.utime;
+        s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+        s.angle_min_rad = m.angle_min_rad;
+        s.angle_increment_rad = m.angle_increment_rad;
+        s.range_min_m = m.range_min_m;
+        s.range_max_m = m.range_max_m;
+        s.ranges_m = m.ranges_m;
+        report(slam.AddScan(s));
+        if (max_scans >= 0 && ++scans >= max_scans) break;
+      } else if (ev.channel == opt.odom_channel) {
+        omni::odometry_t m;
+        if (m.decode(ev.data.data(), 0, size) < 0) {
+          ++decode_errors;
+          continue;
+        }
+        slam.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
+      } else if (ev.channel == opt.imu_channel) {
+        omni::imu_t m;
+        if (m.decode(ev.data.data(), 0, size) < 0) {
+          ++decode_errors;
+          continue;
+        }
+        slam.AddImuYawRate(m.utime, YawRateFromImu(m));
+      }
+    }
+  } else {
+    auto log = omni::io::ReadCarmenLog(input);
+    if (!log.ok()) {
+      std::fprintf(stderr, "omni-slam: %s\n", log.error().message.c_str());
+      return 1;
+    }
+    for (const auto& rec : log->records) {
+      if (rec.kind == omni::io::CarmenRecord::Kind::kOdom) {
+        slam.AddOdometry(omni::SecondsToUtime(rec.odom.timestamp_s), rec.odom.pose);
+        continue;
+      }
+      const auto& l = rec.laser;
+      omni::rbpf::ScanInput s;
+      s.utime = omni::SecondsToUtime(l.timestamp_s);
+      s.sensor_in_base = l.robot_pose.Between(l.laser_pose);
+      s.angle_min_rad = l.angle_min_rad;
+      s.angle_increment_rad = l.angle_increment_rad;
+      s.range_max_m = l.max_range_m;
+      s.ranges_m = l.ranges_m;
+      s.odom = l.robot_pose;
+      report(slam.AddScan(s));
+      if (max_scans >= 0 && ++scans >= max_scans) break;
+    }
+  }
+  const auto& c = slam.counters();
+  const auto traj = slam.BestTrajectory();
+  const auto map = slam.BestMap();
+  const double wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
+  if (traj.empty() || map.width == 0) {
+    std::fprintf(stderr,
+                 "omni-slam: no scan could be used (scans %lld, no odometry %lld, too few beams "
+                 "%lld, time backwards %lld)\n",
+                 static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_odom),
+                 static_cast<long long>(c.scans_too_few_beams),
+                 static_cast<long long>(c.scans_time_backwards));
+    return 1;
+  }
+  std::vector<omni::io::TrajectoryEntry> entries;
+  omni::io::Polyline line;
+  for (const auto& e : traj) {
+    entries.push_back(omni::io::MakeEntry2D(e.scan_index, omni::UtimeToSeconds(e.utime), e.pose));
+    line.poses.push_back(e.pose);
+  }
+  omni::Status s = omni::io::WriteTrajectory2D(
+      out_dir + "/trajectory.txt", entries,
+      "scan_index timestamp x y theta (RBPF best particle, final estimate)");
+  if (s.ok()) s = omni::io::WriteMapServer(map, out_dir + "/map");
+  if (s.ok()) s = omni::io::WritePng(out_dir + "/map.png", omni::io::RenderGrid(map, {}, 1));
+  if (s.ok())
+    s = omni::io::WritePng(out_dir + "/map_trajectory.png", omni::io::RenderGrid(map, {line}, 1));
+  if (!s.ok()) {
+    std::fprintf(stderr, "omni-slam: %s\n", s.message().c_str());
+    return 1;
+  }
+  std::FILE* f = std::fopen((out_dir + "/stats.json").c_str(), "w");
+  if (!f) {
+    std::fprintf(stderr, "omni-slam: cannot write %s/stats.json: %s\n", out_dir.c_str(),
+                 std::strerror(errno));
+    return 1;
+  }
+  std::fprintf(
+      f,
+      "{\"system\": \"omni-rbpf\", \"input\": \"%s\", \"seed\": %llu, \"particles\": %d, "
+      "\"threads\": %d, \"wall_s\": %.3f, \"scans\": %lld, \"scans_processed\": %lld, "
+      "\"scans_gated\": %lld, \"scans_too_few_beams\": %lld, \"scans_time_backwards\": %lld, "
+      "\"scans_no_odom\": %lld, \"scans_bad_geometry\": %lld, \"invalid_beams\": %lld, "
+      "\"odom_jumps\": %lld, \"odom_invalid\": %lld, \"odom_out_of_order\": %lld, "
+      "\"decode_errors\": %lld, \"resamplings\": %lld, \"match_failures\": %lld, "
+      "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
+      "\"tile_refs\": %zu}\n",
+      input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
+      static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed),
+      static_cast<long long>(c.scans_gated), static_cast<long long>(c.scans_too_few_beams),
+      static_cast<long long>(c.scans_time_backwards), static_cast<long long>(c.scans_no_odom),
+      static_cast<long long>(c.scans_bad_geometry), static_cast<long long>(c.invalid_beams),
+      static_cast<long long>(c.odom_jumps), static_cast<long long>(c.odom_invalid),
+      static_cast<long long>(c.odom_out_of_order), static_cast<long long>(decode_errors),
+      static_cast<long long>(c.resamplings), static_cast<long long>(c.match_failures),
+      static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
+      slam.total_tile_refs());
+  std::fclose(f);
+  std::printf(
+      "omni-slam rbpf: %lld scans (%lld updates), %d particles, %lld resamplings, %lld match "
+      "failures, %.1f s -> %s/{trajectory.txt,map.pgm,map.yaml,map.png,stats.json}\n",
+      static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed), opt.particles,
+      static_cast<long long>(c.resamplings), static_cast<long long>(c.match_failures), wall_s,
+      out_dir.c_str());
+  return 0;
+}
