@@ -7,12 +7,15 @@
 
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/octomap_node.h"
 
 namespace {
 
 volatile std::sig_atomic_t g_stop = 0;
+volatile std::sig_atomic_t g_write_cloud = 0;
 void OnSignal(int) { g_stop = 1; }
+void OnCloudRequest(int) { g_write_cloud = 1; }
 
 void Usage(std::FILE* f) {
   std::fprintf(
@@ -73,6 +76,7 @@ int main(int argc, char** argv) {
   omni::octo::OctomapNode node(bus_or->get(), *opt, &clock);
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  std::signal(SIGUSR1, OnCloudRequest);
   LOG_INFO << "listening on " << opt->depth_channel << " + " << opt->PoseChannel();
   int64_t last_msg_us = 0;
   while (!g_stop) {
@@ -84,6 +88,20 @@ int main(int argc, char** argv) {
     const int64_t now = omni::MonotonicMicros();
     if (r > 0) last_msg_us = now;
     node.Tick(now);
+    if (g_write_cloud) {
+      g_write_cloud = 0;
+      if (!opt->keep_cloud) {
+        LOG_WARN << "SIGUSR1: no cloud kept (set output.keep_cloud: true)";
+      } else {
+        const auto cloud = node.pipeline().builder().AggregateCloud();
+        omni::Status s = omni::octo::WritePcd(opt->out_dir + "/map.pcd", cloud, true);
+        if (s.ok()) {
+          LOG_INFO << "wrote " << cloud.size() << " points to " << opt->out_dir << "/map.pcd";
+        } else {
+          LOG_WARN << s.message();
+        }
+      }
+    }
     if (idle_exit_s > 0 && last_msg_us > 0 &&
         now - last_msg_us > static_cast<int64_t>(idle_exit_s * 1e6))
       break;

@@ -25,6 +25,9 @@ class OctomapNode {
  public:
   // `bus` and `clock` must outlive the node.
   OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock);
+  // The bus handlers and heartbeat counters refer to this object: it stays where it was made.
+  OctomapNode(const OctomapNode&) = delete;
+  OctomapNode& operator=(const OctomapNode&) = delete;
 
   // Inserts posed frames; publishes, saves and beats when their periods have passed since
   // the last time (`mono_us`: a monotonic time in microseconds).
