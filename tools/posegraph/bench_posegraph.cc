@@ -1,0 +1,329 @@
+// omni-bench-posegraph (./omni bench posegraph): our Ceres batch back end beside MRPT's
+// `graph-slam --levmarq` (Debian mrpt-apps, with its Dijkstra spanning-tree initialisation) on
+// every graph in <datasets>/pose-graphs, same files, same run. Both run as processes (wall time
+// includes reading and writing the files); both results are scored by the same evaluator
+// (omni::pgm::ComputeChi2: the input graph's edges and information matrices at the vertex
+// poses of each system's output file). Prints a table and writes out/bench/posegraph.jsonl.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "omni/io/g2o.h"
+#include "omni/pose_graph_mapper/chi2.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct RunResult {
+  bool started = false;
+  int exit_code = -1;
+  bool timed_out = false;
+  double wall_s = 0;
+  long max_rss_kb = 0;
+};
+
+// Runs argv with stdout+stderr to `log`, waiting at most timeout_s.
+RunResult Run(const std::vector<std::string>& argv, const std::string& log, double timeout_s) {
+  RunResult r;
+  std::vector<char*> args;
+  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  const auto t0 = std::chrono::steady_clock::now();
+  const pid_t pid = fork();
+  if (pid < 0) return r;
+  if (pid == 0) {
+    const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      dup2(fd, 1);
+      dup2(fd, 2);
+      close(fd);
+    }
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  r.started = true;
+  int status = 0;
+  struct rusage ru {};
+  while (true) {
+    const pid_t w = wait4(pid, &status, WNOHANG, &ru);
+    if (w == pid) break;
+    const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (el > timeout_s && !r.timed_out) {
+      kill(pid, SIGKILL);
+      r.timed_out = true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  r.max_rss_kb = ru.ru_maxrss;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
+}
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream f(path);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+std::string LastLine(const std::string& text) {
+  std::istringstream in(text);
+  std::string line, last;
+  while (std::getline(in, line))
+    if (!line.empty()) last = line;
+  return last;
+}
+
+// chi^2 of `graph`'s edges at the vertex poses stored in `result_path`.
+std::optional<double> ScoreResult(const omni::io::PoseGraph& graph, const std::string& result_path,
+                                  std::string* why) {
+  auto res = omni::io::ReadPoseGraph(result_path);
+  if (!res.ok()) {
+    *why = res.error().message;
+    return std::nullopt;
+  }
+  omni::io::PoseGraph g = graph;
+  g.vertices2 = res->vertices2;
+  g.vertices3 = res->vertices3;
+  auto chi2 = omni::pgm::ComputeChi2(g);
+  if (!chi2.ok()) {
+    *why = result_path + ": " + chi2.error().message;
+    return std::nullopt;
+  }
+  return *chi2;
+}
+
+std::string FindInPath(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  std::istringstream in(path ? path : "/usr/bin:/bin");
+  std::string dir;
+  while (std::getline(in, dir, ':')) {
+    const fs::path p = fs::path(dir) / name;
+    if (access(p.c_str(), X_OK) == 0) return p.string();
+  }
+  return "";
+}
+
+struct Row {
+  std::string system, dataset, status = "ok";
+  double chi2_before = 0, chi2 = -1, wall_s = 0;
+  int iterations = -1;
+  long max_rss_kb = 0;
+};
+
+std::string Num(double v, int prec = 4) {
+  if (v < 0) return "-";
+  std::ostringstream s;
+  s.precision(prec);
+  s << v;
+  return s.str();
+}
+
+void Usage(FILE* f) {
+  std::fprintf(
+      f,
+      "usage: omni bench posegraph [--datasets DIR] [--out DIR] [--only NAME[,NAME]]\n"
+      "                            [--peer PATH|none] [--timeout S]\n"
+      "  Runs ours (omni-posegraph optimize) and the peer (MRPT graph-slam --levmarq,\n"
+      "  Debian mrpt-apps) on every DIR/pose-graphs/*.g2o, scores both output files with\n"
+      "  our chi^2 evaluator (input edges and information at the output poses), prints a\n"
+      "  table and writes OUT/posegraph.jsonl (default out/bench). Without graph-slam the\n"
+      "  peer rows say 'absent'. DIR defaults to $OMNI_DATASETS_DIR or ../shared/datasets.\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string datasets = std::getenv("OMNI_DATASETS_DIR") ? std::getenv("OMNI_DATASETS_DIR")
+                                                          : std::string(OMNI_DEFAULT_DATASETS);
+  std::string out_dir = "out/bench", peer = "", only;
+  double timeout_s = 600;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "omni bench posegraph: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "-h" || a == "--help") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--datasets") {
+      datasets = next();
+    } else if (a == "--out") {
+      out_dir = next();
+    } else if (a == "--peer") {
+      peer = next();
+    } else if (a == "--only") {
+      only = "," + next() + ",";
+    } else if (a == "--timeout") {
+      timeout_s = std::atof(next().c_str());
+    } else {
+      std::fprintf(stderr, "omni bench posegraph: unknown argument '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  const fs::path graphs_dir = fs::path(datasets) / "pose-graphs";
+  if (!fs::is_directory(graphs_dir)) {
+    std::fprintf(stderr, "omni bench posegraph: %s is absent: no graphs to run\n",
+                 graphs_dir.c_str());
+    return 1;
+  }
+  const fs::path self = fs::read_symlink("/proc/self/exe");
+  const std::string ours = (self.parent_path() / "omni-posegraph").string();
+  if (access(ours.c_str(), X_OK) != 0) {
+    std::fprintf(stderr, "omni bench posegraph: %s is not built\n", ours.c_str());
+    return 1;
+  }
+  if (peer.empty()) peer = FindInPath("graph-slam");
+  if (peer == "none") peer.clear();
+  if (peer.empty())
+    std::printf(
+        "note: MRPT's graph-slam is not installed (Debian package mrpt-apps): the peer is "
+        "skipped and its rows say 'absent'.\n");
+
+  const fs::path work = fs::path(out_dir) / "posegraph";
+  fs::create_directories(work);
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(graphs_dir))
+    if (e.path().extension() == ".g2o") files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+
+  std::vector<Row> rows;
+  std::printf("%-15s %-4s %6s %6s %11s | %11s %11s | %8s %8s | %5s %5s | %s\n", "dataset", "type",
+              "V", "E", "chi2 input", "chi2 ours", "chi2 MRPT", "wall ours", "wall MRPT", "it o",
+              "it M", "goals (chi2 <= peer, wall <= peer/3)");
+  for (const auto& file : files) {
+    const std::string name = file.stem().string();
+    if (!only.empty() && only.find("," + name + ",") == std::string::npos) continue;
+    auto graph = omni::io::ReadPoseGraph(file.string());
+    if (!graph.ok()) {
+      std::printf("%-15s unreadable: %s\n", name.c_str(), graph.error().message.c_str());
+      continue;
+    }
+    const bool is3d = graph->is_3d();
+    const auto chi2_in = omni::pgm::ComputeChi2(*graph);
+    const double chi2_before = chi2_in.ok() ? *chi2_in : -1;
+
+    Row o{"omni-ceres", name};
+    o.chi2_before = chi2_before;
+    {
+      const std::string out = (work / (name + ".ours.g2o")).string();
+      const std::string log = (work / (name + ".ours.log")).string();
+      RunResult r = Run({ours, "optimize", file.string(), "-o", out, "--json"}, log, timeout_s);
+      o.wall_s = r.wall_s;
+      o.max_rss_kb = r.max_rss_kb;
+      const std::string text = ReadAll(log);
+      if (r.timed_out) {
+        o.status = "timeout";
+      } else if (r.exit_code != 0) {
+        o.status = "failed: " + LastLine(text);
+      } else {
+        std::smatch m;
+        if (std::regex_search(text, m, std::regex("\"iterations\": (\\d+)")))
+          o.iterations = std::stoi(m[1]);
+        std::string why;
+        auto c = ScoreResult(*graph, out, &why);
+        if (c)
+          o.chi2 = *c;
+        else
+          o.status = "unscorable: " + why;
+      }
+    }
+    Row p{"mrpt-graph-slam", name};
+    p.chi2_before = chi2_before;
+    if (peer.empty()) {
+      p.status = "absent";
+    } else {
+      const std::string out = (work / (name + ".mrpt.g2o")).string();
+      const std::string log = (work / (name + ".mrpt.log")).string();
+      fs::remove(out);
+      RunResult r = Run({peer, "--levmarq", is3d ? "--3d" : "--2d", "-i", file.string(), "-o", out},
+                        log, timeout_s);
+      p.wall_s = r.wall_s;
+      p.max_rss_kb = r.max_rss_kb;
+      const std::string text = ReadAll(log);
+      int it = -1;
+      const std::regex iter_re("Iter: (\\d+)");
+      for (auto i = std::sregex_iterator(text.begin(), text.end(), iter_re);
+           i != std::sregex_iterator(); ++i)
+        it = std::max(it, std::stoi((*i)[1]) + 1);
+      p.iterations = it;
+      if (r.timed_out) {
+        p.status = "timeout";
+      } else if (r.exit_code != 0 || !fs::exists(out)) {
+        p.status = "failed (exit " + std::to_string(r.exit_code) + ", log " + log + ")";
+      } else {
+        std::string why;
+        auto c = ScoreResult(*graph, out, &why);
+        if (c)
+          p.chi2 = *c;
+        else
+          p.status = "unscorable: " + why;
+      }
+    }
+    std::string goals;
+    if (o.chi2 >= 0 && p.chi2 >= 0) {
+      goals = std::string(o.chi2 <= p.chi2 * (1 + 1e-6) ? "chi2 ok" : "chi2 WORSE");
+      goals += o.wall_s <= p.wall_s / 3 ? ", wall ok" : ", wall > 1/3";
+      if (p.chi2 > 0) goals += " (chi2 x" + Num(p.chi2 / std::max(o.chi2, 1e-12), 3) + " lower)";
+    } else {
+      goals = o.status != "ok" ? "ours " + o.status : "peer " + p.status;
+    }
+    const size_t nv = is3d ? graph->vertices3.size() : graph->vertices2.size();
+    const size_t ne = is3d ? graph->edges3.size() : graph->edges2.size();
+    std::printf("%-15s %-4s %6zu %6zu %11s | %11s %11s | %7.2fs %7s | %5s %5s | %s\n", name.c_str(),
+                is3d ? "SE3" : "SE2", nv, ne, Num(chi2_before).c_str(), Num(o.chi2, 6).c_str(),
+                Num(p.chi2, 6).c_str(), o.wall_s,
+                p.status == "absent" ? "absent" : (Num(p.wall_s, 3) + "s").c_str(),
+                o.iterations < 0 ? "-" : std::to_string(o.iterations).c_str(),
+                p.iterations < 0 ? "-" : std::to_string(p.iterations).c_str(), goals.c_str());
+    std::fflush(stdout);
+    rows.push_back(o);
+    rows.push_back(p);
+  }
+
+  const fs::path jsonl = fs::path(out_dir) / "posegraph.jsonl";
+  std::ofstream js(jsonl);
+  for (const auto& r : rows) {
+    js << "{\"system\": \"" << r.system << "\", \"dataset\": \"" << r.dataset
+       << "\", \"chi2_before\": " << (r.chi2_before >= 0 ? Num(r.chi2_before, 10) : "null")
+       << ", \"chi2\": " << (r.chi2 >= 0 ? Num(r.chi2, 10) : "null")
+       << ", \"wall_s\": " << (r.status == "absent" ? "null" : Num(r.wall_s, 4))
+       << ", \"iterations\": " << (r.iterations >= 0 ? std::to_string(r.iterations) : "null")
+       << ", \"max_rss_mb\": " << Num(r.max_rss_kb / 1024.0, 4) << ", \"status\": \"";
+    for (char c : r.status) {
+      if (c == '"' || c == '\\') js << '\\';
+      js << c;
+    }
+    js << "\"}\n";
+  }
+  std::printf(
+      "\nchi2 = sum e^T Omega e over the input graph's edges (g2o errors, the file's information "
+      "matrices) at each system's output poses, scored by our evaluator.\nwall = whole process "
+      "(read, initialise, optimise, write), one run each. Outputs and logs: %s\nwrote %s\n",
+      work.c_str(), jsonl.c_str());
+  return 0;
+}
