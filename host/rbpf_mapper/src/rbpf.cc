@@ -128,7 +128,7 @@ Status RbpfOptions::Validate() const {
 RbpfSlam::RbpfSlam(const RbpfOptions& options)
     : opt_(options),
       motion_(options.motion),
-      matcher_(options.matcher),
+      matcher_(options.matcher, options.grid.resolution_m),
       pool_(options.threads),
       master_rng_(options.seed),
       odom_buffer_(100000) {

@@ -31,40 +31,97 @@ MatchScan MakeMatchScan(const std::vector<Eigen::Vector2d>& points, const std::v
   return m;
 }
 
-ScanMatcher::ScanMatcher(const MatcherOptions& options) : opt_(options) {}
+ScanMatcher::ScanMatcher(const MatcherOptions& options, double resolution_m)
+    : opt_(options), table_resolution_m_(resolution_m) {
+  const int k = opt_.kernel_cells;
+  table_max_d2_ = (k + 1.0) * (k + 1.0) * 2.0 * resolution_m * resolution_m;
+  const double inv_score = 1.0 / (2.0 * opt_.sigma_score_m * opt_.sigma_score_m);
+  table_.resize(kTable + 1);
+  for (int i = 0; i <= kTable; ++i)
+    table_[static_cast<size_t>(i)] = std::exp(-(table_max_d2_ * i / kTable) * inv_score);
+}
+
+namespace {
+
+inline int64_t FastFloor(double v) {
+  const int64_t i = static_cast<int64_t>(v);
+  return v < static_cast<double>(i) ? i - 1 : i;
+}
+
+// Reads cells around one point, through one tile pointer when the neighbourhood lies inside a
+// single tile (the common case), else cell by cell.
+struct Neighbourhood {
+  const TiledGrid& g;
+  int64_t cx, cy;
+  const float* data = nullptr;  // tile data when the whole neighbourhood is in one tile
+  bool inside = false;
+  Neighbourhood(const TiledGrid& grid, int64_t x, int64_t y, int k) : g(grid), cx(x), cy(y) {
+    constexpr int64_t m = TiledGrid::kTileMask;
+    const int64_t lx = x & m, ly = y & m;
+    if (lx >= k && ly >= k && lx <= m - k && ly <= m - k) {
+      inside = true;
+      const TiledGrid::Tile* t = g.TileAt(x >> TiledGrid::kTileBits, y >> TiledGrid::kTileBits);
+      data = t ? t->log_odds.data() + ly * TiledGrid::kTileSize + lx : nullptr;
+    }
+  }
+  float at(int dx, int dy) const {
+    if (inside) return data ? data[dy * TiledGrid::kTileSize + dx] : 0.f;
+    return g.LogOdds(cx + dx, cy + dy);
+  }
+};
+
+}  // namespace
 
 ScoreResult ScanMatcher::Score(const TiledGrid& grid, const Pose2& p, const MatchScan& scan) const {
   ScoreResult out;
   const double c = std::cos(p.theta), s = std::sin(p.theta);
-  const double res = grid.resolution();
+  const double res = grid.resolution(), inv_res = 1.0 / res;
   const double inv_score = 1.0 / (2.0 * opt_.sigma_score_m * opt_.sigma_score_m);
   const double inv_lik = 1.0 / (2.0 * opt_.sigma_likelihood_m * opt_.sigma_likelihood_m);
+  const float occ = grid.options().occupied_threshold, fre = grid.options().free_threshold;
   const int k = opt_.kernel_cells;
+  // exp(-d^2 * inv_score) from the table built for this resolution (else computed).
+  const bool use_table = res == table_resolution_m_;
+  const double to_index = use_table ? kTable / table_max_d2_ : 0.0;
   out.beams = static_cast<int>(scan.hits.size());
+  double score = 0, loglik = 0;
+  int matched = 0;
   for (size_t i = 0; i < scan.hits.size(); ++i) {
     const Eigen::Vector2d& h = scan.hits[i];
     const Eigen::Vector2d& f = scan.frees[i];
-    const double hx = p.x + c * h.x() - s * h.y(), hy = p.y + s * h.x() + c * h.y();
-    const double fx = p.x + c * f.x() - s * f.y(), fy = p.y + s * f.x() + c * f.y();
-    const int64_t hcx = grid.CellX(hx), hcy = grid.CellY(hy);
-    const int64_t fcx = grid.CellX(fx), fcy = grid.CellY(fy);
+    const double hx = (p.x + c * h.x() - s * h.y()) * inv_res;
+    const double hy = (p.y + s * h.x() + c * h.y()) * inv_res;
+    const double fx = (p.x + c * f.x() - s * f.y()) * inv_res;
+    const double fy = (p.y + s * f.x() + c * f.y()) * inv_res;
+    const int64_t hcx = FastFloor(hx), hcy = FastFloor(hy);
+    const int64_t fcx = FastFloor(fx), fcy = FastFloor(fy);
+    const Neighbourhood hn(grid, hcx, hcy, k), fn(grid, fcx, fcy, k);
     double best = std::numeric_limits<double>::infinity();
     for (int dy = -k; dy <= k; ++dy)
       for (int dx = -k; dx <= k; ++dx) {
-        if (!grid.Occupied(hcx + dx, hcy + dy)) continue;
-        if (!grid.Free(fcx + dx, fcy + dy)) continue;
-        const double ex = (static_cast<double>(hcx + dx) + 0.5) * res - hx;
-        const double ey = (static_cast<double>(hcy + dy) + 0.5) * res - hy;
+        if (!(hn.at(dx, dy) > occ)) continue;
+        if (!(fn.at(dx, dy) < fre)) continue;
+        const double ex = static_cast<double>(hcx + dx) + 0.5 - hx;
+        const double ey = static_cast<double>(hcy + dy) + 0.5 - hy;
         best = std::min(best, ex * ex + ey * ey);
       }
     if (best < std::numeric_limits<double>::infinity()) {
-      ++out.matched;
-      out.score += std::exp(-best * inv_score);
-      out.log_likelihood -= best * inv_lik;
+      const double d2 = best * res * res;
+      ++matched;
+      if (use_table) {
+        const double idx = std::min(d2 * to_index, static_cast<double>(kTable));
+        score += table_[static_cast<size_t>(idx)];
+      } else {
+        score += std::exp(-d2 * inv_score);
+      }
+      loglik -= d2 * inv_lik;
     } else {
-      out.log_likelihood += opt_.null_log_likelihood;
+      loglik += opt_.null_log_likelihood;
     }
   }
+  out.score = score;
+  out.log_likelihood = loglik;
+  out.matched = matched;
   return out;
 }
 

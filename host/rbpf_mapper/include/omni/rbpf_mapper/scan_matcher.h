@@ -74,7 +74,8 @@ struct MatchResult {
 
 class ScanMatcher {
  public:
-  explicit ScanMatcher(const MatcherOptions& options = {});
+  // `resolution_m`: the grids' cell size (the score's kernel is tabulated for it).
+  explicit ScanMatcher(const MatcherOptions& options = {}, double resolution_m = 0.05);
   ScoreResult Score(const TiledGrid& grid, const Pose2& base_pose, const MatchScan& scan) const;
   // Best pose near `start` (robot base in the map frame).
   MatchResult Match(const TiledGrid& grid, const Pose2& start, const MatchScan& scan) const;
@@ -86,7 +87,11 @@ class ScanMatcher {
 
  private:
   double Prior(const Pose2& start, const Pose2& p) const;
+  static constexpr int kTable = 512;
   MatcherOptions opt_;
+  double table_resolution_m_;
+  double table_max_d2_ = 0;
+  std::vector<double> table_;
 };
 
 }  // namespace omni::rbpf
