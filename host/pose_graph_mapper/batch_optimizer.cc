@@ -35,6 +35,9 @@ Result<BatchOptions> BatchOptions::Load(ConfigReader& r) {
   r.Get("function_tolerance", &o.function_tolerance, Optional(), InRange(0.0, 1.0));
   r.Get("gradient_tolerance", &o.gradient_tolerance, Optional(), InRange(0.0, 1.0));
   r.Get("parameter_tolerance", &o.parameter_tolerance, Optional(), InRange(0.0, 1.0));
+  r.Get("initial_trust_region_radius", &o.initial_trust_region_radius, Optional(),
+        Positive<double>());
+  r.Get("sparse_library", &o.sparse_library, Optional(), OneOf({"suitesparse", "eigen"}));
   r.Get("loss", &o.loss, Optional(), OneOf({"none", "huber", "cauchy"}));
   r.Get("loss_scale", &o.loss_scale, Optional(), Positive<double>());
   return o;
@@ -54,8 +57,13 @@ Status BatchOptions::Validate() const {
   if (loss != "none" && loss != "huber" && loss != "cauchy")
     return MakeError(ErrorCode::kOutOfRange,
                      "loss '" + loss + "' must be one of: none huber cauchy");
+  if (sparse_library != "suitesparse" && sparse_library != "eigen")
+    return MakeError(ErrorCode::kOutOfRange,
+                     "sparse_library '" + sparse_library + "' must be suitesparse or eigen");
   if (!(loss_scale > 0)) return MakeError(ErrorCode::kOutOfRange, "loss_scale must be > 0");
   if (num_threads < 1) return MakeError(ErrorCode::kOutOfRange, "num_threads must be >= 1");
+  if (!(initial_trust_region_radius > 0))
+    return MakeError(ErrorCode::kOutOfRange, "initial_trust_region_radius must be > 0");
   if (!(function_tolerance >= 0) || !(gradient_tolerance >= 0) || !(parameter_tolerance >= 0))
     return MakeError(ErrorCode::kOutOfRange, "tolerances must be >= 0");
   return Status::Ok();
@@ -129,12 +137,14 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o) {
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  so.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+  so.sparse_linear_algebra_library_type =
+      o.sparse_library == "eigen" ? ceres::EIGEN_SPARSE : ceres::SUITE_SPARSE;
   so.max_num_iterations = o.max_iterations;
   so.function_tolerance = o.function_tolerance;
   so.gradient_tolerance = o.gradient_tolerance;
   so.parameter_tolerance = o.parameter_tolerance;
   so.num_threads = o.num_threads;
+  so.initial_trust_region_radius = o.initial_trust_region_radius;
   so.logging_type = ceres::SILENT;
   std::string why;
   if (!so.IsValid(&why)) return MakeError(ErrorCode::kInvalidArgument, "ceres options: " + why);
@@ -144,6 +154,7 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o) {
     res.iterations = static_cast<int>(summary.iterations.size()) - 1;  // minus iteration 0
     res.termination = ceres::TerminationTypeToString(summary.termination_type);
     res.converged = summary.termination_type == ceres::CONVERGENCE;
+    res.ceres_report = summary.FullReport();
     if (summary.termination_type == ceres::FAILURE)
       return MakeError(ErrorCode::kInternal, "ceres failed: " + summary.message);
   } else {

@@ -18,7 +18,9 @@ void Usage(FILE* f) {
       f,
       "usage: omni posegraph optimize IN.g2o [-o OUT.g2o] [--config FILE] [--init NAME]\n"
       "                               [--max-iterations N] [--loss none|huber|cauchy]\n"
-      "                               [--threads N] [--json]\n"
+      "                               [--threads N] [--trust-region R]\n"
+      "                               [--sparse suitesparse|eigen]\n"
+      "                               [--verbose] [--json]\n"
       "       omni posegraph chi2 GRAPH.g2o [--poses RESULT.g2o] [--json]\n"
       "\n"
       "  optimize  Optimises a 2D (VERTEX_SE2/EDGE_SE2, TORO VERTEX2/EDGE2) or 3D\n"
@@ -34,6 +36,9 @@ void Usage(FILE* f) {
       "\n"
       "  --config FILE  YAML options (default config/pose_graph_mapper.yaml when present;\n"
       "                 command-line options override it)\n"
+      "  --sparse suitesparse|eigen  sparse Cholesky library (Ceres)\n"
+      "  --trust-region R  Levenberg-Marquardt's initial trust-region radius\n"
+      "  --verbose      Ceres' full report (stage times) on stderr\n"
       "  --json         one JSON object on stdout instead of the text report\n"
       "Errors (unreadable file, an edge to a missing vertex, an information matrix that is\n"
       "not positive definite) name the file and line and exit non-zero.\n");
@@ -89,9 +94,10 @@ int CmdChi2(int argc, char** argv) {
 }
 
 int CmdOptimize(int argc, char** argv) {
-  std::string in, out, config, init, loss;
+  std::string in, out, config, init, loss, sparse;
   int max_iter = 0, threads = 0;
-  bool json = false;
+  bool json = false, verbose = false;
+  double radius = 0;
   for (int i = 0; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> const char* { return i + 1 < argc ? argv[++i] : nullptr; };
@@ -121,6 +127,16 @@ int CmdOptimize(int argc, char** argv) {
         return Fail("optimize: --threads needs an integer in [1, 1000000]");
     } else if (a == "--json") {
       json = true;
+    } else if (a == "--sparse") {
+      const char* v = next();
+      if (!v) return Fail("optimize: --sparse needs suitesparse or eigen");
+      sparse = v;
+    } else if (a == "--verbose") {
+      verbose = true;
+    } else if (a == "--trust-region") {
+      const char* v = next();
+      radius = v ? std::atof(v) : 0;
+      if (!(radius > 0)) return Fail("optimize: --trust-region needs a number > 0");
     } else if (!a.empty() && a[0] == '-') {
       return Fail("optimize: unknown option '" + a + "' (see --help)");
     } else if (in.empty()) {
@@ -150,7 +166,9 @@ int CmdOptimize(int argc, char** argv) {
     opt.initialization = *p;
   }
   if (!loss.empty()) opt.loss = loss;
+  if (!sparse.empty()) opt.sparse_library = sparse;
   if (max_iter > 0) opt.max_iterations = max_iter;
+  if (radius > 0) opt.initial_trust_region_radius = radius;
   opt.num_threads =
       threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 
@@ -158,6 +176,7 @@ int CmdOptimize(int argc, char** argv) {
   if (!g.ok()) return Fail(g.error().message);
   auto r = omni::pgm::OptimizeGraph(&*g, opt);
   if (!r.ok()) return Fail(in + ": " + r.error().message);
+  if (verbose) std::fprintf(stderr, "%s\n", r->ceres_report.c_str());
   if (!out.empty()) {
     if (omni::Status s = omni::io::WriteG2o(out, *g); !s.ok()) return Fail(s.message());
   }

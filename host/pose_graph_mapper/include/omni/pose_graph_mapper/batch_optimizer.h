@@ -20,9 +20,13 @@ struct BatchOptions {
   double function_tolerance = 1e-10;
   double gradient_tolerance = 1e-12;
   double parameter_tolerance = 1e-10;
+  std::string sparse_library = "suitesparse";  // sparse Cholesky: suitesparse | eigen
   std::string loss = "none";  // none | huber | cauchy (on the whitened residual norm)
   double loss_scale = 1.0;
   int num_threads = 1;  // the caller decides (main passes the number of cores)
+  // Levenberg-Marquardt's first trust region; large = start close to Gauss-Newton, which
+  // suits the good starting points of the linear initialisations.
+  double initial_trust_region_radius = 1e8;
 
   // Reads the `batch` section's keys from `r` (ConfigReader::Finish is the caller's).
   static Result<BatchOptions> Load(ConfigReader& r);
@@ -42,6 +46,7 @@ struct BatchResult {
   std::string termination;  // Ceres' termination type and message
   bool converged = false;
   int root_id = 0;
+  std::string ceres_report;  // Ceres' FullReport (per-stage times), for --verbose
 };
 
 // Optimises `graph` in place (vertex poses). Errors: invalid options, a graph without
