@@ -1,0 +1,78 @@
+#include "omni/pose_graph_mapper/continuous_source.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace omni::pgm {
+
+void ComposeJacobians(const Pose2& p, const Pose2& q, Eigen::Matrix3d* a, Eigen::Matrix3d* b) {
+  const double c = std::cos(p.theta), s = std::sin(p.theta);
+  const double rx = c * q.x - s * q.y, ry = s * q.x + c * q.y;  // R_p q_t
+  *a << 1, 0, -ry, 0, 1, rx, 0, 0, 1;
+  *b << c, -s, 0, s, c, 0, 0, 0, 1;
+}
+
+bool OdometrySource::AddSample(int64_t utime, const Pose2& pose) {
+  if (!samples_.empty() && utime < samples_.back().first) return false;
+  if (!samples_.empty() && utime == samples_.back().first) {
+    samples_.back().second = pose;
+    return true;
+  }
+  samples_.emplace_back(utime, pose);
+  while (samples_.size() > capacity_) samples_.pop_front();
+  return true;
+}
+
+Pose2 OdometrySource::At(size_t upper, int64_t utime) const {
+  const auto& [tb, pb] = samples_[upper];
+  if (upper == 0 || utime >= tb) return pb;
+  const auto& [ta, pa] = samples_[upper - 1];
+  const double f = static_cast<double>(utime - ta) / static_cast<double>(tb - ta);
+  return Interpolate(pa, pb, f);
+}
+
+std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) const {
+  if (samples_.empty() || t1 < t0 || t0 < samples_.front().first || t1 > samples_.back().first)
+    return std::nullopt;
+  auto upper = [&](int64_t t) {
+    // First sample with time >= t.
+    return static_cast<size_t>(std::lower_bound(samples_.begin(), samples_.end(), t,
+                                                [](const std::pair<int64_t, Pose2>& s, int64_t v) {
+                                                  return s.first < v;
+                                                }) -
+                               samples_.begin());
+  };
+  const size_t i0 = upper(t0), i1 = upper(t1);
+  std::vector<std::pair<int64_t, Pose2>> pts;
+  pts.emplace_back(t0, At(i0, t0));
+  for (size_t i = i0; i < i1; ++i)
+    if (samples_[i].first > t0) pts.push_back(samples_[i]);
+  if (t1 > pts.back().first) pts.emplace_back(t1, At(i1, t1));
+  RelativeMotion m;
+  Eigen::Matrix3d a, b;
+  for (size_t k = 0; k + 1 < pts.size(); ++k) {
+    const Pose2 step = pts[k].second.Between(pts[k + 1].second);
+    const double dist = std::hypot(step.x, step.y), rot = std::abs(step.theta);
+    const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
+    Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+    q(0, 0) = q(1, 1) =
+        noise_.xy_var_per_m * dist + noise_.xy_var_per_rad * rot + noise_.xy_var_per_s * dt;
+    q(2, 2) = noise_.theta_var_per_m * dist + noise_.theta_var_per_rad * rot +
+              noise_.theta_var_per_s * dt;
+    ComposeJacobians(m.delta, step, &a, &b);
+    m.covariance = a * m.covariance * a.transpose() + b * q * b.transpose();
+    m.delta = m.delta * step;
+  }
+  return m;
+}
+
+std::optional<RelativeMotion> NullMotionSource::Between(int64_t t0, int64_t t1) const {
+  if (t1 < t0) return std::nullopt;
+  const double dt = 1e-6 * static_cast<double>(t1 - t0);
+  RelativeMotion m;
+  m.covariance.diagonal() << xy_var_per_s_ * dt, xy_var_per_s_ * dt, theta_var_per_s_ * dt;
+  return m;
+}
+
+}  // namespace omni::pgm

@@ -1,0 +1,87 @@
+// Continuous pose sources (OmniMapper's "pose plugins"): sources that can say how the robot moved
+// between ANY two times, so that the mapper links every pair of consecutive poses with one
+// factor however fast the source's own data arrives.
+//
+// A factor for [t0, t1] is the relative pose of the robot at t1 in its frame at t0 with a
+// covariance over (x_m, y_m, theta_rad) in that frame. The covariance is propagated step by step
+// over the source's samples inside the interval (each step's noise is linear in its length,
+// rotation and duration), so for a split time t at a sample
+//   Sigma(t0, t1) = A Sigma(t0, t) A^T + B Sigma(t, t1) B^T      (A, B: Jacobians of composition)
+// holds exactly: replacing one factor by two (pose splicing) neither adds nor loses information.
+// Inside a sample interval the split point is interpolated and the identity holds to first order.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+
+#include <Eigen/Core>
+
+#include "omni/common/geometry.h"
+
+namespace omni::pgm {
+
+struct RelativeMotion {
+  Pose2 delta;  // pose at t1 in the frame of the pose at t0
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+};
+
+class ContinuousPoseSource {
+ public:
+  virtual ~ContinuousPoseSource() = default;
+  virtual std::string name() const = 0;
+  // Motion over [t0_us, t1_us] (t0 <= t1); nullopt when the source cannot cover the interval
+  // (no data yet for t1, or data already dropped for t0).
+  virtual std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const = 0;
+};
+
+// Per-step noise: standard deviations grow with the square root of the step's translation,
+// rotation and duration (variances linear in them), so splitting a step splits its variance.
+struct OdometryNoise {
+  double xy_var_per_m = 1e-3;       // m^2 of position variance per metre travelled
+  double xy_var_per_rad = 1e-4;     // m^2 per radian turned
+  double theta_var_per_m = 1e-4;    // rad^2 per metre travelled
+  double theta_var_per_rad = 1e-3;  // rad^2 per radian turned
+  double xy_var_per_s = 1e-6;       // m^2 per second, even when standing still
+  double theta_var_per_s = 1e-6;    // rad^2 per second
+};
+
+// Composition Jacobians of D = P (+) Q (SE(2)), in the frame of P's origin.
+void ComposeJacobians(const Pose2& p, const Pose2& q, Eigen::Matrix3d* a, Eigen::Matrix3d* b);
+
+// Wheel odometry: a time-ordered buffer of odometry poses (in the odometry frame), interpolated.
+class OdometrySource final : public ContinuousPoseSource {
+ public:
+  explicit OdometrySource(OdometryNoise noise = {}, size_t capacity = 100000)
+      : noise_(noise), capacity_(capacity) {}
+  std::string name() const override { return "odometry"; }
+  // False (to be counted by the caller) when utime is older than the newest sample.
+  bool AddSample(int64_t utime, const Pose2& odom_pose);
+  std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const override;
+  int64_t newest_utime() const { return samples_.empty() ? 0 : samples_.back().first; }
+  int64_t oldest_utime() const { return samples_.empty() ? 0 : samples_.front().first; }
+  bool empty() const { return samples_.empty(); }
+
+ private:
+  Pose2 At(size_t upper, int64_t utime) const;  // interpolated in [upper-1, upper]
+
+  OdometryNoise noise_;
+  size_t capacity_;
+  std::deque<std::pair<int64_t, Pose2>> samples_;
+};
+
+// No motion information at all: zero motion with variance growing linearly with time, so the
+// graph stays connected when no other continuous source is running.
+class NullMotionSource final : public ContinuousPoseSource {
+ public:
+  NullMotionSource(double xy_var_per_s, double theta_var_per_s)
+      : xy_var_per_s_(xy_var_per_s), theta_var_per_s_(theta_var_per_s) {}
+  std::string name() const override { return "null_motion"; }
+  std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const override;
+
+ private:
+  double xy_var_per_s_, theta_var_per_s_;
+};
+
+}  // namespace omni::pgm

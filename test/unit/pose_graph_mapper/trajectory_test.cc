@@ -1,0 +1,176 @@
+// The mapper core's trajectory: one pose per timestamp, consecutive poses always linked,
+// splicing a late pose into a linked interval replaces one factor by two without changing the
+// odometry's information, measurement queueing, and the continuous sources.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include <Eigen/LU>
+
+#include "omni/pose_graph_mapper/batch_optimizer.h"
+#include "omni/pose_graph_mapper/continuous_source.h"
+#include "omni/pose_graph_mapper/trajectory.h"
+
+namespace omni::pgm {
+namespace {
+
+// Odometry at 50 Hz (every 20 ms) along a curving path for 10 s.
+OdometrySource MakeOdometry() {
+  OdometrySource odo;
+  Pose2 p;
+  for (int k = 0; k <= 500; ++k) {
+    EXPECT_TRUE(odo.AddSample(1'000'000 + 20'000 * k, p));
+    p = p * Pose2(0.01, 0.001 * std::sin(0.05 * k), 0.004 + 0.003 * std::cos(0.03 * k));
+  }
+  return odo;
+}
+
+// The link [t0, t2] against the two links [t0, t1], [t1, t2] composed: same relative pose, and
+// the composed covariance A S01 A^T + B S12 B^T equals S02 (the information is unchanged).
+void ExpectSplitPreservesInformation(const ContinuousPoseSource& src, int64_t t0, int64_t t1,
+                                     int64_t t2, double rel_tol) {
+  const auto whole = src.Between(t0, t2);
+  const auto first = src.Between(t0, t1);
+  const auto second = src.Between(t1, t2);
+  ASSERT_TRUE(whole && first && second);
+  const Pose2 composed = first->delta * second->delta;
+  EXPECT_NEAR(composed.x, whole->delta.x, 1e-9);
+  EXPECT_NEAR(composed.y, whole->delta.y, 1e-9);
+  EXPECT_NEAR(WrapAngle(composed.theta - whole->delta.theta), 0, 1e-9);
+  Eigen::Matrix3d a, b;
+  ComposeJacobians(first->delta, second->delta, &a, &b);
+  const Eigen::Matrix3d cov =
+      a * first->covariance * a.transpose() + b * second->covariance * b.transpose();
+  const Eigen::Matrix3d info_whole = whole->covariance.inverse();
+  const Eigen::Matrix3d info_split = cov.inverse();
+  EXPECT_LT((info_split - info_whole).norm(), rel_tol * info_whole.norm())
+      << "whole:\n"
+      << info_whole << "\nsplit:\n"
+      << info_split;
+}
+
+TEST(PoseGraphSources, OdometrySplitAtASampleKeepsTheInformationExactly) {
+  const OdometrySource odo = MakeOdometry();
+  ExpectSplitPreservesInformation(odo, 1'100'000, 1'500'000, 3'000'000, 1e-9);
+  ExpectSplitPreservesInformation(odo, 2'000'000, 2'020'000, 9'000'000, 1e-9);
+}
+
+TEST(PoseGraphSources, OdometrySplitBetweenSamplesKeepsTheInformationToFirstOrder) {
+  const OdometrySource odo = MakeOdometry();
+  ExpectSplitPreservesInformation(odo, 1'105'000, 1'517'000, 3'003'000, 1e-3);
+}
+
+TEST(PoseGraphSources, NullMotionSplitKeepsTheInformationExactly) {
+  const NullMotionSource null_motion(0.01, 0.001);
+  ExpectSplitPreservesInformation(null_motion, 0, 300'000, 1'000'000, 1e-12);
+  EXPECT_FALSE(null_motion.Between(10, 5));
+}
+
+TEST(PoseGraphSources, OdometryOutsideItsDataIsUnavailable) {
+  const OdometrySource odo = MakeOdometry();
+  EXPECT_FALSE(odo.Between(900'000, 1'100'000));
+  EXPECT_FALSE(odo.Between(10'000'000, 11'000'001));
+  OdometrySource o2;
+  EXPECT_TRUE(o2.AddSample(10, Pose2()));
+  EXPECT_FALSE(o2.AddSample(5, Pose2()));  // out of order: rejected, the caller counts it
+}
+
+TEST(PoseGraphTrajectory, OnePosePerTimestampAndConsecutivePosesLinked) {
+  const OdometrySource odo = MakeOdometry();
+  Trajectory traj(&odo, /*merge_tolerance_us=*/100);
+  std::vector<int64_t> times = {1'000'000, 2'000'000, 3'000'000, 4'500'000};
+  std::vector<int> ids;
+  for (int64_t t : times) {
+    auto id = traj.PoseAt(t);
+    ASSERT_TRUE(id.ok()) << id.error().message;
+    ids.push_back(*id);
+  }
+  EXPECT_EQ(*traj.PoseAt(2'000'000), ids[1]);
+  EXPECT_EQ(*traj.PoseAt(2'000'050), ids[1]);  // within the merge tolerance
+  EXPECT_EQ(traj.size(), 4u);
+  const auto links = traj.Links();
+  ASSERT_EQ(links.size(), 3u);
+  for (size_t i = 0; i < links.size(); ++i) {
+    EXPECT_EQ(links[i].from_id, ids[i]);
+    EXPECT_EQ(links[i].to_id, ids[i + 1]);
+  }
+  // Estimates are chained from the odometry.
+  const Pose2 rel = traj.Estimate(ids[0])->Between(*traj.Estimate(ids[3]));
+  const auto direct = odo.Between(times[0], times[3]);
+  EXPECT_NEAR(rel.x, direct->delta.x, 1e-9);
+  EXPECT_NEAR(rel.y, direct->delta.y, 1e-9);
+}
+
+TEST(PoseGraphTrajectory, SplicingReplacesOneLinkByTwoWithoutDoubleCounting) {
+  const OdometrySource odo = MakeOdometry();
+  Trajectory traj(&odo);
+  const int a = *traj.PoseAt(1'200'000);
+  const int c = *traj.PoseAt(4'000'000);
+  const LinkFactor old_link = traj.Links().at(0);
+  const int b = *traj.PoseAt(2'600'000);  // a late measurement inside [a, c]
+  EXPECT_EQ(traj.splices(), 1);
+  const auto links = traj.Links();
+  ASSERT_EQ(links.size(), 2u);  // the old link is gone, two new ones
+  EXPECT_EQ(links[0].from_id, a);
+  EXPECT_EQ(links[0].to_id, b);
+  EXPECT_EQ(links[1].from_id, b);
+  EXPECT_EQ(links[1].to_id, c);
+  Eigen::Matrix3d ja, jb;
+  ComposeJacobians(links[0].motion.delta, links[1].motion.delta, &ja, &jb);
+  const Eigen::Matrix3d cov = ja * links[0].motion.covariance * ja.transpose() +
+                              jb * links[1].motion.covariance * jb.transpose();
+  EXPECT_LT((cov.inverse() - old_link.motion.covariance.inverse()).norm(),
+            1e-9 * old_link.motion.covariance.inverse().norm());
+  // A pose before the first one is linked to it, not spliced.
+  const int z = *traj.PoseAt(1'050'000);
+  EXPECT_EQ(traj.splices(), 1);
+  EXPECT_EQ(traj.Links().front().from_id, z);
+  EXPECT_EQ(traj.Links().front().to_id, a);
+}
+
+TEST(PoseGraphTrajectory, UnavailableSourceLeavesTheTrajectoryUnchanged) {
+  const OdometrySource odo = MakeOdometry();
+  Trajectory traj(&odo);
+  ASSERT_TRUE(traj.PoseAt(2'000'000).ok());
+  auto r = traj.PoseAt(20'000'000);  // odometry ends at 11 s
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kUnavailable);
+  EXPECT_EQ(traj.size(), 1u);
+  EXPECT_TRUE(traj.Links().empty());
+}
+
+TEST(PoseGraphTrajectory, ExportedGraphOptimisesToTheOdometryChain) {
+  const OdometrySource odo = MakeOdometry();
+  Trajectory traj(&odo);
+  for (int64_t t = 1'000'000; t <= 10'000'000; t += 500'000) ASSERT_TRUE(traj.PoseAt(t).ok());
+  io::PoseGraph g = traj.ToPoseGraph();
+  EXPECT_EQ(g.vertices2.size(), traj.size());
+  EXPECT_EQ(g.edges2.size(), traj.size() - 1);
+  BatchOptions o;
+  o.initialization = Initialization::kNone;
+  auto r = OptimizeGraph(&g, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_LT(r->chi2_final, 1e-9);  // a chain has no conflicts
+}
+
+TEST(PoseGraphQueue, MeasurementsWaitForTheWindowAndLateOnesAreFlagged) {
+  MeasurementQueue<std::string> q(/*window_us=*/100'000);
+  q.Push(1'000'000, "scan1");
+  q.Push(1'050'000, "scan2");
+  int late = -1;
+  EXPECT_TRUE(q.PopCommitted(1'080'000, &late).empty());
+  auto out = q.PopCommitted(1'120'000, &late);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_EQ(out[0].second, "scan1");
+  EXPECT_EQ(late, 0);
+  q.Push(990'000, "very late");  // older than what was already committed
+  out = q.PopCommitted(1'200'000, &late);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].second, "very late");  // in time order
+  EXPECT_EQ(out[1].second, "scan2");
+  EXPECT_EQ(late, 1);
+  EXPECT_EQ(q.pending(), 0u);
+}
+
+}  // namespace
+}  // namespace omni::pgm
