@@ -1,0 +1,412 @@
+// omni-bench-rbpf (`./omni bench rbpf`): our RBPF mapper beside MRPT's rbpf-slam (Debian
+// mrpt-apps, configured with its shipped gridmapping_intel.ini) on the same logs, in the same
+// run: ATE (RMSE and max, SE(2)-aligned against the dataset's reference), wall time and peak
+// resident memory of each run (both are child processes, measured with wait4()). Prints a table
+// and writes out/bench/rbpf.jsonl. When rbpf-slam is absent the peer is skipped with a message.
+#include <fcntl.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "omni/common/time.h"
+#include "omni/eval/eval.h"
+#include "omni/io/trajectory_io.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Dataset {
+  std::string name;
+  std::string input;      // CARMEN log for ours
+  std::string rawlog;     // MRPT rawlog for the peer
+  std::string reference;  // indexed reference trajectory
+  int peer_index_offset;  // scan index of MRPT step 0
+};
+
+std::vector<Dataset> AllDatasets(const std::string& d) {
+  std::vector<Dataset> v;
+  v.push_back({"intel-raw", d + "/intel-raw/intel.clf", d + "/intel-raw/intel.rawlog",
+               d + "/intel-raw/intel.reference.txt", 1});
+  for (const char* n : {"aces", "intel", "csail", "freiburg-079"}) {
+    const std::string b = d + "/slam-noisy-odom/" + n;
+    v.push_back({std::string(n) + "-noisy", b + ".noisy.clf.gz", b + ".noisy.rawlog",
+                 b + ".reference.txt", 0});
+  }
+  return v;
+}
+
+void Usage(std::FILE* f) {
+  std::fprintf(
+      f,
+      "usage: omni-bench-rbpf [--datasets a,b,...] [--seeds 1,2,3] [--particles N]\n"
+      "                       [--threads N] [--no-peer] [--peer-only] [--out DIR]\n"
+      "  Runs omni-slam rbpf and MRPT's rbpf-slam (if installed) on each dataset and seed and\n"
+      "  prints ATE RMSE/max (m), wall time (s) and peak RSS (MB); writes DIR/rbpf.jsonl\n"
+      "  (default DIR out/bench) and each run's outputs under DIR/rbpf/.\n"
+      "  datasets: intel-raw aces-noisy intel-noisy csail-noisy freiburg-079-noisy (default all)\n"
+      "  seeds: default 1,2,3. The peer takes ~100-200 s per run on 2 cores.\n"
+      "  OMNI_DATASETS_DIR overrides ../shared/datasets.\n");
+}
+
+std::vector<std::string> Split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+std::string FindInPath(const std::string& exe) {
+  const char* path = std::getenv("PATH");
+  if (!path) return "";
+  std::stringstream ss(path);
+  std::string dir;
+  while (std::getline(ss, dir, ':')) {
+    const fs::path p = fs::path(dir) / exe;
+    if (!dir.empty() && access(p.c_str(), X_OK) == 0) return p.string();
+  }
+  return "";
+}
+
+struct RunResult {
+  bool ok = false;
+  int exit_code = -1;
+  double wall_s = 0;
+  double peak_rss_mb = 0;
+};
+
+// Runs argv with stdin from /dev/null and stdout+stderr to `log_path`.
+RunResult Run(const std::vector<std::string>& argv, const std::string& log_path,
+              const std::string& cwd = "") {
+  RunResult r;
+  const int64_t t0 = omni::MonotonicMicros();
+  const pid_t pid = fork();
+  if (pid < 0) return r;
+  if (pid == 0) {
+    const int in = open("/dev/null", O_RDONLY);
+    const int out = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (in >= 0) dup2(in, 0);
+    if (out >= 0) {
+      dup2(out, 1);
+      dup2(out, 2);
+    }
+    if (!cwd.empty() && chdir(cwd.c_str()) != 0) _exit(127);
+    std::vector<char*> args;
+    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  int status = 0;
+  struct rusage ru {};
+  while (wait4(pid, &status, 0, &ru) < 0 && errno == EINTR) {
+  }
+  r.wall_s = static_cast<double>(omni::MonotonicMicros() - t0) * 1e-6;
+  r.peak_rss_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;  // KiB -> MiB
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  r.ok = r.exit_code == 0;
+  return r;
+}
+
+struct Row {
+  std::string system, dataset;
+  int seed = 0;
+  bool ok = false;
+  std::string note;
+  double ate_rmse = 0, ate_max = 0, wall_s = 0, rss_mb = 0;
+  size_t matched = 0;
+};
+
+// The peer's trajectory: most_likely_path.txt ("x y yaw" per step of the best particle) when it
+// has one line per step, else log_estimated_path.txt ("step x y z yaw pitch roll t", the
+// filter's mean at each step). MRPT step k is scan k + offset.
+bool ConvertPeerPath(const std::string& dir, int offset, const std::string& out_path,
+                     std::string* note) {
+  std::vector<omni::Pose2> steps;
+  {
+    std::ifstream f(dir + "/log_estimated_path.txt");
+    std::string line;
+    while (std::getline(f, line)) {
+      if (line.empty() || line[0] == '%') continue;
+      std::istringstream ss(line);
+      double step, x, y, z, yaw;
+      if (ss >> step >> x >> y >> z >> yaw) steps.emplace_back(x, y, yaw);
+    }
+  }
+  std::vector<omni::Pose2> best;
+  {
+    std::ifstream f(dir + "/most_likely_path.txt");
+    std::string line;
+    while (std::getline(f, line)) {
+      std::istringstream ss(line);
+      double x, y, yaw;
+      if (ss >> x >> y >> yaw) best.emplace_back(x, y, yaw);
+    }
+  }
+  const std::vector<omni::Pose2>* use = nullptr;
+  if (!best.empty() && best.size() == steps.size()) {
+    use = &best;
+    *note = "most_likely_path";
+  } else if (!steps.empty()) {
+    use = &steps;
+    *note = "log_estimated_path (online mean; most_likely_path has " + std::to_string(best.size()) +
+            " of " + std::to_string(steps.size()) + " steps)";
+  } else {
+    *note = "no path written";
+    return false;
+  }
+  std::vector<omni::io::TrajectoryEntry> entries;
+  for (size_t k = 0; k < use->size(); ++k)
+    entries.push_back(omni::io::MakeEntry2D(static_cast<int64_t>(k) + offset, 0.0, (*use)[k]));
+  return omni::io::WriteTrajectory2D(out_path, entries, "MRPT rbpf-slam, converted").ok();
+}
+
+bool WritePeerIni(const std::string& shipped, const std::string& out_ini,
+                  const std::string& out_dir, int seed) {
+  std::ifstream in(shipped);
+  if (!in) return false;
+  std::ofstream out(out_ini);
+  std::string line;
+  bool in_app = false;
+  while (std::getline(in, line)) {
+    std::string t = line;
+    t.erase(0, t.find_first_not_of(" \t"));
+    if (!t.empty() && t[0] == '[') {
+      if (in_app) {
+        // End of [MappingApplication]: our settings.
+        out << "logOutput_dir=" << out_dir << "\nRANDOM_SEED=" << seed << "\n";
+      }
+      in_app = t.rfind("[MappingApplication]", 0) == 0;
+      out << line << "\n";
+      continue;
+    }
+    if (in_app) {
+      auto key = t.substr(0, t.find_first_of("= \t"));
+      // Output directory and seed are ours; map images, 3D scenes and debug logging are
+      // disk/console work outside the algorithm, switched off so the timing is fair to it.
+      if (key == "logOutput_dir" || key == "RANDOM_SEED" || key == "rawlog_file") continue;
+      if (key == "SAVE_MAP_IMAGES" || key == "SAVE_3D_SCENE") {
+        out << key << "=0\n";
+        continue;
+      }
+      if (key == "verbosity_level") {
+        out << "verbosity_level = INFO\n";
+        continue;
+      }
+    }
+    out << line << "\n";
+  }
+  if (in_app) out << "logOutput_dir=" << out_dir << "\nRANDOM_SEED=" << seed << "\n";
+  return static_cast<bool>(out);
+}
+
+void Score(Row* row, const std::string& reference, const std::string& traj) {
+  auto ref = omni::io::ReadTrajectory(reference);
+  auto est = omni::io::ReadTrajectory(traj);
+  if (!ref.ok() || !est.ok()) {
+    row->ok = false;
+    row->note = !ref.ok() ? ref.error().message : est.error().message;
+    return;
+  }
+  auto ate = omni::eval::ComputeAte(*ref, *est);
+  if (!ate.ok()) {
+    row->ok = false;
+    row->note = ate.error().message;
+    return;
+  }
+  row->ate_rmse = ate->rmse_m;
+  row->ate_max = ate->max_m;
+  row->matched = ate->matched;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string datasets_dir =
+      std::getenv("OMNI_DATASETS_DIR") ? std::getenv("OMNI_DATASETS_DIR") : "../shared/datasets";
+  std::vector<std::string> names, seeds_s = {"1", "2", "3"};
+  std::string out_dir = "out/bench", particles, threads;
+  bool run_peer = true, run_ours = true;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "omni-bench-rbpf: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--help" || a == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--datasets")
+      names = Split(val());
+    else if (a == "--seeds")
+      seeds_s = Split(val());
+    else if (a == "--particles")
+      particles = val();
+    else if (a == "--threads")
+      threads = val();
+    else if (a == "--out")
+      out_dir = val();
+    else if (a == "--no-peer")
+      run_peer = false;
+    else if (a == "--peer-only")
+      run_ours = false;
+    else {
+      std::fprintf(stderr, "omni-bench-rbpf: unknown option '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  std::vector<int> seeds;
+  for (const auto& s : seeds_s) {
+    char* end = nullptr;
+    const long v = std::strtol(s.c_str(), &end, 10);
+    if (*end != '\0' || v < 0) {
+      std::fprintf(stderr, "omni-bench-rbpf: bad seed '%s'\n", s.c_str());
+      return 2;
+    }
+    seeds.push_back(static_cast<int>(v));
+  }
+  std::vector<Dataset> sets;
+  for (const auto& d : AllDatasets(datasets_dir)) {
+    bool want = names.empty();
+    for (const auto& n : names) want |= n == d.name;
+    if (want) sets.push_back(d);
+  }
+  for (const auto& n : names) {
+    bool known = false;
+    for (const auto& d : AllDatasets(datasets_dir)) known |= d.name == n;
+    if (!known) {
+      std::fprintf(stderr, "omni-bench-rbpf: unknown dataset '%s'\n", n.c_str());
+      return 2;
+    }
+  }
+  const std::string ours = (fs::absolute(fs::path(argv[0])).parent_path() / "omni-slam").string();
+  if (run_ours && !fs::exists(ours)) {
+    std::fprintf(stderr, "omni-bench-rbpf: %s is not built\n", ours.c_str());
+    return 1;
+  }
+  const std::string peer = FindInPath("rbpf-slam");
+  const std::string shipped_ini = "/usr/share/mrpt/config_files/rbpf-slam/gridmapping_intel.ini";
+  if (run_peer && peer.empty()) {
+    std::printf(
+        "peer skipped: MRPT's rbpf-slam is not installed (Debian: apt-get install mrpt-apps "
+        "mrpt-common)\n");
+    run_peer = false;
+  } else if (run_peer && !fs::exists(shipped_ini)) {
+    std::printf("peer skipped: %s is absent (Debian package mrpt-common)\n", shipped_ini.c_str());
+    run_peer = false;
+  }
+  std::error_code ec;
+  fs::create_directories(out_dir + "/rbpf", ec);
+  const std::string jsonl = out_dir + "/rbpf.jsonl";
+  std::FILE* jf = std::fopen(jsonl.c_str(), "w");
+  if (!jf) {
+    std::fprintf(stderr, "omni-bench-rbpf: cannot write %s: %s\n", jsonl.c_str(),
+                 std::strerror(errno));
+    return 1;
+  }
+  std::printf("%-10s %-20s %4s %10s %9s %8s %9s  %s\n", "system", "dataset", "seed", "ATE rmse",
+              "ATE max", "wall s", "peak MB", "note");
+  std::fflush(stdout);
+  int missing = 0;
+  std::vector<Row> rows;
+  auto emit = [&](const Row& r) {
+    if (r.ok)
+      std::printf("%-10s %-20s %4d %10.3f %9.3f %8.1f %9.0f  %s\n", r.system.c_str(),
+                  r.dataset.c_str(), r.seed, r.ate_rmse, r.ate_max, r.wall_s, r.rss_mb,
+                  r.note.c_str());
+    else
+      std::printf("%-10s %-20s %4d %10s %9s %8.1f %9.0f  FAILED: %s\n", r.system.c_str(),
+                  r.dataset.c_str(), r.seed, "-", "-", r.wall_s, r.rss_mb, r.note.c_str());
+    std::fflush(stdout);
+    std::string note = r.note;
+    for (auto& c : note)
+      if (c == '"' || c == '\\') c = '\'';
+    std::fprintf(jf,
+                 "{\"system\": \"%s\", \"dataset\": \"%s\", \"seed\": %d, \"ok\": %s, "
+                 "\"ate_rmse_m\": %.4f, \"ate_max_m\": %.4f, \"matched\": %zu, \"wall_s\": %.2f, "
+                 "\"peak_rss_mb\": %.1f, \"note\": \"%s\"}\n",
+                 r.system.c_str(), r.dataset.c_str(), r.seed, r.ok ? "true" : "false", r.ate_rmse,
+                 r.ate_max, r.matched, r.wall_s, r.rss_mb, note.c_str());
+    std::fflush(jf);
+    rows.push_back(r);
+  };
+  for (const auto& d : sets) {
+    if (!fs::exists(d.input) || !fs::exists(d.reference)) {
+      std::printf("%-10s %-20s: dataset absent (%s), skipped\n", "-", d.name.c_str(),
+                  d.input.c_str());
+      ++missing;
+      continue;
+    }
+    for (int seed : seeds) {
+      if (run_ours) {
+        const std::string dir = out_dir + "/rbpf/omni/" + d.name + "-seed" + std::to_string(seed);
+        fs::create_directories(dir, ec);
+        std::vector<std::string> args = {
+            ours, "rbpf", d.input, "--out", dir, "--seed", std::to_string(seed), "--quiet"};
+        if (!particles.empty()) args.insert(args.end(), {"--particles", particles});
+        if (!threads.empty()) args.insert(args.end(), {"--threads", threads});
+        const RunResult rr = Run(args, dir + "/run.log");
+        Row row{"omni-rbpf", d.name, seed, rr.ok, "", 0, 0, rr.wall_s, rr.peak_rss_mb, 0};
+        if (rr.ok)
+          Score(&row, d.reference, dir + "/trajectory.txt");
+        else
+          row.note = "exit " + std::to_string(rr.exit_code) + ", see " + dir + "/run.log";
+        emit(row);
+      }
+      if (run_peer) {
+        const std::string dir =
+            fs::absolute(out_dir + "/rbpf/mrpt/" + d.name + "-seed" + std::to_string(seed))
+                .string();
+        fs::create_directories(dir, ec);
+        const std::string ini = dir + ".ini";
+        Row row{"mrpt-rbpf", d.name, seed, false, "", 0, 0, 0, 0, 0};
+        if (!fs::exists(d.rawlog)) {
+          row.note = "rawlog absent: " + d.rawlog;
+          emit(row);
+          continue;
+        }
+        if (!WritePeerIni(shipped_ini, ini, dir, seed)) {
+          row.note = "cannot write " + ini;
+          emit(row);
+          continue;
+        }
+        const RunResult rr = Run({peer, ini, fs::absolute(d.rawlog).string()}, dir + ".log", dir);
+        row.wall_s = rr.wall_s;
+        row.rss_mb = rr.peak_rss_mb;
+        std::string note;
+        if (ConvertPeerPath(dir, d.peer_index_offset, dir + "/trajectory.txt", &note)) {
+          row.ok = true;
+          row.note = note;
+          if (!rr.ok) row.note += " (exit " + std::to_string(rr.exit_code) + ")";
+          Score(&row, d.reference, dir + "/trajectory.txt");
+        } else {
+          row.note = note + ", exit " + std::to_string(rr.exit_code) + ", see " + dir + ".log";
+        }
+        emit(row);
+      }
+    }
+  }
+  std::fclose(jf);
+  std::printf("wrote %s\n", jsonl.c_str());
+  if (missing == static_cast<int>(sets.size()) && !sets.empty()) {
+    std::fprintf(stderr, "omni-bench-rbpf: no dataset found under %s\n", datasets_dir.c_str());
+    return 1;
+  }
+  return 0;
+}
