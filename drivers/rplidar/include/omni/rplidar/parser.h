@@ -77,6 +77,7 @@ class RevolutionAssembler {
     current_.clear();
     started_ = false;
   }
+  size_t pending() const { return current_.size(); }
   int64_t revolutions() const { return revolutions_; }
   int64_t partial_samples_dropped() const { return partial_dropped_; }
 
