@@ -19,7 +19,6 @@
 #include <fstream>
 #include <iostream>
 #include <optional>
-#include <regex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -241,9 +240,8 @@ int main(int argc, char** argv) {
       } else if (r.exit_code != 0) {
         o.status = "failed: " + LastLine(text);
       } else {
-        std::smatch m;
-        if (std::regex_search(text, m, std::regex("\"iterations\": (\\d+)")))
-          o.iterations = std::stoi(m[1]);
+        if (const size_t at = text.find("\"iterations\": "); at != std::string::npos)
+          o.iterations = std::atoi(text.c_str() + at + 14);
         std::string why;
         auto c = ScoreResult(*graph, out, &why);
         if (c)
@@ -265,11 +263,10 @@ int main(int argc, char** argv) {
       p.wall_s = r.wall_s;
       p.max_rss_kb = r.max_rss_kb;
       const std::string text = ReadAll(log);
-      int it = -1;
-      const std::regex iter_re("Iter: (\\d+)");
-      for (auto i = std::sregex_iterator(text.begin(), text.end(), iter_re);
-           i != std::sregex_iterator(); ++i)
-        it = std::max(it, std::stoi((*i)[1]) + 1);
+      int it = -1;  // MRPT prints "Iter: k ,total sqr. err: ..." per iteration
+      for (size_t at = text.find("Iter: "); at != std::string::npos;
+           at = text.find("Iter: ", at + 6))
+        it = std::max(it, std::atoi(text.c_str() + at + 6) + 1);
       p.iterations = it;
       if (r.timed_out) {
         p.status = "timeout";

@@ -3,7 +3,6 @@
 // without the peer and says so.
 #include <filesystem>
 #include <fstream>
-#include <regex>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -93,7 +92,7 @@ TEST(PoseGraphCli, BenchmarkWithoutThePeerSaysSoAndWritesJsonl) {
   std::getline(f, peer);
   EXPECT_NE(ours.find("\"system\": \"omni-ceres\", \"dataset\": \"intel\""), std::string::npos)
       << ours;
-  EXPECT_TRUE(std::regex_search(ours, std::regex("\"chi2\": 45\\.00")));
+  EXPECT_NE(ours.find("\"chi2\": 45.00"), std::string::npos) << ours;
   EXPECT_NE(ours.find("\"iterations\": "), std::string::npos);
   EXPECT_NE(peer.find("\"status\": \"absent\""), std::string::npos) << peer;
 }
