@@ -338,7 +338,17 @@ KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f
   RunOnThreads(nt, [&](int t) {
     KeyHashSet& fr = free_local[static_cast<size_t>(t)];
     KeyHashSet& oc = occ_local[static_cast<size_t>(t)];
-    auto emit = [&fr](uint64_t packed) { fr.Insert(packed); };
+    // Neighbouring rays (consecutive points of a depth image) cross mostly the same voxels: a
+    // small direct-mapped filter of keys this thread already inserted, kept in cache, skips
+    // most repeats before they reach the (large, cache-missing) hash set. Only keys already
+    // in `fr` are in the filter, so nothing is lost.
+    std::vector<uint64_t> recent(size_t{1} << 15, kEmpty);
+    auto emit = [&fr, &recent](uint64_t packed) {
+      uint64_t& slot = recent[Mix(packed) & ((size_t{1} << 15) - 1)];
+      if (slot == packed) return;
+      slot = packed;
+      fr.Insert(packed);
+    };
     auto add_ray = [&](const octomap::point3d& end_point) {
       CastRay(keyer_, origin, end_point, emit);
     };
