@@ -88,6 +88,32 @@ TEST(MapOutput, ProjectsTheHeightBand) {
   EXPECT_FALSE(ProjectToGrid(t, o).ok());
 }
 
+TEST(MapOutput, ProjectsAlongAnotherUpAxis) {
+  // A camera-posed world with y down: an obstacle at height 0.5 m is at y = -0.5.
+  octomap::OcTree t(0.1);
+  t.updateNode(1.05, -0.45, 2.05, true);   // obstacle: x 1.05, height 0.45, z 2.05
+  t.updateNode(0.05, -0.45, 0.05, false);  // free at the same height
+  t.updateNode(1.05, 0.95, 2.05, true);    // below the floor (height -0.95): outside the band
+  GridProjectionOptions o;
+  ASSERT_TRUE(UpAxis::Parse("-y", &o.up));
+  EXPECT_FALSE(UpAxis::Parse("w", &o.up));
+  o.min_z_m = 0.2;
+  o.max_z_m = 1.0;
+  auto g = ProjectToGrid(t, o);
+  ASSERT_TRUE(g.ok());
+  // Up -y: grid x = map z, grid y = -(map x).
+  EXPECT_EQ(g->width, 21);   // map z 0.0 .. 2.1
+  EXPECT_EQ(g->height, 11);  // -(map x) -1.1 .. 0.0
+  size_t occ = 0, fr = 0;
+  for (int8_t c : g->cells) occ += c == 100, fr += c == 0;
+  EXPECT_EQ(occ, 1u);
+  EXPECT_EQ(fr, 1u);
+  const int col = static_cast<int>((2.05 - g->origin_x_m) / 0.1);
+  const int row = static_cast<int>((-1.05 - g->origin_y_m) / 0.1);
+  ASSERT_TRUE(g->Contains(col, row));
+  EXPECT_EQ(g->at(col, row), 100);
+}
+
 TEST(MapOutput, Geb079LoadsAndProjectsToAFloorPlan) {
   const std::string path = std::string(OMNI_DATASETS_DIR) + "/octomap/geb079.bt";
   if (!fs::exists(path)) GTEST_SKIP() << "dataset octomap/geb079.bt absent";
