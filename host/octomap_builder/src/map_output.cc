@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <limits>
 #include <sstream>
@@ -26,22 +27,73 @@ Status SaveTree(const octomap::OcTree& tree, const std::string& base) {
   return WriteFileAtomic(base + ".ot", SerializeTree(tree, false));
 }
 
+namespace {
+
+// OctoMap's readers recurse on child bits read from the stream and never check for the end of
+// it, so a truncated or corrupt file can recurse without bound (a stack overflow). These walk
+// the same node layout over the bytes first, bounded by the buffer and the tree depth.
+//   full (.ot):   node = value (float) + 1 byte, bit i set: child i follows (depth first)
+//   binary (.bt): node = 2 bytes, 2 bits per child (11: inner, its node follows afterwards)
+bool WalkFull(const std::string& b, size_t* pos, int depth) {
+  if (b.size() - *pos < 5) return false;
+  const auto mask = static_cast<uint8_t>(b[*pos + 4]);
+  *pos += 5;
+  if (mask != 0 && depth >= 16) return false;
+  for (int i = 0; i < 8; ++i)
+    if ((mask >> i) & 1)
+      if (!WalkFull(b, pos, depth + 1)) return false;
+  return true;
+}
+
+bool WalkBinary(const std::string& b, size_t* pos, int depth) {
+  if (b.size() - *pos < 2) return false;
+  const unsigned bits = static_cast<uint8_t>(b[*pos]) | (static_cast<uint8_t>(b[*pos + 1]) << 8);
+  *pos += 2;
+  for (int i = 0; i < 8; ++i) {
+    if (((bits >> (2 * i)) & 3) != 3) continue;
+    if (depth + 1 >= 16) return false;
+    if (!WalkBinary(b, pos, depth + 1)) return false;
+  }
+  return true;
+}
+
+// Checks the header ("id OcTree", "size N", "data") and the node layout after it.
+std::string ValidateTreeFile(const std::string& bytes, bool binary) {
+  const size_t data = bytes.find("\ndata\n");
+  if (data == std::string::npos) return "no 'data' line in the header";
+  const std::string header = bytes.substr(0, data);
+  if (header.find("\nid OcTree") == std::string::npos) return "not an OcTree (id line)";
+  const size_t sz = header.find("\nsize ");
+  if (sz == std::string::npos) return "no 'size' line in the header";
+  const long long n = std::atoll(header.c_str() + sz + 6);
+  if (n == 0) return "";
+  size_t pos = data + 6;
+  const bool ok = binary ? WalkBinary(bytes, &pos, 0) : WalkFull(bytes, &pos, 0);
+  return ok ? "" : "truncated or corrupt node data";
+}
+
+}  // namespace
+
 Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
+  std::ifstream file(path, std::ios::binary);
+  if (!file) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
+  std::stringstream buf;
+  buf << file.rdbuf();
+  const std::string bytes = buf.str();
   const bool binary = path.size() >= 3 && path.compare(path.size() - 3, 3, ".bt") == 0;
+  if (const std::string bad = ValidateTreeFile(bytes, binary); !bad.empty())
+    return MakeError(ErrorCode::kParse,
+                     path + ": not a readable " + (binary ? ".bt" : ".ot") + " OcTree: " + bad);
+  std::istringstream in(bytes, std::ios::binary);
   if (binary) {
     auto tree = std::make_unique<octomap::OcTree>(0.1);
     if (!tree->readBinary(in) || in.fail())
-      return MakeError(ErrorCode::kParse,
-                       path + ": not a readable .bt OcTree (bad header or truncated)");
+      return MakeError(ErrorCode::kParse, path + ": not a readable .bt OcTree");
     return tree;
   }
   std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
   auto* oc = dynamic_cast<octomap::OcTree*>(any.get());
-  if (!oc || in.fail())
-    return MakeError(ErrorCode::kParse,
-                     path + ": not a readable .ot OcTree (bad header or truncated)");
+  if (!oc || in.fail()) return MakeError(ErrorCode::kParse, path + ": not a readable .ot OcTree");
   any.release();
   return std::unique_ptr<octomap::OcTree>(oc);
 }

@@ -63,6 +63,18 @@ TEST(MapOutput, SavedTreesLoadBackWithTheSameLeaves) {
   }
   EXPECT_FALSE(LoadTree(dir + "/bad.ot").ok());
   EXPECT_FALSE(LoadTree(dir + "/missing.bt").ok());
+  // Truncated copies of good files (OctoMap's own reader would recurse on garbage).
+  for (const char* ext : {".bt", ".ot"}) {
+    std::ifstream good(dir + "/map" + ext, std::ios::binary);
+    std::stringstream all;
+    all << good.rdbuf();
+    const std::string bytes = all.str();
+    for (size_t cut : {bytes.size() / 2, bytes.size() - 1}) {
+      const std::string bad = dir + "/cut" + ext;
+      std::ofstream(bad, std::ios::binary) << bytes.substr(0, cut);
+      EXPECT_FALSE(LoadTree(bad).ok()) << ext << " cut at " << cut;
+    }
+  }
 }
 
 TEST(MapOutput, ProjectsTheHeightBand) {
