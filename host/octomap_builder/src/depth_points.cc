@@ -7,6 +7,8 @@
 
 #include <zlib.h>
 
+#include "omni/kinect/depth_codec.h"
+
 namespace omni::octo {
 
 std::string DepthIntrinsics::Validate() const {
@@ -121,9 +123,8 @@ Status DecodeDepthData(int8_t encoding, const uint8_t* data, size_t size, int wi
       break;
     }
     case DepthEncoding::kDeltaZlib:
-      return MakeError(ErrorCode::kInvalidArgument,
-                       "depth encoding DELTA_ZLIB (2) needs the Kinect driver's depth codec, "
-                       "which is not linked into this build");
+      // The Kinect driver's codec validates the payload and the size itself.
+      return kinect::DecodeDepth(encoding, data, size, width, height, out);
     default: {
       std::ostringstream s;
       s << "unknown depth encoding " << static_cast<int>(encoding);

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include "omni/kinect/depth_codec.h"
 #include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/depth_points.h"
 
@@ -80,7 +81,7 @@ TEST(DepthPoints, VoxelDownsampleKeepsCentroids) {
   EXPECT_NEAR(out[2].x(), -0.01f, 1e-6);
 }
 
-TEST(DepthDecode, RawAndZlibRoundTrip) {
+TEST(DepthDecode, RawZlibAndDeltaZlibRoundTrip) {
   const int w = 3, h = 2;
   std::vector<uint16_t> values = {0, 1, 256, 1000, 65535, 42};
   std::vector<uint8_t> raw;
@@ -97,10 +98,20 @@ TEST(DepthDecode, RawAndZlibRoundTrip) {
   out.clear();
   ASSERT_TRUE(DecodeDepthData(1, z.data(), zlen, w, h, &out).ok());
   EXPECT_EQ(out, values);
-  // Truncated zlib, wrong raw size, DELTA_ZLIB (not linked), unknown encoding: errors.
+  // DELTA_ZLIB goes through the Kinect driver's codec.
+  std::vector<uint8_t> delta;
+  ASSERT_TRUE(
+      kinect::EncodeDepth(kinect::DepthEncoding::kDeltaZlib, values.data(), w, h, {}, &delta).ok());
+  out.clear();
+  ASSERT_TRUE(DecodeDepthData(2, delta.data(), delta.size(), w, h, &out).ok());
+  EXPECT_EQ(out, values);
+  // Truncated zlib, wrong raw size, plain zlib labelled DELTA_ZLIB, truncated DELTA_ZLIB,
+  // DELTA_ZLIB of another size, unknown encoding: errors.
   EXPECT_FALSE(DecodeDepthData(1, z.data(), zlen / 2, w, h, &out).ok());
   EXPECT_FALSE(DecodeDepthData(0, raw.data(), raw.size() - 1, w, h, &out).ok());
   EXPECT_FALSE(DecodeDepthData(2, z.data(), zlen, w, h, &out).ok());
+  EXPECT_FALSE(DecodeDepthData(2, delta.data(), delta.size() - 1, w, h, &out).ok());
+  EXPECT_FALSE(DecodeDepthData(2, delta.data(), delta.size(), h, w, &out).ok());
   EXPECT_FALSE(DecodeDepthData(7, raw.data(), raw.size(), w, h, &out).ok());
 }
 

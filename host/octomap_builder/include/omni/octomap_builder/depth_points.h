@@ -66,8 +66,7 @@ std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>&
 enum class DepthEncoding : int8_t { kRawU16Le = 0, kZlibU16Le = 1, kDeltaZlib = 2 };
 
 // Decodes the `data` of a depth message into width*height uint16 values. RAW and ZLIB are
-// decoded here; DELTA_ZLIB is the Kinect driver's codec and is rejected with kInvalidArgument
-// until that codec library is linked (see docs/octomap.md).
+// decoded here; DELTA_ZLIB by the Kinect driver's codec (omni/kinect/depth_codec.h).
 Status DecodeDepthData(int8_t encoding, const uint8_t* data, size_t size, int width, int height,
                        std::vector<uint16_t>* out);
 

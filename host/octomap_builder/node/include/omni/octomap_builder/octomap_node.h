@@ -15,7 +15,7 @@
 
 namespace omni::octo {
 
-// Decodes a depth message (RAW and ZLIB encodings; see DecodeDepthData).
+// Decodes a depth message (RAW, ZLIB and DELTA_ZLIB; see DecodeDepthData).
 Result<DepthImage> FromDepthMessage(const omni::depth_image_t& msg);
 // An OCTOMAP message holding the tree in binary (.bt) or full (.ot) form.
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
