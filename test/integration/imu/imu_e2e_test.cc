@@ -1,0 +1,397 @@
+// The IMU driver against its WT901 emulator on a real pseudo-terminal: streaming values that
+// match the simulated motion, garbage spliced into frames, device removed and restored, a
+// silent device, and (as processes) an absent device and a driver + emulator run with faults.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "../../unit/common/test_paths.h"
+#include "../tools/run.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/imu/emulator.h"
+#include "omni/imu/imu_node.h"
+#include "omni/io/lcm_log.h"
+
+namespace omni::imu {
+namespace {
+
+class EmulatorThread {
+ public:
+  explicit EmulatorThread(std::unique_ptr<ImuEmulator> e) : emu_(std::move(e)) {
+    thread_ = std::thread([this] {
+      while (!stop_) {
+        {
+          std::lock_guard<std::mutex> lock(mu_);
+          emu_->Step(MonotonicMicros());
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+    });
+  }
+  ~EmulatorThread() {
+    stop_ = true;
+    thread_.join();
+  }
+  template <class F>
+  void With(F f) {
+    std::lock_guard<std::mutex> lock(mu_);
+    f(*emu_);
+  }
+
+ private:
+  std::unique_ptr<ImuEmulator> emu_;
+  std::mutex mu_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+std::string LinkPath(const std::string& name) {
+  return "/tmp/omni_imu_e2e_" + std::to_string(getpid()) + "_" + name;
+}
+
+EmulatorOptions Motion(const std::string& link) {
+  EmulatorOptions o;
+  o.link_path = link;
+  o.rate_hz = 100;
+  o.yaw_rate_rad_s = 0.2;
+  o.roll_rad = 0.1;
+  o.pitch_rad = -0.05;
+  return o;
+}
+
+std::unique_ptr<EmulatorThread> StartEmulator(const EmulatorOptions& o) {
+  auto e = ImuEmulator::Create(o);
+  if (!e.ok()) {
+    ADD_FAILURE() << e.error().message;
+    return nullptr;
+  }
+  return std::make_unique<EmulatorThread>(std::move(*e));
+}
+
+int64_t Counter(const omni::heartbeat_t& hb, const std::string& name) {
+  for (int i = 0; i < hb.num_counters; ++i) {
+    if (hb.counter_names[static_cast<size_t>(i)] == name) {
+      return hb.counter_values[static_cast<size_t>(i)];
+    }
+  }
+  ADD_FAILURE() << "heartbeat has no counter " << name;
+  return -1;
+}
+
+struct Harness {
+  SystemClock clock;
+  std::unique_ptr<bus::Bus> bus;
+  std::unique_ptr<ImuDriver> driver;
+  std::unique_ptr<ImuNode> node;
+  std::vector<omni::imu_t> msgs;
+  std::vector<omni::heartbeat_t> heartbeats;
+
+  Status Start(const std::string& port) {
+    auto b = bus::Bus::Create("memq://");
+    if (!b.ok()) return b.error();
+    bus = std::move(*b);
+    bus->Subscribe<omni::imu_t>("IMU",
+                                [this](const omni::imu_t& m, int64_t) { msgs.push_back(m); });
+    bus->Subscribe<omni::heartbeat_t>(
+        "HEARTBEAT", [this](const omni::heartbeat_t& m, int64_t) { heartbeats.push_back(m); });
+    DriverOptions d;
+    d.port = port;
+    d.data_timeout_s = 0.4;
+    d.reconnect_interval_s = 0.1;
+    NodeOptions n;
+    driver = std::make_unique<ImuDriver>(d, &clock);
+    Status st = driver->Connect();
+    if (!st.ok()) return st;
+    node = std::make_unique<ImuNode>(bus.get(), driver.get(), n, &clock);
+    return Status::Ok();
+  }
+  void Once() {
+    node->RunOnce(20);
+    while (bus->HandleTimeout(0) > 0) {
+    }
+  }
+  bool RunUntilMessages(size_t count, double timeout_s) {
+    const size_t target = msgs.size() + count;
+    const int64_t end = MonotonicMicros() + SecondsToUtime(timeout_s);
+    while (msgs.size() < target && MonotonicMicros() < end) Once();
+    return msgs.size() >= target;
+  }
+  void RunFor(double s) {
+    const int64_t end = MonotonicMicros() + SecondsToUtime(s);
+    while (MonotonicMicros() < end) Once();
+  }
+};
+
+// Roll, pitch, yaw of a unit quaternion (R = Rz Ry Rx).
+std::array<double, 3> Euler(const double q[4]) {
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  return {std::atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+          std::asin(std::clamp(2 * (w * y - z * x), -1.0, 1.0)),
+          std::atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))};
+}
+
+TEST(ImuE2E, StreamsTheEmulatedMotion) {
+  const EmulatorOptions o = Motion(LinkPath("stream"));
+  auto emu = StartEmulator(o);
+  ASSERT_TRUE(emu);
+  Harness h;
+  ASSERT_TRUE(h.Start(o.link_path).ok()) << h.driver->status_text();
+  ASSERT_TRUE(h.RunUntilMessages(120, 5.0));
+  EXPECT_EQ(h.driver->cycle().types(),
+            (std::vector<uint8_t>{kTypeAccel, kTypeGyro, kTypeAngle, kTypeMag, kTypeQuaternion}));
+  // Constant parts of the motion: the tilted gravity and the body rates of the yaw rotation.
+  const MotionState truth = SimulatedMotion(o, 0);
+  for (const omni::imu_t& m : h.msgs) {
+    for (size_t i = 0; i < 3; ++i) {
+      ASSERT_NEAR(m.linear_acceleration_m_s2[i], truth.accel_m_s2[i], 0.006) << i;
+      ASSERT_NEAR(m.angular_velocity_rad_s[i], truth.gyro_rad_s[i], 0.0015) << i;
+    }
+    const auto e = Euler(m.orientation_wxyz);
+    ASSERT_NEAR(e[0], 0.1, 1e-3);
+    ASSERT_NEAR(e[1], -0.05, 1e-3);
+    ASSERT_EQ(m.frame, "imu");
+    ASSERT_TRUE(std::isnan(m.magnetic_field_t[0]));
+    ASSERT_NEAR(m.temperature_c, 25.0, 0.01);
+    ASSERT_GT(m.orientation_covariance[0], 0);
+  }
+  // The yaw turns at 0.2 rad/s: compare over the run, by the message stamps.
+  const omni::imu_t& a = h.msgs[10];
+  const omni::imu_t& b = h.msgs.back();
+  const double dt = UtimeToSeconds(b.utime - a.utime);
+  const double dyaw =
+      std::remainder(Euler(b.orientation_wxyz)[2] - Euler(a.orientation_wxyz)[2], 2 * M_PI);
+  ASSERT_GT(dt, 0.8);
+  EXPECT_NEAR(dyaw / dt, 0.2, 0.02);
+  for (size_t i = 1; i < h.msgs.size(); ++i) {
+    ASSERT_EQ(h.msgs[i].seq, h.msgs[i - 1].seq + 1);
+    ASSERT_GT(h.msgs[i].utime, h.msgs[i - 1].utime);
+  }
+  EXPECT_EQ(h.driver->frame_counters().checksum_errors, 0);
+  EXPECT_EQ(h.driver->counters().dropped_frames, 0);
+  h.RunFor(1.1);
+  ASSERT_FALSE(h.heartbeats.empty());
+  const auto& hb = h.heartbeats.back();
+  EXPECT_EQ(hb.process, "imu_driver");
+  EXPECT_EQ(hb.state, omni::heartbeat_t::STATE_OK);
+  EXPECT_GT(Counter(hb, "messages"), 120);
+  for (const char* c : {"checksum_errors", "resyncs", "reconnects", "timeouts", "dropped_frames"}) {
+    EXPECT_EQ(Counter(hb, c), 0) << c;
+  }
+}
+
+TEST(ImuE2E, GarbageCostsOnlyTheCorruptedFrames) {
+  const EmulatorOptions o = Motion(LinkPath("garbage"));
+  auto emu = StartEmulator(o);
+  ASSERT_TRUE(emu);
+  Harness h;
+  ASSERT_TRUE(h.Start(o.link_path).ok()) << h.driver->status_text();
+  ASSERT_TRUE(h.RunUntilMessages(20, 5.0));
+  // Quiesce (no byte in flight), count, stream with garbage, quiesce and count again.
+  auto quiet = [&](int64_t* frames_sent, int64_t* periods_sent) {
+    emu->With([](ImuEmulator& e) { e.SetStreaming(false); });
+    h.RunFor(0.15);  // < data_timeout_s: not a silence
+    emu->With([&](ImuEmulator& e) {
+      *frames_sent = e.counters().frames;
+      *periods_sent = e.counters().periods;
+    });
+  };
+  int64_t f0 = 0, p0 = 0, f1 = 0, p1 = 0;
+  quiet(&f0, &p0);
+  const int64_t got0 = h.driver->frame_counters().frames;
+  const size_t msgs0 = h.msgs.size();
+  emu->With([](ImuEmulator& e) { e.SetStreaming(true); });
+  constexpr int kInjections = 6;
+  for (int k = 0; k < kInjections; ++k) {
+    h.RunFor(0.05);
+    emu->With([k](ImuEmulator& e) { e.InjectGarbage(20 + 13 * k, static_cast<uint32_t>(k)); });
+  }
+  h.RunFor(0.1);
+  quiet(&f1, &p1);
+  emu->With([&](ImuEmulator& e) { EXPECT_EQ(e.counters().frames_corrupted, kInjections); });
+  const auto& c = h.driver->frame_counters();
+  EXPECT_EQ(c.frames - got0, (f1 - f0) - kInjections) << "only the corrupted frames are lost";
+  EXPECT_EQ(h.driver->counters().dropped_frames, kInjections);
+  EXPECT_EQ(c.resyncs, kInjections);
+  EXPECT_GT(c.bytes_skipped, 0);
+  EXPECT_GE(c.checksum_errors, 1);
+  const int64_t msgs = static_cast<int64_t>(h.msgs.size() - msgs0);
+  EXPECT_LE(msgs, p1 - p0);
+  EXPECT_GE(msgs, p1 - p0 - kInjections) << "a lost frame costs at most its own sample";
+  EXPECT_EQ(h.driver->counters().reconnects, 0) << "garbage must not cost a reconnect";
+  EXPECT_EQ(h.driver->counters().timeouts, 0);
+  // Values after the noise are still right.
+  emu->With([](ImuEmulator& e) { e.SetStreaming(true); });
+  ASSERT_TRUE(h.RunUntilMessages(5, 2.0));
+  EXPECT_NEAR(h.msgs.back().linear_acceleration_m_s2[2], SimulatedMotion(o, 0).accel_m_s2[2],
+              0.006);
+  h.RunFor(1.05);
+  ASSERT_FALSE(h.heartbeats.empty());
+  EXPECT_EQ(Counter(h.heartbeats.back(), "dropped_frames"), kInjections);
+  EXPECT_EQ(Counter(h.heartbeats.back(), "resyncs"), kInjections);
+}
+
+TEST(ImuE2E, VanishedDeviceIsReconnectedWithoutRestart) {
+  const EmulatorOptions o = Motion(LinkPath("vanish"));
+  auto emu = StartEmulator(o);
+  ASSERT_TRUE(emu);
+  Harness h;
+  ASSERT_TRUE(h.Start(o.link_path).ok()) << h.driver->status_text();
+  ASSERT_TRUE(h.RunUntilMessages(20, 5.0));
+  emu->With([](ImuEmulator& e) { e.Vanish(); });
+  h.RunFor(0.5);
+  EXPECT_EQ(h.driver->state(), DriverState::kDisconnected);
+  EXPECT_GT(h.driver->counters().connect_failures, 0) << "retries while the device is away";
+  EXPECT_EQ(h.driver->counters().timeouts, 0) << "a hang-up is seen at once, not by timeout";
+  h.RunFor(1.05);
+  ASSERT_FALSE(h.heartbeats.empty());
+  EXPECT_EQ(h.heartbeats.back().state, omni::heartbeat_t::STATE_ERROR);
+  EXPECT_NE(h.heartbeats.back().status_text.find(o.link_path), std::string::npos)
+      << h.heartbeats.back().status_text;
+  emu->With([](ImuEmulator& e) { ASSERT_TRUE(e.Restore().ok()); });
+  ASSERT_TRUE(h.RunUntilMessages(20, 5.0)) << "no samples after the device came back";
+  EXPECT_EQ(h.driver->counters().reconnects, 1);
+  EXPECT_EQ(h.driver->state(), DriverState::kStreaming);
+  const size_t n = h.heartbeats.size();
+  h.RunFor(1.05);
+  ASSERT_GT(h.heartbeats.size(), n);
+  EXPECT_EQ(h.heartbeats.back().state, omni::heartbeat_t::STATE_OK);
+  EXPECT_EQ(Counter(h.heartbeats.back(), "reconnects"), 1);
+}
+
+TEST(ImuE2E, SilentDeviceTimesOutAndIsReopened) {
+  const EmulatorOptions o = Motion(LinkPath("silent"));
+  auto emu = StartEmulator(o);
+  ASSERT_TRUE(emu);
+  Harness h;
+  ASSERT_TRUE(h.Start(o.link_path).ok()) << h.driver->status_text();
+  ASSERT_TRUE(h.RunUntilMessages(10, 5.0));
+  // Quiet with the port open: only the data timeout can notice.
+  emu->With([](ImuEmulator& e) { e.SetStreaming(false); });
+  h.RunFor(0.7);
+  EXPECT_EQ(h.driver->counters().timeouts, 1);
+  EXPECT_NE(h.driver->state(), DriverState::kStreaming);
+  emu->With([](ImuEmulator& e) { e.SetStreaming(true); });
+  ASSERT_TRUE(h.RunUntilMessages(10, 5.0));
+  EXPECT_GE(h.driver->counters().reconnects, 1);
+  EXPECT_EQ(h.driver->state(), DriverState::kStreaming);
+}
+
+// ---------------------------------------------------------------------------------------------
+// As processes.
+
+const std::string kConfig = std::string(OMNI_SOURCE_DIR) + "/config/imu_driver.yaml";
+
+TEST(ImuProcess, AbsentDeviceIsAClearErrorAndNonZeroExit) {
+  const auto r = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                      kConfig + " --port /tmp/omni-no-such-imu --lcm-url memq://");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("/tmp/omni-no-such-imu"), std::string::npos) << r.output;
+}
+
+TEST(ImuProcess, HelpAndBadOptions) {
+  for (const char* bin : {"omni-imu-driver", "omni-imu-emulator"}) {
+    auto r = ::omni::testing::Run(::omni::testing::Bin(bin) + " --help");
+    EXPECT_EQ(r.exit_code, 0) << bin;
+    EXPECT_NE(r.output.find("usage"), std::string::npos) << r.output;
+    r = ::omni::testing::Run(::omni::testing::Bin(bin) + " --bogus");
+    EXPECT_NE(r.exit_code, 0) << bin;
+  }
+  const auto r = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") +
+                                      " --config /tmp/omni-no-such-imu-config.yaml");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("omni-no-such-imu-config.yaml"), std::string::npos) << r.output;
+}
+
+TEST(ImuProcess, DriverAndEmulatorProcessesSurviveGarbageAndUnplug) {
+  const std::string dir = ::omni::testing::TempDir();
+  const std::string link = dir + "/imu";
+  const std::string log = dir + "/imu.lcmlog";
+  const std::string config = dir + "/imu_driver.yaml";
+  {
+    std::ofstream c(config);
+    c << "port: /dev/imu\nbaud: 115200\ndata_timeout_s: 0.3\nreconnect_interval_s: 0.1\n";
+  }
+  int to_emu[2];
+  ASSERT_EQ(pipe(to_emu), 0);
+  const pid_t emu = fork();
+  ASSERT_GE(emu, 0);
+  if (emu == 0) {
+    dup2(to_emu[0], 0);
+    close(to_emu[0]);
+    close(to_emu[1]);
+    const int null = open("/dev/null", O_WRONLY);
+    dup2(null, 1);
+    execl(::omni::testing::Bin("omni-imu-emulator").c_str(), "omni-imu-emulator", "--link",
+          link.c_str(), "--duration-s", "8", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  close(to_emu[0]);
+  for (int i = 0; i < 300 && access(link.c_str(), F_OK) != 0; ++i) usleep(10000);
+  // Faults while the driver runs: garbage at 0.6 s, unplugged for 0.5 s at 1.2 s.
+  std::thread faults([fd = to_emu[1]] {
+    usleep(600000);
+    const std::string g = "garbage 40\n";
+    (void)!write(fd, g.data(), g.size());
+    usleep(600000);
+    const std::string v = "vanish 500\n";
+    (void)!write(fd, v.data(), v.size());
+  });
+  const auto r = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                      config + " --port " + link +
+                                      " --duration-s 3.5 --lcm-url 'file://" + log + "?mode=w'");
+  faults.join();
+  const std::string quit = "quit\n";
+  (void)!write(to_emu[1], quit.data(), quit.size());
+  close(to_emu[1]);
+  int status = 0;
+  waitpid(emu, &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto reader = io::LcmLogReader::Open(log);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+  io::LcmLogEvent ev;
+  int imu = 0;
+  omni::heartbeat_t last_hb;
+  int heartbeats = 0;
+  while (true) {
+    auto more = reader->Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    if (ev.channel == "IMU") {
+      omni::imu_t m;
+      ASSERT_GT(m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      ASSERT_NEAR(m.linear_acceleration_m_s2[2], kGravity, 0.01);
+      ++imu;
+    } else if (ev.channel == "HEARTBEAT") {
+      ASSERT_GT(last_hb.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      ++heartbeats;
+    }
+  }
+  // 100 Hz for 3.5 s, minus about 0.6 s unplugged and reconnecting.
+  EXPECT_GE(imu, 200);
+  EXPECT_LE(imu, 360);
+  ASSERT_GE(heartbeats, 2);
+  EXPECT_EQ(last_hb.process, "imu_driver");
+  EXPECT_EQ(last_hb.state, omni::heartbeat_t::STATE_STOPPING);
+  EXPECT_EQ(Counter(last_hb, "messages"), imu);
+  EXPECT_EQ(Counter(last_hb, "reconnects"), 1);
+  EXPECT_EQ(Counter(last_hb, "dropped_frames"), 1);
+  EXPECT_GE(Counter(last_hb, "resyncs"), 1);
+  EXPECT_GT(Counter(last_hb, "connect_failures"), 0);
+}
+
+}  // namespace
+}  // namespace omni::imu
