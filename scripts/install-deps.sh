@@ -11,7 +11,9 @@ PACKAGES=(
   # bus: LCM (C/C++ library, lcm-gen and tools, Java for lcm-spy)
   liblcm-dev liblcm-bin liblcm-java libjchart2d-java libglib2.0-dev default-jdk-headless
   # mapping back ends
-  libceres-dev liboctomap-dev
+  libceres-dev liboctomap-dev libpng-dev libbz2-dev
+  # peers the benchmarks run beside ours (MRPT graph-slam, rbpf-slam)
+  mrpt-apps
   # hardware
   libsocketcan-dev libusb-1.0-0-dev libopenni2-dev
   # firmware cross toolchain (Cortex-M4)
