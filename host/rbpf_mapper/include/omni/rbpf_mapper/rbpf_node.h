@@ -1,0 +1,60 @@
+// The rbpf_mapper node: bus I/O around the RbpfSlam library. Subscribes LIDAR_SCAN
+// (laser_scan_t), WHEEL_ODOM (odometry_t) and IMU (imu_t, when use_imu), publishes POSE_RBPF
+// (pose2d_t, the best particle's pose at every accepted scan), GRID_RBPF (occupancy_grid_t, at
+// grid_publish_interval_s) and HEARTBEAT with the filter's counters.
+//
+// Scans wait in a short queue until odometry at or after their time has arrived (bus order is
+// not guaranteed), or until they are older than max_odom_gap_s behind the newest message.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <string>
+
+#include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/common/time.h"
+#include "omni/rbpf_mapper/rbpf.h"
+
+namespace omni::rbpf {
+
+class RbpfNode {
+ public:
+  RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock);
+  // Heartbeat and periodic grid publication; call often (e.g. after every HandleTimeout).
+  void Tick();
+  // Processes every queued scan (end of input).
+  void Flush();
+  // Publishes the final grid and writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
+  Status WriteOutputs(const std::string& dir);
+  const RbpfSlam& slam() const { return slam_; }
+  int64_t poses_published() const { return poses_published_; }
+  int64_t grids_published() const { return grids_published_; }
+  int64_t scans_lost() const { return scans_lost_; }
+  bus::Heartbeat& heartbeat() { return heartbeat_; }
+
+ private:
+  void OnScan(const ScanInput& scan, int64_t seq);
+  void Process(const ScanInput& scan);
+  void Drain(bool all);
+  void PublishGrid();
+
+  bus::Bus* bus_;
+  RbpfOptions opt_;
+  const Clock* clock_;
+  RbpfSlam slam_;
+  bus::Heartbeat heartbeat_;
+  std::deque<ScanInput> pending_;
+  int64_t newest_odom_utime_ = INT64_MIN;
+  int64_t newest_msg_utime_ = INT64_MIN;
+  int64_t last_seq_ = -1;
+  int64_t scans_lost_ = 0;
+  int64_t poses_published_ = 0;
+  int64_t grids_published_ = 0;
+  int64_t last_grid_utime_ = 0;
+  int64_t pose_seq_ = 0;
+  std::vector<double> scan_times_s_;
+};
+
+}  // namespace omni::rbpf

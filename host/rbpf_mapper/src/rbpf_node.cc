@@ -1,0 +1,176 @@
+#include "omni/rbpf_mapper/rbpf_node.h"
+
+#include <cmath>
+
+#include "omni/bus/convert.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/imu_t.hpp"
+#include "omni/io/grid.h"
+#include "omni/io/image_io.h"
+#include "omni/io/trajectory_io.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odometry_t.hpp"
+#include "omni/pose2d_t.hpp"
+
+namespace omni::rbpf {
+
+RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock)
+    : bus_(bus),
+      opt_(options),
+      clock_(clock),
+      slam_(options),
+      heartbeat_(bus, "rbpf_mapper", clock) {
+  bus_->Subscribe<omni::laser_scan_t>(
+      opt_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
+        ScanInput s;
+        s.utime = m.utime;
+        s.sensor_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+        s.angle_min_rad = m.angle_min_rad;
+        s.angle_increment_rad = m.angle_increment_rad;
+        s.range_min_m = m.range_min_m;
+        s.range_max_m = m.range_max_m;
+        s.ranges_m = m.ranges_m;
+        OnScan(s, m.seq);
+      });
+  bus_->Subscribe<omni::odometry_t>(opt_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
+    if (!slam_.AddOdometry(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad))) {
+      ++bus_->counters().drops;
+    } else {
+      newest_odom_utime_ = std::max(newest_odom_utime_, m.utime);
+    }
+    newest_msg_utime_ = std::max(newest_msg_utime_, m.utime);
+    Drain(false);
+  });
+  if (opt_.use_imu) {
+    bus_->Subscribe<omni::imu_t>(opt_.imu_channel, [this](const omni::imu_t& m, int64_t) {
+      if (!slam_.AddImuYawRate(m.utime, m.angular_velocity_rad_s[2])) ++bus_->counters().drops;
+    });
+  }
+  const RbpfCounters& c = slam_.counters();
+  heartbeat_.AddCounter("scans_in", [&c] { return c.scans_in; });
+  heartbeat_.AddCounter("scans_processed", [&c] { return c.scans_processed; });
+  heartbeat_.AddCounter("scans_gated", [&c] { return c.scans_gated; });
+  heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
+  heartbeat_.AddCounter("scans_time_backwards", [&c] { return c.scans_time_backwards; });
+  heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
+  heartbeat_.AddCounter("scans_bad_geometry", [&c] { return c.scans_bad_geometry; });
+  heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
+  heartbeat_.AddCounter("odom_invalid", [&c] { return c.odom_invalid; });
+  heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
+  heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
+  heartbeat_.AddCounter("imu_invalid", [&c] { return c.imu_invalid; });
+  heartbeat_.AddCounter("match_failures", [&c] { return c.match_failures; });
+  heartbeat_.AddCounter("match_searches", [&c] { return c.match_searches; });
+  heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
+  heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
+  heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
+}
+
+void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
+  if (seq >= 0) {
+    if (last_seq_ >= 0 && seq > last_seq_ + 1) scans_lost_ += seq - last_seq_ - 1;
+    last_seq_ = seq;
+  }
+  newest_msg_utime_ = std::max(newest_msg_utime_, scan.utime);
+  pending_.push_back(scan);
+  while (pending_.size() > 1000) {  // odometry stopped: do not grow without bound
+    Process(pending_.front());
+    pending_.pop_front();
+  }
+  Drain(false);
+}
+
+void RbpfNode::Drain(bool all) {
+  const int64_t gap = static_cast<int64_t>(opt_.max_odom_gap_s * 1e6);
+  while (!pending_.empty()) {
+    const ScanInput& s = pending_.front();
+    const bool odom_ready = newest_odom_utime_ != INT64_MIN && newest_odom_utime_ >= s.utime;
+    const bool stale = newest_msg_utime_ - s.utime > gap;
+    if (!all && !odom_ready && !stale) break;
+    Process(s);
+    pending_.pop_front();
+  }
+}
+
+void RbpfNode::Process(const ScanInput& scan) {
+  const ScanResult r = slam_.AddScan(scan);
+  if (!r.accepted) {
+    ++bus_->counters().drops;
+    return;
+  }
+  scan_times_s_.resize(static_cast<size_t>(r.scan_index) + 1, 0.0);
+  scan_times_s_[static_cast<size_t>(r.scan_index)] = UtimeToSeconds(scan.utime);
+  omni::pose2d_t p{};
+  p.utime = scan.utime;
+  p.seq = pose_seq_++;
+  p.frame = "map";
+  p.source = "rbpf";
+  p.x_m = r.pose.x;
+  p.y_m = r.pose.y;
+  p.yaw_rad = r.pose.theta;
+  // Spread of the particles as the covariance (x, y, yaw).
+  const auto& ps = slam_.particles();
+  double mx = 0, my = 0;
+  for (const auto& q : ps) {
+    mx += q.pose.x;
+    my += q.pose.y;
+  }
+  mx /= static_cast<double>(ps.size());
+  my /= static_cast<double>(ps.size());
+  double cxx = 0, cyy = 0, cxy = 0, ctt = 0;
+  for (const auto& q : ps) {
+    const double dx = q.pose.x - mx, dy = q.pose.y - my,
+                 dt = WrapAngle(q.pose.theta - r.pose.theta);
+    cxx += dx * dx;
+    cyy += dy * dy;
+    cxy += dx * dy;
+    ctt += dt * dt;
+  }
+  const double n = static_cast<double>(ps.size());
+  p.covariance[0] = cxx / n;
+  p.covariance[1] = p.covariance[3] = cxy / n;
+  p.covariance[4] = cyy / n;
+  p.covariance[8] = ctt / n;
+  if (bus_->Publish(opt_.pose_channel, p)) ++poses_published_;
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+}
+
+void RbpfNode::PublishGrid() {
+  const io::GridMap map = slam_.BestMap();
+  if (map.width == 0) return;
+  if (bus_->Publish(opt_.grid_channel, bus::ToGridMessage(map, clock_->NowUtime(), "rbpf")))
+    ++grids_published_;
+}
+
+void RbpfNode::Tick() {
+  heartbeat_.Tick();
+  const int64_t now = clock_->NowUtime();
+  if (slam_.counters().scans_processed > 0 &&
+      now - last_grid_utime_ >= static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6)) {
+    PublishGrid();
+    last_grid_utime_ = now;
+  }
+}
+
+void RbpfNode::Flush() { Drain(true); }
+
+Status RbpfNode::WriteOutputs(const std::string& dir) {
+  Flush();
+  PublishGrid();
+  heartbeat_.Tick(true);
+  const io::GridMap map = slam_.BestMap();
+  if (map.width == 0)
+    return MakeError(ErrorCode::kNotFound, "no scan was mapped: nothing to write to " + dir);
+  Status s = io::WriteMapServer(map, dir + "/map");
+  if (s.ok()) s = io::WritePng(dir + "/map.png", io::RenderGrid(map, {}, 1));
+  std::vector<io::TrajectoryEntry> entries;
+  for (const auto& e : slam_.BestTrajectory())
+    entries.push_back(io::MakeEntry2D(e.scan_index, UtimeToSeconds(e.utime), e.pose));
+  if (s.ok())
+    s = io::WriteTrajectory2D(dir + "/trajectory.txt", entries,
+                              "scan_index timestamp x y theta (RBPF best particle, final)");
+  return s;
+}
+
+}  // namespace omni::rbpf

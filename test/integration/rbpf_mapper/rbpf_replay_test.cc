@@ -1,0 +1,185 @@
+// The rbpf_mapper process on a replayed log (file:// URL: the bus reads the log), the node on
+// memq:// in-process, and omni-slam's offline runner with its CLI errors. Data: a short prefix
+// of ../shared/datasets/slam-noisy-odom/intel.noisy.clf.gz.
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "../../unit/common/test_paths.h"
+#include "../tools/run.h"
+#include "omni/bus/bus.h"
+#include "omni/bus/convert.h"
+#include "omni/common/time.h"
+#include "omni/eval/eval.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/carmen.h"
+#include "omni/io/grid.h"
+#include "omni/io/lcm_log.h"
+#include "omni/io/trajectory_io.h"
+#include "omni/occupancy_grid_t.hpp"
+#include "omni/pose2d_t.hpp"
+#include "omni/rbpf_mapper/rbpf_node.h"
+
+namespace omni {
+namespace {
+
+constexpr size_t kScans = 150;
+
+// Writes the first kScans scans (and the odometry around them) as an LCM log, the way
+// `omni import carmen` lays it out: odometry on WHEEL_ODOM, scans on LIDAR_SCAN.
+void WritePrefixLog(const std::string& clf, const std::string& out) {
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  auto w = io::LcmLogWriter::Open(out);
+  ASSERT_TRUE(w.ok());
+  int64_t seq = 0, oseq = 0;
+  auto put = [&](const auto& msg, const std::string& channel, int64_t utime) {
+    std::vector<uint8_t> buf(static_cast<size_t>(msg.getEncodedSize()));
+    msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
+    ASSERT_TRUE(w->Write(utime, channel, buf.data(), buf.size()).ok());
+  };
+  for (const auto& r : log->records) {
+    if (r.kind == io::CarmenRecord::Kind::kOdom) {
+      const auto m = bus::ToOdometry(r.odom, oseq++);
+      put(m, "WHEEL_ODOM", m.utime);
+      continue;
+    }
+    // The laser line's own odometry pose, as odometry at the scan's time.
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    const auto om = bus::ToOdometry(o, oseq++);
+    put(om, "WHEEL_ODOM", om.utime);
+    const auto m = bus::ToLaserScan(r.laser, seq);
+    put(m, "LIDAR_SCAN", m.utime);
+    if (static_cast<size_t>(++seq) >= kScans) break;
+  }
+  ASSERT_TRUE(w->Close().ok());
+}
+
+double Ate(const std::string& ref_path, const std::string& est_path, size_t* matched) {
+  auto ref = io::ReadTrajectory(ref_path);
+  auto est = io::ReadTrajectory(est_path);
+  if (!ref.ok() || !est.ok()) return 1e9;
+  auto ate = eval::ComputeAte(*ref, *est);
+  if (!ate.ok()) return 1e9;
+  *matched = ate->matched;
+  return ate->rmse_m;
+}
+
+TEST(RbpfMapperProcess, MapsAReplayedLog) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  OMNI_REQUIRE_DATASET(ref, "slam-noisy-odom/intel.reference.txt");
+  const std::string dir = testing::TempDir();
+  const std::string log = dir + "/prefix.lcmlog";
+  WritePrefixLog(clf, log);
+  const auto r =
+      testing::Run(testing::Bin("rbpf_mapper") +
+                   " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml --url 'file://" + log +
+                   "?speed=0' --out " + dir + "/out");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("150 scans"), std::string::npos) << r.output;
+  for (const char* f : {"map.pgm", "map.yaml", "map.png", "trajectory.txt"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/out/" + f)) << f;
+  size_t matched = 0;
+  const double ate = Ate(ref, dir + "/out/trajectory.txt", &matched);
+  EXPECT_GE(matched, kScans - 5);
+  // The noisy odometry alone drifts; on this prefix the filter stays within a few decimetres.
+  EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
+  auto map = io::ReadMapServer(dir + "/out/map.yaml");
+  ASSERT_TRUE(map.ok());
+  EXPECT_GT(map->width, 100);
+}
+
+TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  rbpf::RbpfOptions opt;
+  opt.particles = 10;
+  opt.grid_publish_interval_s = 0.5;
+  ManualClock clock(1000000);
+  rbpf::RbpfNode node(&b, opt, &clock);
+  int poses = 0, grids = 0, heartbeats = 0;
+  b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
+    EXPECT_EQ(p.source, "rbpf");
+    EXPECT_TRUE(std::isfinite(p.x_m));
+    ++poses;
+  });
+  b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF",
+                                      [&](const omni::occupancy_grid_t&, int64_t) { ++grids; });
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    EXPECT_EQ(h.process, "rbpf_mapper");
+    ++heartbeats;
+  });
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok());
+  int64_t seq = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
+    auto scan = bus::ToLaserScan(r.laser, seq);
+    if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), -1.f);  // garbage: counted
+    b.Publish("LIDAR_SCAN", scan);
+    b.PublishRaw("LIDAR_SCAN", "junk", 4);  // undecodable: counted, never handed over
+    while (b.HandleTimeout(0) > 0) {
+    }
+    clock.Advance(250000);
+    node.Tick();
+    if (++seq >= 60) break;
+  }
+  node.Flush();
+  while (b.HandleTimeout(0) > 0) {
+  }
+  EXPECT_EQ(poses, 60);
+  EXPECT_GE(grids, 5);
+  EXPECT_GE(heartbeats, 5);
+  EXPECT_EQ(b.counters().decode_errors.load(), 60);
+  EXPECT_GE(node.slam().counters().invalid_beams, 180);
+  EXPECT_GT(node.slam().counters().scans_processed, 20);
+}
+
+TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  const std::string dir = testing::TempDir();
+  auto r = testing::Run(testing::Bin("omni-slam") + " rbpf " + clf + " --out " + dir +
+                        " --seed 3 --particles 10 --max-scans 60 --quiet");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* f : {"map.pgm", "map.yaml", "map.png", "trajectory.txt", "stats.json"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/" + f)) << f;
+  std::ifstream stats(dir + "/stats.json");
+  std::string json((std::istreambuf_iterator<char>(stats)), std::istreambuf_iterator<char>());
+  for (const char* k : {"\"wall_s\"", "\"scans\": 60", "\"particles\": 10", "\"resamplings\"",
+                        "\"match_failures\"", "\"seed\": 3"})
+    EXPECT_NE(json.find(k), std::string::npos) << k << " in " << json;
+  auto t = io::ReadTrajectory(dir + "/trajectory.txt");
+  ASSERT_TRUE(t.ok());
+  EXPECT_EQ(t->entries.size(), 60u);
+  EXPECT_EQ(t->entries.front().index, 0);
+
+  r = testing::Run(testing::Bin("omni-slam") + " gmapping x --out " + dir);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("not implemented here"), std::string::npos) << r.output;
+  r = testing::Run(testing::Bin("omni-slam") + " rbpf /nonexistent.clf --out " + dir);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("does not exist"), std::string::npos) << r.output;
+  const std::string bad = dir + "/bad.yaml";
+  std::ofstream(bad) << "particle: 30\n";
+  r = testing::Run(testing::Bin("omni-slam") + " rbpf " + clf + " --out " + dir + " --config " +
+                   bad);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("particle"), std::string::npos) << r.output;
+  r = testing::Run(testing::Bin("omni-slam") + " --help");
+  EXPECT_EQ(r.exit_code, 0);
+}
+
+}  // namespace
+}  // namespace omni
