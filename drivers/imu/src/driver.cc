@@ -52,6 +52,10 @@ Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n)
   r.Get("rate_hz", &d->rate_hz, Optional(), InRange(0.1, 1000.0));
   r.Get("data_timeout_s", &d->data_timeout_s, Optional(), InRange(0.05, 60.0));
   r.Get("reconnect_interval_s", &d->reconnect_interval_s, Optional(), InRange(0.01, 60.0));
+  if (d->data_timeout_s * d->rate_hz < 2.0) {
+    // A timeout shorter than two output periods would reconnect a healthy device.
+    r.AddError("data_timeout_s", "must be at least two output periods (2 / rate_hz)");
+  }
   r.Get("channel", &n->channel, Optional(), NonEmpty());
   r.Get("frame", &n->frame, Optional(), NonEmpty());
   r.Get("bus_url", &n->bus_url, Optional());
@@ -105,7 +109,15 @@ int FrameCycle::Add(uint8_t type) {
 }
 
 Utime SampleStamper::Stamp(Utime read_utime, size_t i, size_t n) {
-  Utime t = read_utime - static_cast<Utime>(n - 1 - i) * period_us_;
+  // The samples of one read were sent after the previous stamp: never spread them wider than
+  // the time since then (rate_hz set lower than the device's real rate).
+  if (i == 0) {
+    step_ = period_us_;
+    if (last_ > 0 && read_utime > last_) {
+      step_ = std::min<Utime>(step_, (read_utime - last_) / static_cast<Utime>(n));
+    }
+  }
+  Utime t = read_utime - static_cast<Utime>(n - 1 - i) * step_;
   if (t <= last_) t = last_ + 1;
   last_ = t;
   return t;

@@ -58,6 +58,12 @@ TEST(SampleStamper, SpreadsSamplesReadTogetherAndNeverGoesBack) {
   // A read stamped earlier than the last sample (clock step): strictly after it anyway.
   EXPECT_EQ(s.Stamp(995'000, 0, 1), 1'000'001);
   EXPECT_EQ(s.Stamp(1'010'000, 0, 1), 1'010'000);
+  // Four samples 20 ms after the last one: the device is faster than rate_hz says; they fill
+  // the 20 ms evenly instead of reaching back 30 ms.
+  EXPECT_EQ(s.Stamp(1'030'000, 0, 4), 1'015'000);
+  EXPECT_EQ(s.Stamp(1'030'000, 1, 4), 1'020'000);
+  EXPECT_EQ(s.Stamp(1'030'000, 2, 4), 1'025'000);
+  EXPECT_EQ(s.Stamp(1'030'000, 3, 4), 1'030'000);
 }
 
 TEST(ImuConfig, ShippedFileLoads) {
@@ -69,6 +75,7 @@ TEST(ImuConfig, ShippedFileLoads) {
   EXPECT_EQ(d.port, "/dev/imu");
   EXPECT_EQ(d.baud, 9600);
   EXPECT_EQ(d.trigger, "auto");
+  EXPECT_DOUBLE_EQ(d.rate_hz, 10.0);
   EXPECT_EQ(n.channel, "IMU");
   EXPECT_DOUBLE_EQ(n.orientation_var[2], 1.2e-3);
   EXPECT_DOUBLE_EQ(n.linear_acceleration_var[0], 4e-4);
@@ -95,6 +102,9 @@ TEST(ImuConfig, BadValuesAreErrorsNamingTheKey) {
   st = LoadText("baud: 115200\n");
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("port"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\nrate_hz: 1\ndata_timeout_s: 1.5\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("data_timeout_s"), std::string::npos) << st.message();
   EXPECT_TRUE(LoadText("port: /dev/x\nbaud: 0\ntrigger: quaternion\n").ok());
 }
 

@@ -23,7 +23,7 @@ struct DriverOptions {
   int baud = 9600;               // 0: try 9600, then 115200 (the two usual WitMotion settings)
   std::string trigger = "auto";  // frame that closes a sample: auto | accel | gyro | angle |
                                  // mag | quaternion (auto: the last type of the learned cycle)
-  double rate_hz = 100.0;        // the device's output rate (stamps samples read together)
+  double rate_hz = 10.0;         // the device's output rate (factory 10 Hz; spaces the stamps)
   double data_timeout_s = 1.0;   // no frame for this long while streaming -> reconnect
   double reconnect_interval_s = 1.0;
 };
@@ -66,16 +66,18 @@ class FrameCycle {
   int prev_ = -1;  // index in types_ of the previous frame, -1 when unknown
 };
 
-// Sample times: the read time, with samples that arrived in one read spread back by the period,
-// and never earlier than (or equal to) the previous stamp.
+// Sample times: the read time, with the samples that arrived in one read spread back by the
+// output period (at most evenly over the time since the previous stamp), strictly increasing.
 class SampleStamper {
  public:
-  explicit SampleStamper(double rate_hz) : period_us_(SecondsToUtime(1.0 / rate_hz)) {}
-  // Stamp of sample `i` of `n` completed by the bytes read at `read_utime`.
+  explicit SampleStamper(double rate_hz)
+      : period_us_(rate_hz > 0 ? SecondsToUtime(1.0 / rate_hz) : 0) {}
+  // Stamp of sample `i` of `n` completed by the bytes read at `read_utime` (i = 0, 1, .. n-1).
   Utime Stamp(Utime read_utime, size_t i, size_t n);
 
  private:
   Utime period_us_;
+  Utime step_ = 0;  // spacing of the current read's samples
   Utime last_ = 0;
 };
 

@@ -19,6 +19,8 @@ omni::imu_t MakeImuMessage(const StampedSample& s, int64_t seq, const NodeOption
 class ImuNode {
  public:
   ImuNode(bus::Bus* bus, ImuDriver* driver, NodeOptions options, const Clock* clock);
+  ImuNode(const ImuNode&) = delete;  // the heartbeat's counters point into this object
+  ImuNode& operator=(const ImuNode&) = delete;
   // One driver step (at most `timeout_ms`), publications and the heartbeat.
   void RunOnce(int timeout_ms);
   // Until *stop (or `max_s` seconds when > 0).
