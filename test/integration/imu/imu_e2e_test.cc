@@ -220,16 +220,20 @@ TEST(ImuE2E, GarbageCostsOnlyTheCorruptedFrames) {
   }
   h.RunFor(0.1);
   quiet(&f1, &p1);
-  emu->With([&](ImuEmulator& e) { EXPECT_EQ(e.counters().frames_corrupted, kInjections); });
+  // Injections that reach the emulator before its next period share one cut frame.
+  int64_t cut = 0;
+  emu->With([&](ImuEmulator& e) { cut = e.counters().frames_corrupted; });
+  EXPECT_GE(cut, kInjections / 2);
+  EXPECT_LE(cut, kInjections);
   const auto& c = h.driver->frame_counters();
-  EXPECT_EQ(c.frames - got0, (f1 - f0) - kInjections) << "only the corrupted frames are lost";
-  EXPECT_EQ(h.driver->counters().dropped_frames, kInjections);
-  EXPECT_EQ(c.resyncs, kInjections);
+  EXPECT_EQ(c.frames - got0, (f1 - f0) - cut) << "only the corrupted frames are lost";
+  EXPECT_EQ(h.driver->counters().dropped_frames, cut);
+  EXPECT_EQ(c.resyncs, cut);
   EXPECT_GT(c.bytes_skipped, 0);
   EXPECT_GE(c.checksum_errors, 1);
   const int64_t msgs = static_cast<int64_t>(h.msgs.size() - msgs0);
   EXPECT_LE(msgs, p1 - p0);
-  EXPECT_GE(msgs, p1 - p0 - kInjections) << "a lost frame costs at most its own sample";
+  EXPECT_GE(msgs, p1 - p0 - cut) << "a lost frame costs at most its own sample";
   EXPECT_EQ(h.driver->counters().reconnects, 0) << "garbage must not cost a reconnect";
   EXPECT_EQ(h.driver->counters().timeouts, 0);
   // Values after the noise are still right.
@@ -239,8 +243,8 @@ TEST(ImuE2E, GarbageCostsOnlyTheCorruptedFrames) {
               0.006);
   h.RunFor(1.05);
   ASSERT_FALSE(h.heartbeats.empty());
-  EXPECT_EQ(Counter(h.heartbeats.back(), "dropped_frames"), kInjections);
-  EXPECT_EQ(Counter(h.heartbeats.back(), "resyncs"), kInjections);
+  EXPECT_EQ(Counter(h.heartbeats.back(), "dropped_frames"), cut);
+  EXPECT_EQ(Counter(h.heartbeats.back(), "resyncs"), cut);
 }
 
 TEST(ImuE2E, VanishedDeviceIsReconnectedWithoutRestart) {
