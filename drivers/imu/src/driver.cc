@@ -39,6 +39,12 @@ void GetVariances(ConfigReader* r, const std::string& key, std::array<double, 3>
   if (v.size() == 3) std::copy(v.begin(), v.end(), out->begin());
 }
 
+std::string Seconds(double s) {
+  std::ostringstream o;
+  o << s << " s";
+  return o.str();
+}
+
 }  // namespace
 
 Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n) {
@@ -194,21 +200,22 @@ void ImuDriver::Lose(const std::string& why) {
 
 Status ImuDriver::Connect() {
   const size_t n = Bauds().size();
-  std::ostringstream tried;
+  std::string why;
+  int64_t bytes = 0;
   for (size_t k = 0; k < n; ++k) {
     baud_index_ = k;
     Status st = Open();
     if (!st.ok()) return st;
-    const int baud = port_->baud();
     std::vector<StampedSample> first;
     while (state_ == DriverState::kOpening) Step(50, &first);
     pending_.insert(pending_.end(), first.begin(), first.end());
     if (state_ == DriverState::kStreaming) return Status::Ok();
-    tried << (k ? ", " : "") << baud << " baud (" << bytes_since_open_ << " bytes)";
+    why += (k ? "; " : "") + status_;
+    bytes += bytes_since_open_;
   }
-  status_ = "IMU on " + options_.port + ": no WitMotion frame within " +
-            std::to_string(options_.data_timeout_s) + " s at " + tried.str() +
-            (bytes_since_open_ > 0 ? "; wrong baud rate?" : "; is the IMU powered and wired?");
+  status_ =
+      "IMU: " + why +
+      (bytes > 0 ? "; bytes but no frame: wrong baud rate?" : "; is the IMU powered and wired?");
   return MakeError(ErrorCode::kUnavailable, status_);
 }
 
@@ -289,11 +296,11 @@ void ImuDriver::Step(int timeout_ms, std::vector<StampedSample>* out) {
   const int64_t limit = SecondsToUtime(options_.data_timeout_s);
   if (state_ == DriverState::kOpening && now - opened_us_ > limit) {
     FailOpening("no WitMotion frame on " + options_.port + " within " +
-                std::to_string(options_.data_timeout_s) + " s at " + std::to_string(port_->baud()) +
+                Seconds(options_.data_timeout_s) + " at " + std::to_string(port_->baud()) +
                 " baud (" + std::to_string(bytes_since_open_) + " bytes received)");
   } else if (state_ == DriverState::kStreaming && now - last_data_us_ > limit) {
     ++counters_.timeouts;
-    Lose("no frame for " + std::to_string(options_.data_timeout_s) + " s");
+    Lose("no frame for " + Seconds(options_.data_timeout_s));
   }
 }
 
