@@ -238,9 +238,12 @@ int main(int argc, char** argv) {
     for (DepthPredictor p :
          {DepthPredictor::kLeft, DepthPredictor::kUp, DepthPredictor::kMed, DepthPredictor::kAvg}) {
       for (int level : {1, 3, 6}) {
-        for (int strategy : {0, 1, 3}) {
+        for (int strategy : {0, 1, 2, 3}) {
           if (p == med && level == 1 && strategy == 3) continue;  // the default, above
-          const char* sname = strategy == 0 ? "" : strategy == 1 ? "-filtered" : "-rle";
+          const char* sname = strategy == 0   ? ""
+                              : strategy == 1 ? "-filtered"
+                              : strategy == 2 ? "-huffman"
+                                              : "-rle";
           systems.push_back(sys(std::string("alt-") + omni::kinect::DepthPredictorName(p) + "-" +
                                     std::to_string(level) + sname,
                                 DepthEncoding::kDeltaZlib, level, p, strategy));

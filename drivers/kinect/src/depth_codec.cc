@@ -236,7 +236,8 @@ Status EncodeDepth(DepthEncoding encoding, const uint16_t* pixels, int width, in
         *out = std::move(raw);
         return Status::Ok();
       }
-      return Deflate(raw.data(), raw.size(), options.zlib_level, options.zlib_strategy, out);
+      return Deflate(raw.data(), raw.size(), options.zlib_level,
+                     options.zlib_strategy < 0 ? Z_DEFAULT_STRATEGY : options.zlib_strategy, out);
     }
     case DepthEncoding::kDeltaZlib: {
       const uint8_t p = static_cast<uint8_t>(options.predictor);
@@ -268,8 +269,8 @@ Status EncodeDepth(DepthEncoding encoding, const uint16_t* pixels, int width, in
       PutU32(h + 4, static_cast<uint32_t>(width));
       PutU32(h + 8, static_cast<uint32_t>(height));
       PutU32(h + 12, static_cast<uint32_t>(crc32(0L, h, 12)));
-      Status s =
-          Deflate(planes.data(), planes.size(), options.zlib_level, options.zlib_strategy, out);
+      Status s = Deflate(planes.data(), planes.size(), options.zlib_level,
+                         options.zlib_strategy < 0 ? Z_RLE : options.zlib_strategy, out);
       if (!s.ok()) out->clear();
       return s;
     }

@@ -162,6 +162,9 @@ TEST(DepthCodec, EncoderRejectsBadArguments) {
   o.zlib_level = 10;
   EXPECT_FALSE(EncodeDepth(DepthEncoding::kZlib, px.data(), 2, 2, o, &out).ok());
   o = {};
+  o.zlib_strategy = 9;
+  EXPECT_FALSE(EncodeDepth(DepthEncoding::kDeltaZlib, px.data(), 2, 2, o, &out).ok());
+  o = {};
   o.predictor = static_cast<DepthPredictor>(0);
   EXPECT_FALSE(EncodeDepth(DepthEncoding::kDeltaZlib, px.data(), 2, 2, o, &out).ok());
   EXPECT_TRUE(out.empty());

@@ -50,7 +50,10 @@ struct DepthEncodeOptions {
   // the rgbd datasets (Z_RLE ignores the level).
   int zlib_level = 1;  // 0..9
   DepthPredictor predictor = DepthPredictor::kMed;
-  int zlib_strategy = 3;  // zlib's Z_RLE; 0 Z_DEFAULT_STRATEGY, 1 Z_FILTERED, 2 Z_HUFFMAN_ONLY
+  // zlib strategy: 0 Z_DEFAULT_STRATEGY, 1 Z_FILTERED, 2 Z_HUFFMAN_ONLY, 3 Z_RLE; -1 picks the
+  // encoding's best: Z_RLE for DELTA_ZLIB residuals, Z_DEFAULT_STRATEGY for ZLIB's raw bytes
+  // (RLE finds no runs in raw 16-bit depth).
+  int zlib_strategy = -1;
 };
 
 // Encodes width*height pixels (row-major) with `encoding` into *out (replaced).
