@@ -143,8 +143,9 @@ void Usage() {
       << "usage: omni-bench-depth [--datasets DIR] [--out FILE] [--frames N] [--only NAME]\n"
          "                        [--alternatives]\n"
          "Encodes and decodes N frames (default 100; a sequence with fewer frames is cycled)\n"
-         "of every DIR/rgbd/*/depth sequence (default DIR ../shared/datasets) with: raw, plain\n"
-         "zlib level 1 and 6 of the little-endian bytes (the peer), and omni's DELTA_ZLIB\n"
+         "of every DIR/rgbd/*/depth sequence (default DIR: $OMNI_DATASETS_DIR, else\n"
+         "../shared/datasets) with: raw, plain zlib level 1 and 6 of the little-endian bytes\n"
+         "(the peer), and omni's DELTA_ZLIB\n"
          "(MED predictor, zig-zag residuals in two byte planes, zlib Z_RLE). Every decode is\n"
          "checked bit-exact. --alternatives adds the other predictors, levels and strategies\n"
          "that were measured to choose the default. Prints a table and writes one JSON row per\n"
@@ -155,6 +156,8 @@ void Usage() {
 
 int main(int argc, char** argv) {
   std::string datasets = "../shared/datasets";
+  if (const char* env = std::getenv("OMNI_DATASETS_DIR"); env != nullptr && *env != '\0')
+    datasets = env;
   std::string out_path = "out/bench/depth.jsonl";
   std::string only;
   int frames = 100;
