@@ -48,25 +48,29 @@ inline int64_t FastFloor(double v) {
   return v < static_cast<double>(i) ? i - 1 : i;
 }
 
-// Reads cells around one point, through one tile pointer when the neighbourhood lies inside a
-// single tile (the common case), else cell by cell.
-struct Neighbourhood {
-  const TiledGrid& g;
-  int64_t cx, cy;
-  const float* data = nullptr;  // tile data when the whole neighbourhood is in one tile
+// The (2k+1) x (2k+1) neighbourhood of a cell as row bit masks (bit j = column offset j - k),
+// when it lies inside one tile; a tile never written reads as all unknown (no bits).
+struct BitWindow {
+  const TiledGrid::Tile* tile = nullptr;
+  int64_t lx = 0, ly = 0;
+  uint64_t mask = 0;
+  int k = 0;
   bool inside = false;
-  Neighbourhood(const TiledGrid& grid, int64_t x, int64_t y, int k) : g(grid), cx(x), cy(y) {
+  BitWindow(const TiledGrid& grid, int64_t x, int64_t y, int kernel) : k(kernel) {
     constexpr int64_t m = TiledGrid::kTileMask;
-    const int64_t lx = x & m, ly = y & m;
+    lx = x & m;
+    ly = y & m;
     if (lx >= k && ly >= k && lx <= m - k && ly <= m - k) {
       inside = true;
-      const TiledGrid::Tile* t = g.TileAt(x >> TiledGrid::kTileBits, y >> TiledGrid::kTileBits);
-      data = t ? t->log_odds.data() + ly * TiledGrid::kTileSize + lx : nullptr;
+      tile = grid.TileAt(x >> TiledGrid::kTileBits, y >> TiledGrid::kTileBits);
+      mask = (uint64_t{1} << (2 * k + 1)) - 1;
     }
   }
-  float at(int dx, int dy) const {
-    if (inside) return data ? data[dy * TiledGrid::kTileSize + dx] : 0.f;
-    return g.LogOdds(cx + dx, cy + dy);
+  uint64_t Occupied(int dy) const {
+    return tile ? (tile->occupied_bits[static_cast<size_t>(ly + dy)] >> (lx - k)) & mask : 0;
+  }
+  uint64_t Free(int dy) const {
+    return tile ? (tile->free_bits[static_cast<size_t>(ly + dy)] >> (lx - k)) & mask : 0;
   }
 };
 
@@ -95,16 +99,31 @@ ScoreResult ScanMatcher::Score(const TiledGrid& grid, const Pose2& p, const Matc
     const double fy = (p.y + s * f.x() + c * f.y()) * inv_res;
     const int64_t hcx = FastFloor(hx), hcy = FastFloor(hy);
     const int64_t fcx = FastFloor(fx), fcy = FastFloor(fy);
-    const Neighbourhood hn(grid, hcx, hcy, k), fn(grid, fcx, fcy, k);
     double best = std::numeric_limits<double>::infinity();
-    for (int dy = -k; dy <= k; ++dy)
-      for (int dx = -k; dx <= k; ++dx) {
-        if (!(hn.at(dx, dy) > occ)) continue;
-        if (!(fn.at(dx, dy) < fre)) continue;
-        const double ex = static_cast<double>(hcx + dx) + 0.5 - hx;
-        const double ey = static_cast<double>(hcy + dy) + 0.5 - hy;
-        best = std::min(best, ex * ex + ey * ey);
+    const BitWindow hw(grid, hcx, hcy, k), fw(grid, fcx, fcy, k);
+    if (hw.inside && fw.inside) {
+      // Fast path: both neighbourhoods lie inside one tile each; the cells that qualify are
+      // the bits set in (occupied around the hit) & (free around the step back).
+      for (int dy = -k; dy <= k; ++dy) {
+        uint64_t cand = hw.Occupied(dy) & fw.Free(dy);
+        while (cand) {
+          const int dx = __builtin_ctzll(cand) - k;
+          cand &= cand - 1;
+          const double ex = static_cast<double>(hcx + dx) + 0.5 - hx;
+          const double ey = static_cast<double>(hcy + dy) + 0.5 - hy;
+          best = std::min(best, ex * ex + ey * ey);
+        }
       }
+    } else {
+      for (int dy = -k; dy <= k; ++dy)
+        for (int dx = -k; dx <= k; ++dx) {
+          if (!(grid.LogOdds(hcx + dx, hcy + dy) > occ)) continue;
+          if (!(grid.LogOdds(fcx + dx, fcy + dy) < fre)) continue;
+          const double ex = static_cast<double>(hcx + dx) + 0.5 - hx;
+          const double ey = static_cast<double>(hcy + dy) + 0.5 - hy;
+          best = std::min(best, ex * ex + ey * ey);
+        }
+    }
     if (best < std::numeric_limits<double>::infinity()) {
       const double d2 = best * res * res;
       ++matched;
@@ -195,23 +214,30 @@ ScoreResult ScanMatcher::Refine(const TiledGrid& grid, const MatchScan& scan, Po
   ScoreResult cur_s = Score(grid, cur, scan);
   double step_xy = opt_.refine_step_xy_m, step_t = opt_.refine_step_theta_rad;
   int halvings = 0;
+  int came_by = -1;  // the move that led to `cur` (its opposite leads back to a worse pose)
   while (halvings <= opt_.refine_halvings) {
     Pose2 best = cur;
     ScoreResult best_s = cur_s;
+    int best_move = -1;
     const Pose2 moves[6] = {{step_xy, 0, 0},  {-step_xy, 0, 0}, {0, step_xy, 0},
                             {0, -step_xy, 0}, {0, 0, step_t},   {0, 0, -step_t}};
-    for (const Pose2& m : moves) {
+    for (int i = 0; i < 6; ++i) {
+      if (came_by >= 0 && i == (came_by ^ 1)) continue;  // moves come in opposite pairs
+      const Pose2& m = moves[i];
       const Pose2 cand(cur.x + m.x, cur.y + m.y, WrapAngle(cur.theta + m.theta));
       const ScoreResult s = Score(grid, cand, scan);
       if (s.score > best_s.score) {
         best = cand;
         best_s = s;
+        best_move = i;
       }
     }
     if (best_s.score > cur_s.score) {
       cur = best;
       cur_s = best_s;
+      came_by = best_move;
     } else {
+      came_by = -1;
       step_xy *= 0.5;
       step_t *= 0.5;
       ++halvings;

@@ -52,11 +52,20 @@ TiledGrid::Tile* TiledGrid::MutableTile(int64_t tx, int64_t ty) {
   return slot.get();
 }
 
-void TiledGrid::Update(int64_t cx, int64_t cy, float delta) {
-  Tile* t = MutableTile(cx >> kTileBits, cy >> kTileBits);
-  float& v = t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))];
+void TiledGrid::AddToCell(Tile* t, int64_t cx, int64_t cy, float delta) const {
+  const int64_t lx = cx & kTileMask, ly = cy & kTileMask;
+  float& v = t->log_odds[static_cast<size_t>(ly * kTileSize + lx)];
   v = std::clamp(v + delta, opt_.min_log_odds, opt_.max_log_odds);
   if (v == 0.f) v = -1e-6f;  // observed cells never read as "unknown"
+  const uint64_t bit = uint64_t{1} << lx;
+  uint64_t& occ = t->occupied_bits[static_cast<size_t>(ly)];
+  uint64_t& fre = t->free_bits[static_cast<size_t>(ly)];
+  occ = v > opt_.occupied_threshold ? (occ | bit) : (occ & ~bit);
+  fre = v < opt_.free_threshold ? (fre | bit) : (fre & ~bit);
+}
+
+void TiledGrid::Update(int64_t cx, int64_t cy, float delta) {
+  AddToCell(MutableTile(cx >> kTileBits, cy >> kTileBits), cx, cy, delta);
 }
 
 void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen::Vector2d>& points,
@@ -72,10 +81,7 @@ void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen:
       cached_tx = tx;
       cached_ty = ty;
     }
-    float& v =
-        cached->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))];
-    v = std::clamp(v + delta, opt_.min_log_odds, opt_.max_log_odds);
-    if (v == 0.f) v = -1e-6f;
+    AddToCell(cached, cx, cy, delta);
   };
   for (size_t i = 0; i < points.size(); ++i) {
     const Eigen::Vector2d w = sensor_pose.Transform(points[i]);

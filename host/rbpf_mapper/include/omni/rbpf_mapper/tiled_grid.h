@@ -37,7 +37,14 @@ class TiledGrid {
   static constexpr int kTileMask = kTileSize - 1;
   struct Tile {
     std::array<float, kTileSize * kTileSize> log_odds{};  // 0 = never observed
+    // The same cells classified for scan matching, one 64-bit word per row (bit c = column c):
+    // log odds above occupied_threshold / below free_threshold. Kept in step with log_odds by
+    // every write, so a matcher reads a 3x3 neighbourhood from three words instead of nine
+    // floats spread over three cache lines.
+    std::array<uint64_t, kTileSize> occupied_bits{};
+    std::array<uint64_t, kTileSize> free_bits{};
   };
+  static_assert(kTileSize == 64, "row bit masks are 64-bit words");
 
   explicit TiledGrid(const GridOptions& options = {});
 
@@ -89,6 +96,7 @@ class TiledGrid {
     return static_cast<int64_t>(std::floor(v / opt_.resolution_m));
   }
   Tile* MutableTile(int64_t tx, int64_t ty);
+  void AddToCell(Tile* t, int64_t cx, int64_t cy, float delta) const;
   void EnsureTile(int64_t tx, int64_t ty);
 
   GridOptions opt_;
