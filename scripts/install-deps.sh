@@ -13,7 +13,7 @@ PACKAGES=(
   # mapping back ends
   libceres-dev liboctomap-dev libpng-dev libbz2-dev
   # peers the benchmarks run beside ours (MRPT graph-slam, rbpf-slam)
-  mrpt-apps
+  mrpt-apps mrpt-common
   # hardware
   libsocketcan-dev libusb-1.0-0-dev libopenni2-dev
   # firmware cross toolchain (Cortex-M4)
