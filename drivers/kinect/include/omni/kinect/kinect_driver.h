@@ -1,0 +1,103 @@
+// The Kinect driver state machine (no bus): opens a DepthSource, reads its frames, counts
+// frames lost on the way (gaps in the device's frame index or timestamps), and when the device
+// vanishes (read error, or no depth for `data_timeout_s`) closes it and reopens it every
+// `reconnect_interval_s` until it streams again; the process never has to restart.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "omni/common/result.h"
+#include "omni/common/time.h"
+#include "omni/kinect/depth_codec.h"
+#include "omni/kinect/depth_source.h"
+
+namespace omni::kinect {
+
+struct KinectDriverOptions {
+  std::string uri;  // "" = first device found; "Dummy" = OpenNI2's built-in test device
+  bool color = true;
+  bool register_depth_to_color = true;
+  double fps = 30.0;  // nominal rate; a timestamp gap over 1.5 periods counts missed frames
+  double data_timeout_s = 2.0;
+  double reconnect_interval_s = 1.0;
+  double fallback_hfov_deg = 58.5;  // when the device reports no field of view
+  double fallback_vfov_deg = 45.6;
+};
+
+struct KinectNodeOptions {
+  std::string depth_channel = "DEPTH";
+  std::string color_channel = "RGB";
+  std::string depth_frame = "depth_optical";
+  std::string color_frame = "rgb_optical";
+  std::string encoding = "DELTA_ZLIB";  // RAW | ZLIB | DELTA_ZLIB
+  int zlib_level = 1;
+  std::string bus_url;
+};
+
+Status LoadKinectOptions(const std::string& path, KinectDriverOptions* driver,
+                         KinectNodeOptions* node);
+// "RAW" / "ZLIB" / "DELTA_ZLIB" -> the codec's encoding; false for other names.
+bool ParseDepthEncoding(const std::string& name, DepthEncoding* out);
+
+struct KinectCounters {
+  int64_t depth_frames = 0;
+  int64_t color_frames = 0;
+  int64_t dropped_frames = 0;    // depth frames missing from the index/timestamp sequence
+  int64_t reconnects = 0;        // successful reopenings after a loss
+  int64_t connect_failures = 0;  // open attempts that failed
+  int64_t device_errors = 0;     // read errors and data timeouts that lost the device
+};
+
+enum class KinectState { kDisconnected, kStreaming };
+
+// Counts frames missing between consecutive depth frames: by frame index when the device
+// numbers its frames, else by timestamp gaps longer than 1.5 nominal periods.
+class GapCounter {
+ public:
+  explicit GapCounter(double fps) : period_us_(fps > 0 ? 1e6 / fps : 0) {}
+  int64_t Add(int64_t frame_index, int64_t timestamp_us);
+  void Reset() { have_ = false; }
+
+ private:
+  double period_us_;
+  bool have_ = false;
+  int64_t last_index_ = -1;
+  int64_t last_ts_ = 0;
+};
+
+class KinectDriver {
+ public:
+  // `clock` times the reconnect attempts and data timeouts (a ManualClock in tests).
+  KinectDriver(KinectDriverOptions options, std::unique_ptr<DepthSource> source,
+               const Clock* clock);
+  ~KinectDriver();
+  // First open; the error names the device (URI) when it is absent.
+  Status Connect();
+  // Reads for at most `timeout_ms`; on loss closes the source and retries later.
+  void Step(int timeout_ms, SourceFrames* out);
+  void Shutdown();
+
+  KinectState state() const { return state_; }
+  const std::string& status_text() const { return status_; }
+  const KinectCounters& counters() const { return counters_; }
+  const KinectDriverOptions& options() const { return options_; }
+
+ private:
+  void Lose(const std::string& why);
+
+  KinectDriverOptions options_;
+  std::unique_ptr<DepthSource> source_;
+  const Clock* clock_;
+  KinectState state_ = KinectState::kDisconnected;
+  std::string status_ = "starting";
+  KinectCounters counters_;
+  GapCounter gaps_;
+  bool ever_connected_ = false;
+  Utime last_data_ = 0;
+  Utime next_attempt_ = 0;
+};
+
+}  // namespace omni::kinect
