@@ -44,6 +44,31 @@ TEST(KinectDummy, OpenNI2SourceStreamsDepthAndColour) {
   src.Close();
 }
 
+TEST(KinectDummy, ClosedDeviceReopensInTheSameProcess) {
+  // What the driver does after a loss: close, then open again without restarting OpenNI2.
+  OpenNI2Options o;
+  o.uri = "Dummy";
+  o.color = false;
+  OpenNI2DepthSource src(o);
+  if (!src.Open().ok()) GTEST_SKIP() << "OpenNI2 Dummy device not available";
+  for (int round = 0; round < 2; ++round) {
+    int depth = 0;
+    SourceFrames f;
+    for (int i = 0; i < 50 && depth < 2; ++i) {
+      ASSERT_TRUE(src.Read(500, &f).ok());
+      if (f.has_depth) ++depth;
+      EXPECT_FALSE(f.has_color);
+    }
+    EXPECT_EQ(depth, 2) << "round " << round;
+    src.Close();
+    SourceFrames none;
+    EXPECT_FALSE(src.Read(10, &none).ok());  // closed: an error, not a crash
+    if (round == 0) {
+      ASSERT_TRUE(src.Open().ok());
+    }
+  }
+}
+
 TEST(KinectDummy, DriverRunsOnTheDummyDevice) {
   const auto r = testing::Run("timeout 30 " + testing::Bin("omni-kinect-driver") + " --config " +
                               Config() + " --uri Dummy --lcm-url memq:// --duration-s 1 2>&1");
