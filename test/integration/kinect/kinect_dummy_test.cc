@@ -7,6 +7,11 @@
 
 #include "../../unit/common/test_paths.h"
 #include "../tools/run.h"
+#include "omni/color_image_t.hpp"
+#include "omni/depth_image_t.hpp"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/lcm_log.h"
+#include "omni/kinect/depth_message.h"
 #include "omni/kinect/openni2_source.h"
 
 namespace omni::kinect {
@@ -78,6 +83,69 @@ TEST(KinectDummy, DriverRunsOnTheDummyDevice) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("depth and"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("published 0 depth"), std::string::npos) << r.output;
+}
+
+int64_t Counter(const omni::heartbeat_t& hb, const std::string& name) {
+  for (int i = 0; i < hb.num_counters; ++i) {
+    if (hb.counter_names[static_cast<size_t>(i)] == name) {
+      return hb.counter_values[static_cast<size_t>(i)];
+    }
+  }
+  return -1;
+}
+
+TEST(KinectDummy, DriverPublishesDecodableDepthColourAndHeartbeatToALog) {
+  const std::string log = testing::TempDir() + "/kinect.lcmlog";
+  const auto r =
+      testing::Run("timeout 30 " + testing::Bin("omni-kinect-driver") + " --config " + Config() +
+                   " --uri Dummy --duration-s 1.5 --lcm-url 'file://" + log + "?mode=w' 2>&1");
+  if (r.output.find("cannot open") != std::string::npos) {
+    GTEST_SKIP() << "OpenNI2 Dummy device not available: " << r.output;
+  }
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto reader = io::LcmLogReader::Open(log);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+  io::LcmLogEvent ev;
+  int depth = 0, color = 0, heartbeats = 0;
+  omni::heartbeat_t last_hb;
+  while (true) {
+    auto more = reader->Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    if (ev.channel == "DEPTH") {
+      omni::depth_image_t m;
+      ASSERT_GT(m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      EXPECT_EQ(m.encoding, omni::depth_image_t::ENCODING_DELTA_ZLIB);
+      EXPECT_EQ(m.seq, depth);
+      EXPECT_GT(m.fx, 0);
+      EXPECT_GT(m.fy, 0);
+      EXPECT_DOUBLE_EQ(m.cx, (m.width - 1) / 2.0);
+      EXPECT_DOUBLE_EQ(m.depth_scale, 1000.0);
+      std::vector<uint16_t> px;
+      ASSERT_TRUE(ReadDepthMessage(m, &px).ok());
+      EXPECT_EQ(px.size(), static_cast<size_t>(m.width) * static_cast<size_t>(m.height));
+      ++depth;
+    } else if (ev.channel == "RGB") {
+      omni::color_image_t m;
+      ASSERT_GT(m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      EXPECT_EQ(m.size, m.width * m.height * 3);
+      ++color;
+    } else if (ev.channel == "HEARTBEAT") {
+      ASSERT_GT(last_hb.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      ++heartbeats;
+    }
+  }
+  EXPECT_GE(depth, 20);  // 30 Hz for 1.5 s
+  EXPECT_GE(color, 10);
+  ASSERT_GE(heartbeats, 2);
+  EXPECT_EQ(last_hb.process, "kinect_driver");
+  EXPECT_EQ(last_hb.state, omni::heartbeat_t::STATE_STOPPING);
+  EXPECT_EQ(Counter(last_hb, "depth_messages"), depth);
+  EXPECT_EQ(Counter(last_hb, "frames"), depth);
+  EXPECT_EQ(Counter(last_hb, "encode_errors"), 0);
+  EXPECT_EQ(Counter(last_hb, "reconnects"), 0);
+  EXPECT_EQ(Counter(last_hb, "device_errors"), 0);
+  EXPECT_GE(Counter(last_hb, "dropped_frames"), 0);
 }
 
 TEST(KinectDummy, MissingDeviceExitsOneNamingTheUri) {
