@@ -125,12 +125,34 @@ int WithMotor(const std::function<int(const omni::devices::TransferFn&)>& body) 
     std::fprintf(stderr, "no Kinect motor (045e:02b0) found: libusb could not start\n");
     return 1;
   }
-  libusb_device_handle* h = libusb_open_device_with_vid_pid(ctx, omni::devices::kMicrosoftVendor,
-                                                            omni::devices::kKinectMotorProduct);
-  if (h == nullptr) {
+  // Find it first, then open: "absent" and "present but not ours to open" need different fixes.
+  libusb_device** list = nullptr;
+  const ssize_t n = libusb_get_device_list(ctx, &list);
+  libusb_device* motor = nullptr;
+  for (ssize_t i = 0; i < n && motor == nullptr; ++i) {
+    libusb_device_descriptor desc;
+    if (libusb_get_device_descriptor(list[i], &desc) == 0 &&
+        desc.idVendor == omni::devices::kMicrosoftVendor &&
+        desc.idProduct == omni::devices::kKinectMotorProduct) {
+      motor = list[i];
+    }
+  }
+  libusb_device_handle* h = nullptr;
+  int open_rc = 0;
+  if (motor != nullptr) open_rc = libusb_open(motor, &h);
+  const int bus = motor ? libusb_get_bus_number(motor) : 0;
+  const int address = motor ? libusb_get_device_address(motor) : 0;
+  if (n >= 0) libusb_free_device_list(list, 1);
+  if (motor == nullptr) {
+    std::fprintf(stderr, "no Kinect motor (045e:02b0) found\n");
+    libusb_exit(ctx);
+    return 1;
+  }
+  if (open_rc != 0 || h == nullptr) {
     std::fprintf(stderr,
-                 "no Kinect motor (045e:02b0) found (or no permission to open it: udev rule "
-                 "or root)\n");
+                 "Kinect motor (045e:02b0) on bus %d address %d: cannot open it: %s (needs a "
+                 "udev rule giving access to 045e:02b0, or root)\n",
+                 bus, address, libusb_error_name(open_rc));
     libusb_exit(ctx);
     return 1;
   }
