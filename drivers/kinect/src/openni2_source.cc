@@ -211,6 +211,7 @@ Status OpenNI2DepthSource::Read(int timeout_ms, SourceFrames* out) {
     d.device_timestamp_us = static_cast<int64_t>(f.getTimestamp());
     d.frame_index = f.getFrameIndex();
     d.registered_to_color = m.registered;
+    // Registered depth is resampled into the colour camera's view: its intrinsics apply.
     if (m.registered) d.intrinsics = StreamIntrinsics(m.color, w, h, options_);
     out->has_depth = true;
   } else {
