@@ -97,17 +97,27 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << "), " << opt.particles << " particles";
+  node.set_deferred(true);
   int64_t last_msg_us = 0;
+  bool bus_ended = false;
+  int processed = 0;
   while (!g_stop) {
-    const int r = bus.HandleTimeout(100);
-    if (r < 0 && !g_stop) {
-      LOG_INFO << "bus ended (end of log) or failed; writing the map";
-      break;
+    // Wait for traffic only when the last round found nothing ready; then empty the socket into
+    // the node's queue before each filter update, so the kernel buffer never overflows.
+    int r = bus_ended ? 0 : bus.HandleTimeout(processed > 0 ? 0 : 100);
+    while (r > 0 && !g_stop) {
+      last_msg_us = omni::MonotonicMicros();
+      r = bus.HandleTimeout(0);
     }
-    const int64_t now = omni::MonotonicMicros();
-    if (r > 0) last_msg_us = now;
+    if (r < 0 && !g_stop && !bus_ended) {
+      LOG_INFO << "bus ended (end of log) or failed; finishing the queue and writing the map";
+      bus_ended = true;
+    }
+    processed = node.ProcessReady(1);
     node.Tick();
-    if (idle_exit_s > 0 && last_msg_us > 0 &&
+    if (bus_ended && processed == 0) break;
+    const int64_t now = omni::MonotonicMicros();
+    if (idle_exit_s > 0 && last_msg_us > 0 && processed == 0 &&
         now - last_msg_us > static_cast<int64_t>(idle_exit_s * 1e6))
       break;
   }

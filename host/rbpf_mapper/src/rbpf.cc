@@ -182,13 +182,17 @@ std::optional<double> RbpfSlam::ImuYawIncrement(int64_t t0, int64_t t1) const {
   return sum;
 }
 
+std::optional<Pose2> RbpfSlam::RawOdometryAt(int64_t utime) const {
+  return odom_buffer_.At(utime, static_cast<int64_t>(opt_.max_odom_gap_s * 1e6));
+}
+
 std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
   std::optional<Pose2> raw = scan.odom;
   if (raw && !(std::isfinite(raw->x) && std::isfinite(raw->y) && std::isfinite(raw->theta))) {
     ++counters_.odom_invalid;
     raw.reset();
   }
-  if (!raw) raw = odom_buffer_.At(scan.utime, static_cast<int64_t>(opt_.max_odom_gap_s * 1e6));
+  if (!raw) raw = RawOdometryAt(scan.utime);
   if (!raw) return std::nullopt;
   if (last_raw_odom_) {
     const Pose2 d = last_raw_odom_->Between(*raw);

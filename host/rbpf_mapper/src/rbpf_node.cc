@@ -1,5 +1,6 @@
 #include "omni/rbpf_mapper/rbpf_node.h"
 
+#include <climits>
 #include <cmath>
 
 #include "omni/bus/convert.h"
@@ -39,7 +40,8 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
       newest_odom_utime_ = std::max(newest_odom_utime_, m.utime);
     }
     newest_msg_utime_ = std::max(newest_msg_utime_, m.utime);
-    Drain(false);
+    AttachOdometry();
+    if (!deferred_) Drain(false, INT32_MAX);
   });
   if (opt_.use_imu) {
     bus_->Subscribe<omni::imu_t>(opt_.imu_channel, [this](const omni::imu_t& m, int64_t) {
@@ -64,6 +66,8 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
+  heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(pending_.size()); });
+  heartbeat_.AddCounter("max_scans_queued", [this] { return max_pending_seen_; });
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
 }
 
@@ -74,23 +78,41 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
   }
   newest_msg_utime_ = std::max(newest_msg_utime_, scan.utime);
   pending_.push_back(scan);
-  while (pending_.size() > 1000) {  // odometry stopped: do not grow without bound
+  AttachOdometry();
+  max_pending_seen_ = std::max(max_pending_seen_, static_cast<int64_t>(pending_.size()));
+  while (pending_.size() > kMaxPending) {  // filter far behind or odometry stopped: stay bounded
     Process(pending_.front());
     pending_.pop_front();
   }
-  Drain(false);
+  if (!deferred_) Drain(false, INT32_MAX);
 }
 
-void RbpfNode::Drain(bool all) {
+int RbpfNode::ProcessReady(int max_scans) { return Drain(false, max_scans); }
+
+void RbpfNode::AttachOdometry() {
+  // Queued scans whose odometry has arrived get it now, as it stands on arrival: odometry that
+  // comes later (possibly with the same stamp, as in logs with coarse clocks) must not move a
+  // scan that was already covered. Scans are attached in order, so walk back from the newest.
+  if (newest_odom_utime_ == INT64_MIN) return;
+  size_t i = pending_.size();
+  while (i > 0 && !pending_[i - 1].odom) --i;
+  for (; i < pending_.size() && pending_[i].utime <= newest_odom_utime_; ++i)
+    pending_[i].odom = slam_.RawOdometryAt(pending_[i].utime);
+}
+
+int RbpfNode::Drain(bool all, int max_scans) {
   const int64_t gap = static_cast<int64_t>(opt_.max_odom_gap_s * 1e6);
-  while (!pending_.empty()) {
+  int done = 0;
+  while (!pending_.empty() && done < max_scans) {
     const ScanInput& s = pending_.front();
     const bool odom_ready = newest_odom_utime_ != INT64_MIN && newest_odom_utime_ >= s.utime;
     const bool stale = newest_msg_utime_ - s.utime > gap;
     if (!all && !odom_ready && !stale) break;
     Process(s);
     pending_.pop_front();
+    ++done;
   }
+  return done;
 }
 
 void RbpfNode::Process(const ScanInput& scan) {
@@ -153,7 +175,7 @@ void RbpfNode::Tick() {
   }
 }
 
-void RbpfNode::Flush() { Drain(true); }
+void RbpfNode::Flush() { Drain(true, INT32_MAX); }
 
 Status RbpfNode::WriteOutputs(const std::string& dir) {
   Flush();

@@ -58,6 +58,8 @@ class Bus {
   int HandleTimeout(int timeout_ms);
   int fd();
   const std::string& url() const { return url_; }
+  // Messages LCM keeps per subscription while the process is busy (LCM's default is 30).
+  static constexpr int kSubscriptionQueueCapacity = 500;
   BusCounters& counters() { return counters_; }
   // The channel of the most recent decode failure ("" if none), for status texts.
   std::string last_decode_error() const;
@@ -103,7 +105,12 @@ void Bus::Subscribe(const std::string& channel,
   auto sub = std::make_unique<TypedSubscription<Msg>>();
   sub->bus = this;
   sub->handler = std::move(handler);
-  lcm_->subscribe(channel, &SubscriptionBase::Handle, static_cast<SubscriptionBase*>(sub.get()));
+  lcm::Subscription* s = lcm_->subscribe(channel, &SubscriptionBase::Handle,
+                                         static_cast<SubscriptionBase*>(sub.get()));
+  // LCM's receive thread queues at most 30 messages per subscription by default and silently
+  // drops the rest while the handler thread is busy (e.g. one slow filter update); a deeper
+  // queue rides out such stalls. Gaps that remain show up in the receivers' seq counters.
+  if (s != nullptr) s->setQueueCapacity(kSubscriptionQueueCapacity);
   subs_.push_back(std::move(sub));
 }
 

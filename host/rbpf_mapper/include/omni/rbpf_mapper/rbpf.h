@@ -138,6 +138,9 @@ class RbpfSlam {
   explicit RbpfSlam(const RbpfOptions& options);
 
   bool AddOdometry(int64_t utime, const Pose2& pose);
+  // The raw odometry at `utime` from what AddOdometry has received so far (interpolated, or
+  // the nearest sample within max_odom_gap_s), as AddScan would look it up now.
+  std::optional<Pose2> RawOdometryAt(int64_t utime) const;
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   ScanResult AddScan(const ScanInput& scan);

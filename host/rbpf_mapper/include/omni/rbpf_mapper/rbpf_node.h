@@ -3,8 +3,13 @@
 // (pose2d_t, the best particle's pose at every accepted scan), GRID_RBPF (occupancy_grid_t, at
 // grid_publish_interval_s) and HEARTBEAT with the filter's counters.
 //
-// Scans wait in a short queue until odometry at or after their time has arrived (bus order is
-// not guaranteed), or until they are older than max_odom_gap_s behind the newest message.
+// Scans wait in a queue until odometry at or after their time has arrived (bus order is not
+// guaranteed), or until they are older than max_odom_gap_s behind the newest message.
+//
+// Deferred mode (the process): the bus callbacks only queue, and the owner calls
+// ProcessReady() between draining the socket, so a slow filter update never leaves datagrams
+// to overflow the kernel's receive buffer; the queue (bounded by max_pending scans, beyond
+// which the oldest is processed at once) absorbs bursts and the filter catches up.
 #pragma once
 
 #include <cstdint>
@@ -26,6 +31,13 @@ class RbpfNode {
   void Tick();
   // Processes every queued scan (end of input).
   void Flush();
+  // Deferred mode: callbacks queue and return; ProcessReady() runs the filter.
+  void set_deferred(bool deferred) { deferred_ = deferred; }
+  // Processes up to `max_scans` queued scans whose odometry has arrived (or gone stale);
+  // returns how many it processed.
+  int ProcessReady(int max_scans);
+  size_t pending() const { return pending_.size(); }
+  int64_t max_pending_seen() const { return max_pending_seen_; }
   // Publishes the final grid and writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
   Status WriteOutputs(const std::string& dir);
   const RbpfSlam& slam() const { return slam_; }
@@ -37,7 +49,8 @@ class RbpfNode {
  private:
   void OnScan(const ScanInput& scan, int64_t seq);
   void Process(const ScanInput& scan);
-  void Drain(bool all);
+  int Drain(bool all, int max_scans);
+  void AttachOdometry();
   void PublishGrid();
 
   bus::Bus* bus_;
@@ -54,6 +67,9 @@ class RbpfNode {
   int64_t grids_published_ = 0;
   int64_t last_grid_utime_ = 0;
   int64_t pose_seq_ = 0;
+  bool deferred_ = false;
+  int64_t max_pending_seen_ = 0;
+  static constexpr size_t kMaxPending = 3000;
   std::vector<double> scan_times_s_;
 };
 
