@@ -1,0 +1,82 @@
+// Two laser measurement plugins built on scan_matching.h:
+//  - KeyframeMatchPlugin: the new keyframe's scan against a local submap of the previous few
+//    keyframes, searched in a small window around the odometry guess (the estimates' relative
+//    pose); one factor previous -> new, or "no match" (counted) when the score is poor.
+//  - LoopClosurePlugin: the new keyframe against the submaps of keyframes far back in the
+//    trajectory (index gap >= min_index_gap) whose estimate is within search_radius_m, in a wide
+//    window; a match is only added once verified (score, matched beams, ambiguity); every
+//    rejection is counted by reason and kept in last_attempts().
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "omni/pose_graph_mapper/measurement_plugin.h"
+#include "omni/pose_graph_mapper/scan_matching.h"
+
+namespace omni::pgm {
+
+// The points of keyframes [first, last] mapped into the frame of keyframe `centre` with the
+// current estimates. Points farther than `max_range_m` from their own keyframe are dropped.
+std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
+                                         int last, int centre, double max_range_m);
+
+struct KeyframeMatchOptions {
+  int submap_keyframes = 3;   // previous keyframes in the local submap
+  double max_range_m = 20.0;  // beams longer than this are ignored
+  double min_score = 0.35;    // below: "no match"
+  double min_inlier_fraction = 0.4;
+  LikelihoodFieldOptions field;
+  SearchWindow window{0.3, 0.3, 0.17, 0.0087, 0.5, 0.2, 2.0, 0.5};
+};
+
+class KeyframeMatchPlugin final : public MeasurementPlugin {
+ public:
+  explicit KeyframeMatchPlugin(KeyframeMatchOptions o = {}) : o_(o) {}
+  std::string name() const override { return "scan_match"; }
+  std::vector<RelativePoseFactor> OnKeyframe(const std::vector<Keyframe>& keyframes) override;
+  const MatchResult& last_match() const { return last_; }
+
+ private:
+  KeyframeMatchOptions o_;
+  MatchResult last_;
+};
+
+struct LoopClosureOptions {
+  int min_index_gap = 50;        // candidates are at least this many keyframes back
+  double search_radius_m = 5.0;  // ... and within this distance of the current estimate
+  int max_candidates = 3;        // nearest candidates tried per keyframe
+  int submap_half_width = 2;     // submap = candidate +- this many keyframes
+  double max_range_m = 20.0;
+  // Verification.
+  // Defaults from the Intel tests (plugin_test.cc): true revisits score >= 0.79 with >= 84 % of
+  // beams matched, the best false loop (a similar corridor) 0.68 / 72 %.
+  double min_score = 0.73;
+  double min_inlier_fraction = 0.78;
+  double max_ambiguity_ratio = 0.9;  // second best elsewhere / best; <= 0 disables the check
+  LikelihoodFieldOptions field;
+  SearchWindow window{2.0, 2.0, 0.5, 0.0087, 0.5, 0.2, 2.0, 0.5};
+};
+
+struct LoopAttempt {
+  int candidate = -1;  // keyframe index
+  bool accepted = false;
+  std::string reason;  // "accepted", "low_score", "few_inliers", "ambiguous", "empty_scan"
+  MatchResult match;
+};
+
+class LoopClosurePlugin final : public MeasurementPlugin {
+ public:
+  explicit LoopClosurePlugin(LoopClosureOptions o = {}) : o_(o) {}
+  std::string name() const override { return "loop_closure"; }
+  std::vector<RelativePoseFactor> OnKeyframe(const std::vector<Keyframe>& keyframes) override;
+  // Checks one candidate against the newest keyframe (also used by OnKeyframe).
+  LoopAttempt TryCandidate(const std::vector<Keyframe>& keyframes, int candidate);
+  const std::vector<LoopAttempt>& last_attempts() const { return attempts_; }
+
+ private:
+  LoopClosureOptions o_;
+  std::vector<LoopAttempt> attempts_;
+};
+
+}  // namespace omni::pgm

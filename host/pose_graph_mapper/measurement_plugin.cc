@@ -1,0 +1,50 @@
+#include "omni/pose_graph_mapper/measurement_plugin.h"
+
+#include <cmath>
+
+#include <Eigen/Dense>
+
+namespace omni::pgm {
+
+std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversionStats* stats) {
+  ScanConversionStats local;
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(scan.ranges_m.size());
+  for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const float r = scan.ranges_m[i];
+    if (!std::isfinite(r)) {
+      ++local.not_finite;
+      continue;
+    }
+    if (r < scan.min_range_m || (scan.max_range_m > 0 && r >= scan.max_range_m)) {
+      ++local.out_of_range;
+      continue;
+    }
+    const double a =
+        static_cast<double>(scan.angle_min_rad) + static_cast<double>(i) * scan.angle_increment_rad;
+    out.push_back(scan.laser_in_base.Transform({r * std::cos(a), r * std::sin(a)}));
+    ++local.used;
+  }
+  if (stats) {
+    stats->used += local.used;
+    stats->not_finite += local.not_finite;
+    stats->out_of_range += local.out_of_range;
+  }
+  return out;
+}
+
+Eigen::Matrix3d RelativePoseFactor::Information() const {
+  // A tiny floor keeps a degenerate covariance invertible (as Trajectory::ToPoseGraph does).
+  return (covariance + 1e-12 * Eigen::Matrix3d::Identity()).inverse();
+}
+
+io::Edge2 RelativePoseFactor::ToEdge(int from_id, int to_id) const {
+  io::Edge2 e;
+  e.from = from_id;
+  e.to = to_id;
+  e.measurement = delta;
+  e.information = Information();
+  return e;
+}
+
+}  // namespace omni::pgm

@@ -1,0 +1,281 @@
+#include "omni/pose_graph_mapper/scan_matching.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Dense>
+
+namespace omni::pgm {
+
+LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
+                                 const LikelihoodFieldOptions& o)
+    : points_(points), res_(o.resolution_m), k_(std::max(1, o.coarse_cells)) {
+  if (points.empty()) return;
+  Eigen::Vector2d lo = points.front(), hi = points.front();
+  for (const auto& p : points) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  origin_ = lo - Eigen::Vector2d::Constant(o.margin_m);
+  w_ = static_cast<int>(std::ceil((hi.x() - lo.x() + 2 * o.margin_m) / res_)) + 1;
+  h_ = static_cast<int>(std::ceil((hi.y() - lo.y() + 2 * o.margin_m) / res_)) + 1;
+  fine_.assign(static_cast<size_t>(w_) * h_, 0.f);
+  const int rc = static_cast<int>(std::ceil(3 * o.sigma_m / res_));
+  const double inv2s2 = 1.0 / (2 * o.sigma_m * o.sigma_m);
+  for (const auto& p : points) {
+    const Eigen::Vector2i c = Cell(p);
+    for (int dy = -rc; dy <= rc; ++dy) {
+      const int y = c.y() + dy;
+      if (y < 0 || y >= h_) continue;
+      for (int dx = -rc; dx <= rc; ++dx) {
+        const int x = c.x() + dx;
+        if (x < 0 || x >= w_) continue;
+        const Eigen::Vector2d centre = origin_ + res_ * Eigen::Vector2d(x + 0.5, y + 0.5);
+        const float v = static_cast<float>(std::exp(-(centre - p).squaredNorm() * inv2s2));
+        float& cell = fine_[static_cast<size_t>(y) * w_ + x];
+        cell = std::max(cell, v);
+      }
+    }
+  }
+  // Max-pooling, separably: first along x, then along y. pooled(ix, iy) for ix in [-k+1, w).
+  const int pw = w_ + k_, ph = h_ + k_;
+  std::vector<float> rows(static_cast<size_t>(pw) * h_, 0.f);
+  for (int y = 0; y < h_; ++y)
+    for (int ix = -k_; ix < w_; ++ix) {
+      float m = 0;
+      for (int x = std::max(ix, 0); x < std::min(ix + k_, w_); ++x)
+        m = std::max(m, fine_[static_cast<size_t>(y) * w_ + x]);
+      rows[static_cast<size_t>(y) * pw + (ix + k_)] = m;
+    }
+  pooled_.assign(static_cast<size_t>(pw) * ph, 0.f);
+  for (int iy = -k_; iy < h_; ++iy)
+    for (int px = 0; px < pw; ++px) {
+      float m = 0;
+      for (int y = std::max(iy, 0); y < std::min(iy + k_, h_); ++y)
+        m = std::max(m, rows[static_cast<size_t>(y) * pw + px]);
+      pooled_[static_cast<size_t>(iy + k_) * pw + px] = m;
+    }
+}
+
+Eigen::Vector2i LikelihoodField::Cell(const Eigen::Vector2d& p) const {
+  return {static_cast<int>(std::floor((p.x() - origin_.x()) / res_)),
+          static_cast<int>(std::floor((p.y() - origin_.y()) / res_))};
+}
+
+float LikelihoodField::Fine(int ix, int iy) const {
+  if (ix < 0 || iy < 0 || ix >= w_ || iy >= h_) return 0.f;
+  return fine_[static_cast<size_t>(iy) * w_ + ix];
+}
+
+float LikelihoodField::Pooled(int ix, int iy) const {
+  const int px = ix + k_, py = iy + k_;
+  const int pw = w_ + k_, ph = h_ + k_;
+  if (px < 0 || py < 0 || px >= pw || py >= ph) return 0.f;
+  return pooled_[static_cast<size_t>(py) * pw + px];
+}
+
+double LikelihoodField::Interpolated(const Eigen::Vector2d& p) const {
+  if (w_ == 0) return 0;
+  const double fx = (p.x() - origin_.x()) / res_ - 0.5, fy = (p.y() - origin_.y()) / res_ - 0.5;
+  const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
+  const double ax = fx - x0, ay = fy - y0;
+  return (1 - ay) * ((1 - ax) * Fine(x0, y0) + ax * Fine(x0 + 1, y0)) +
+         ay * ((1 - ax) * Fine(x0, y0 + 1) + ax * Fine(x0 + 1, y0 + 1));
+}
+
+double ScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+               const Pose2& pose) {
+  if (query.empty()) return 0;
+  double s = 0;
+  for (const auto& p : query) s += field.Interpolated(pose.Transform(p));
+  return s / static_cast<double>(query.size());
+}
+
+Pose2 RefinePointToLine(const std::vector<Eigen::Vector2d>& reference,
+                        const std::vector<Eigen::Vector2d>& query, const Pose2& start,
+                        double pair_distance_m, int iterations) {
+  Pose2 pose = start;
+  if (reference.size() < 2) return pose;
+  const double max_d2 = pair_distance_m * pair_distance_m;
+  for (int it = 0; it < iterations; ++it) {
+    Eigen::Matrix3d h = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    int pairs = 0;
+    const double c = std::cos(pose.theta), s = std::sin(pose.theta);
+    for (const auto& p : query) {
+      const Eigen::Vector2d q = pose.Transform(p);
+      // The two nearest reference points span the local surface line.
+      double d1 = max_d2, d2 = max_d2;
+      int i1 = -1, i2 = -1;
+      for (size_t i = 0; i < reference.size(); ++i) {
+        const double d = (reference[i] - q).squaredNorm();
+        if (d < d1) {
+          d2 = d1;
+          i2 = i1;
+          d1 = d;
+          i1 = static_cast<int>(i);
+        } else if (d < d2) {
+          d2 = d;
+          i2 = static_cast<int>(i);
+        }
+      }
+      if (i1 < 0 || i2 < 0) continue;
+      const Eigen::Vector2d t = reference[i2] - reference[i1];
+      if (t.squaredNorm() < 1e-8) continue;
+      const Eigen::Vector2d n = Eigen::Vector2d(-t.y(), t.x()).normalized();
+      const double r = n.dot(q - reference[i1]);
+      const Eigen::Vector2d dq(-s * p.x() - c * p.y(), c * p.x() - s * p.y());  // d q / d theta
+      const Eigen::Vector3d j(n.x(), n.y(), n.dot(dq));
+      h += j * j.transpose();
+      g += j * r;
+      ++pairs;
+    }
+    if (pairs < 10) return start;
+    const Eigen::Vector3d step = -(h + 1e-9 * Eigen::Matrix3d::Identity()).ldlt().solve(g);
+    pose = Pose2(pose.x + step.x(), pose.y + step.y(), WrapAngle(pose.theta + step.z()));
+    if (step.head<2>().norm() < 1e-5 && std::abs(step.z()) < 1e-6) break;
+  }
+  return pose;
+}
+
+namespace {
+
+struct Block {
+  float bound;
+  int a, bx, by;  // rotation index, first translation cell of the block
+};
+
+}  // namespace
+
+MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+                      const Pose2& guess, const SearchWindow& win) {
+  MatchResult out;
+  out.pose = guess;
+  if (query.empty() || field.empty()) return out;
+  const double res = field.resolution();
+  const int k = field.coarse_cells();
+  const int nx = static_cast<int>(std::ceil(win.x_m / res));
+  const int ny = static_cast<int>(std::ceil(win.y_m / res));
+  const double astep = win.angle_step_rad;
+  const int na = static_cast<int>(std::ceil(win.theta_rad / astep));
+  const double inv_n = 1.0 / static_cast<double>(query.size());
+
+  // Cells of the rotated query at the guess' translation, one set per rotation.
+  std::vector<std::vector<Eigen::Vector2i>> cells(2 * na + 1);
+  for (int a = -na; a <= na; ++a) {
+    const Pose2 rot(guess.x, guess.y, guess.theta + a * astep);
+    auto& c = cells[a + na];
+    c.reserve(query.size());
+    for (const auto& p : query) c.push_back(field.Cell(rot.Transform(p)));
+  }
+  auto fine_score = [&](int a, int bx, int by) {
+    double s = 0;
+    for (const auto& c : cells[a + na]) s += field.Fine(c.x() + bx, c.y() + by);
+    ++out.evaluated;
+    return s * inv_n;
+  };
+
+  std::vector<Block> blocks;
+  for (int a = -na; a <= na; ++a)
+    for (int bx = -nx; bx <= nx; bx += k)
+      for (int by = -ny; by <= ny; by += k) {
+        double s = 0;
+        for (const auto& c : cells[a + na]) s += field.Pooled(c.x() + bx, c.y() + by);
+        blocks.push_back({static_cast<float>(s * inv_n), a, bx, by});
+      }
+  out.bounded = static_cast<long>(blocks.size());
+  std::sort(blocks.begin(), blocks.end(),
+            [](const Block& l, const Block& r) { return l.bound > r.bound; });
+
+  // Best fine candidate: refine blocks while their bound can still beat it.
+  double best = -1;
+  int ba = 0, bbx = 0, bby = 0;
+  for (const auto& b : blocks) {
+    if (b.bound <= best) break;
+    for (int x = b.bx; x < std::min(b.bx + k, nx + 1); ++x)
+      for (int y = b.by; y < std::min(b.by + k, ny + 1); ++y) {
+        const double s = fine_score(b.a, x, y);
+        if (s > best) {
+          best = s;
+          ba = b.a;
+          bbx = x;
+          bby = y;
+        }
+      }
+  }
+  // Best candidate "elsewhere": same search restricted to candidates far from the best.
+  auto far = [&](int a, int x, int y) {
+    return std::hypot((x - bbx) * res, (y - bby) * res) > win.ambiguity_xy_m ||
+           std::abs(a - ba) * astep > win.ambiguity_theta_rad;
+  };
+  double second = 0;
+  for (const auto& b : blocks) {
+    if (b.bound <= second) break;
+    for (int x = b.bx; x < std::min(b.bx + k, nx + 1); ++x)
+      for (int y = b.by; y < std::min(b.by + k, ny + 1); ++y)
+        if (far(b.a, x, y)) second = std::max(second, fine_score(b.a, x, y));
+  }
+  out.second_score = second;
+
+  // Covariance from the good candidates around the optimum.
+  const int r = 4;
+  double wsum = 0;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d m2 = Eigen::Matrix3d::Zero();
+  const double n = static_cast<double>(query.size());
+  for (int a = std::max(-na, ba - r); a <= std::min(na, ba + r); ++a)
+    for (int x = bbx - r; x <= bbx + r; ++x)
+      for (int y = bby - r; y <= bby + r; ++y) {
+        const double s = fine_score(a, x, y);
+        const double w = std::exp(win.covariance_kappa * n * (s - best));
+        const Eigen::Vector3d d((x - bbx) * res, (y - bby) * res, (a - ba) * astep);
+        wsum += w;
+        mean += w * d;
+        m2 += w * d * d.transpose();
+      }
+  mean /= wsum;
+  out.covariance = m2 / wsum - mean * mean.transpose();
+  out.covariance.diagonal() += Eigen::Vector3d(res * res / 12, res * res / 12, astep * astep / 12);
+
+  // Continuous polish of the discrete optimum (hill climb on the interpolated field).
+  Pose2 pose(guess.x + bbx * res, guess.y + bby * res, WrapAngle(guess.theta + ba * astep));
+  double score = ScoreAt(field, query, pose);
+  double sxy = res / 2, sth = astep / 2;
+  for (int level = 0; level < 6; ++level) {
+    bool improved = true;
+    while (improved) {
+      improved = false;
+      const Pose2 moves[6] = {{sxy, 0, 0},  {-sxy, 0, 0}, {0, sxy, 0},
+                              {0, -sxy, 0}, {0, 0, sth},  {0, 0, -sth}};
+      for (const auto& m : moves) {
+        const Pose2 cand(pose.x + m.x, pose.y + m.y, WrapAngle(pose.theta + m.theta));
+        const double s = ScoreAt(field, query, cand);
+        if (s > score) {
+          score = s;
+          pose = cand;
+          improved = true;
+        }
+      }
+    }
+    sxy /= 2;
+    sth /= 2;
+  }
+  if (win.icp_polish) {
+    const Pose2 icp = RefinePointToLine(field.points(), query, pose, win.icp_pair_m);
+    const Pose2 moved = pose.Between(icp);
+    if (std::hypot(moved.x, moved.y) <= win.icp_max_shift_m &&
+        std::abs(moved.theta) <= win.icp_max_turn_rad) {
+      pose = icp;
+      score = ScoreAt(field, query, pose);
+    }
+  }
+  out.pose = pose;
+  out.score = score;
+  int inliers = 0;
+  for (const auto& p : query)
+    if (field.Interpolated(pose.Transform(p)) >= win.inlier_likelihood) ++inliers;
+  out.inlier_fraction = inliers * inv_n;
+  return out;
+}
+
+}  // namespace omni::pgm

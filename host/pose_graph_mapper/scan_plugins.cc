@@ -1,0 +1,129 @@
+#include "omni/pose_graph_mapper/scan_plugins.h"
+
+#include <algorithm>
+#include <utility>
+
+namespace omni::pgm {
+
+namespace {
+
+std::vector<Eigen::Vector2d> Clip(const std::vector<Eigen::Vector2d>& pts, double max_range) {
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(pts.size());
+  for (const auto& p : pts)
+    if (p.norm() <= max_range) out.push_back(p);
+  return out;
+}
+
+RelativePoseFactor MakeFactor(const Keyframe& from, const Keyframe& to, const MatchResult& m,
+                              const std::string& plugin) {
+  RelativePoseFactor f;
+  f.from_utime = from.utime;
+  f.to_utime = to.utime;
+  f.delta = m.pose;
+  f.covariance = m.covariance;
+  f.plugin = plugin;
+  f.score = m.score;
+  return f;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
+                                         int last, int centre, double max_range_m) {
+  std::vector<Eigen::Vector2d> out;
+  const int n = static_cast<int>(keyframes.size());
+  first = std::max(first, 0);
+  last = std::min(last, n - 1);
+  if (centre < 0 || centre >= n) return out;
+  const Pose2 inv = keyframes[centre].estimate.Inverse();
+  for (int i = first; i <= last; ++i) {
+    const Pose2 rel = inv * keyframes[i].estimate;
+    for (const auto& p : keyframes[i].points)
+      if (p.norm() <= max_range_m) out.push_back(rel.Transform(p));
+  }
+  return out;
+}
+
+std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
+    const std::vector<Keyframe>& keyframes) {
+  std::vector<RelativePoseFactor> out;
+  if (keyframes.size() < 2) return out;
+  Count("attempts");
+  const int cur = static_cast<int>(keyframes.size()) - 1, prev = cur - 1;
+  const auto query = Clip(keyframes[cur].points, o_.max_range_m);
+  if (query.empty()) {
+    Count("empty_scan");
+    return out;
+  }
+  const auto submap = BuildSubmap(keyframes, cur - o_.submap_keyframes, prev, prev, o_.max_range_m);
+  if (submap.empty()) {
+    Count("empty_submap");
+    return out;
+  }
+  const LikelihoodField field(submap, o_.field);
+  const Pose2 guess = keyframes[prev].estimate.Between(keyframes[cur].estimate);
+  last_ = MatchScan(field, query, guess, o_.window);
+  if (last_.score < o_.min_score || last_.inlier_fraction < o_.min_inlier_fraction) {
+    Count("no_match");
+    return out;
+  }
+  Count("accepted");
+  out.push_back(MakeFactor(keyframes[prev], keyframes[cur], last_, name()));
+  return out;
+}
+
+LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyframes, int candidate) {
+  LoopAttempt at;
+  at.candidate = candidate;
+  const int cur = static_cast<int>(keyframes.size()) - 1;
+  const auto query = Clip(keyframes[cur].points, o_.max_range_m);
+  const auto submap = BuildSubmap(keyframes, candidate - o_.submap_half_width,
+                                  candidate + o_.submap_half_width, candidate, o_.max_range_m);
+  if (query.empty() || submap.empty()) {
+    at.reason = "empty_scan";
+    return at;
+  }
+  const LikelihoodField field(submap, o_.field);
+  const Pose2 guess = keyframes[candidate].estimate.Between(keyframes[cur].estimate);
+  at.match = MatchScan(field, query, guess, o_.window);
+  if (at.match.score < o_.min_score) {
+    at.reason = "low_score";
+  } else if (at.match.inlier_fraction < o_.min_inlier_fraction) {
+    at.reason = "few_inliers";
+  } else if (o_.max_ambiguity_ratio > 0 &&
+             at.match.second_score > o_.max_ambiguity_ratio * at.match.score) {
+    at.reason = "ambiguous";
+  } else {
+    at.reason = "accepted";
+    at.accepted = true;
+  }
+  return at;
+}
+
+std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
+    const std::vector<Keyframe>& keyframes) {
+  std::vector<RelativePoseFactor> out;
+  attempts_.clear();
+  const int cur = static_cast<int>(keyframes.size()) - 1;
+  if (cur < o_.min_index_gap) return out;
+  // Candidates far back in the trajectory and near the current estimate, nearest first.
+  std::vector<std::pair<double, int>> cands;
+  const Eigen::Vector2d here = keyframes[cur].estimate.translation();
+  for (int i = 0; i <= cur - o_.min_index_gap; ++i) {
+    const double d = (keyframes[i].estimate.translation() - here).norm();
+    if (d <= o_.search_radius_m) cands.emplace_back(d, i);
+  }
+  std::sort(cands.begin(), cands.end());
+  if (static_cast<int>(cands.size()) > o_.max_candidates) cands.resize(o_.max_candidates);
+  for (const auto& [d, i] : cands) {
+    Count("attempts");
+    attempts_.push_back(TryCandidate(keyframes, i));
+    const LoopAttempt& at = attempts_.back();
+    Count(at.reason);
+    if (at.accepted) out.push_back(MakeFactor(keyframes[i], keyframes[cur], at.match, name()));
+  }
+  return out;
+}
+
+}  // namespace omni::pgm

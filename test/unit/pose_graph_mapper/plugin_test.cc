@@ -1,0 +1,343 @@
+// Measurement plugins: the interface, the likelihood-field correlative matcher, the keyframe
+// scan-matching plugin and the loop-closure plugin, on synthetic data and on real scans of the
+// GMapping-corrected Intel log (../shared/datasets/carmen-corrected), whose poses give the true
+// relative pose of any two scans.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <iterator>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "../common/test_paths.h"
+#include "omni/io/carmen.h"
+#include "omni/pose_graph_mapper/measurement_plugin.h"
+#include "omni/pose_graph_mapper/scan_matching.h"
+#include "omni/pose_graph_mapper/scan_plugins.h"
+
+namespace omni::pgm {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+// A synthetic room: walls of a 6 x 4 m rectangle plus an asymmetric box, sampled every 2 cm.
+std::vector<Eigen::Vector2d> Room() {
+  std::vector<Eigen::Vector2d> pts;
+  auto segment = [&](Eigen::Vector2d a, Eigen::Vector2d b) {
+    const int n = static_cast<int>((b - a).norm() / 0.02);
+    for (int i = 0; i <= n; ++i) pts.push_back(a + (b - a) * (static_cast<double>(i) / n));
+  };
+  segment({-3, -2}, {3, -2});
+  segment({3, -2}, {3, 2});
+  segment({3, 2}, {-3, 2});
+  segment({-3, 2}, {-3, -2});
+  segment({1, 0.5}, {1.8, 0.5});
+  segment({1.8, 0.5}, {1.8, 1.0});
+  segment({-2, -1}, {-1.2, -1.6});
+  return pts;
+}
+
+std::vector<Eigen::Vector2d> Transformed(const std::vector<Eigen::Vector2d>& pts, const Pose2& p) {
+  std::vector<Eigen::Vector2d> out;
+  for (const auto& q : pts) out.push_back(p.Transform(q));
+  return out;
+}
+
+TEST(PoseGraphPlugins, ScanToPointsSkipsAndCountsBadBeams) {
+  LaserScan2 s;
+  s.angle_min_rad = -M_PI / 2;
+  s.angle_increment_rad = static_cast<float>(M_PI / 2);
+  s.max_range_m = 10;
+  s.ranges_m = {1.0f, std::numeric_limits<float>::quiet_NaN(), 10.0f, 0.01f,
+                std::numeric_limits<float>::infinity()};
+  s.laser_in_base = Pose2(0.1, 0, 0);
+  ScanConversionStats st;
+  const auto pts = ScanToPoints(s, &st);
+  ASSERT_EQ(pts.size(), 1u);
+  EXPECT_NEAR(pts[0].x(), 0.1, 1e-6);
+  EXPECT_NEAR(pts[0].y(), -1.0, 1e-6);
+  EXPECT_EQ(st.used, 1);
+  EXPECT_EQ(st.not_finite, 2);
+  EXPECT_EQ(st.out_of_range, 2);
+  s.ranges_m.clear();
+  EXPECT_TRUE(ScanToPoints(s, &st).empty());
+}
+
+TEST(PoseGraphPlugins, FactorInformationAndEdge) {
+  RelativePoseFactor f;
+  f.delta = Pose2(1, 2, 0.3);
+  f.covariance = Eigen::Vector3d(0.01, 0.04, 0.0025).asDiagonal();
+  const io::Edge2 e = f.ToEdge(3, 7);
+  EXPECT_EQ(e.from, 3);
+  EXPECT_EQ(e.to, 7);
+  EXPECT_NEAR(e.information(0, 0), 100, 1e-6);
+  EXPECT_NEAR(e.information(1, 1), 25, 1e-6);
+  EXPECT_NEAR(e.information(2, 2), 400, 1e-4);
+  EXPECT_DOUBLE_EQ(e.measurement.theta, 0.3);
+}
+
+TEST(PoseGraphPlugins, MatcherRecoversSyntheticOffsetAndPrunes) {
+  const auto room = Room();
+  const LikelihoodField field(room, {});
+  const Pose2 truth(0.37, -0.21, 7 * kDeg);
+  // The query sees the room from `truth`: points in its own frame.
+  const auto query = Transformed(room, truth.Inverse());
+  SearchWindow w;
+  w.x_m = w.y_m = 0.6;
+  w.theta_rad = 0.25;
+  const MatchResult m = MatchScan(field, query, Pose2(), w);
+  EXPECT_NEAR(m.pose.x, truth.x, 0.01);
+  EXPECT_NEAR(m.pose.y, truth.y, 0.01);
+  EXPECT_NEAR(m.pose.theta, truth.theta, 0.2 * kDeg);
+  EXPECT_GT(m.score, 0.9);
+  EXPECT_GT(m.inlier_fraction, 0.99);
+  EXPECT_LT(m.second_score, 0.8 * m.score);
+  // Branch and bound scores far fewer fine candidates than the exhaustive search would.
+  const long exhaustive = 25L * 25 * 59;
+  EXPECT_LT(m.evaluated, exhaustive / 4) << m.evaluated;
+  // Covariance: positive definite, small.
+  EXPECT_GT(m.covariance.determinant(), 0);
+  EXPECT_LT(m.covariance(0, 0), 0.01);
+}
+
+TEST(PoseGraphPlugins, EmptyInputsAreCountedNotMatched) {
+  const LikelihoodField empty_field({}, {});
+  EXPECT_TRUE(empty_field.empty());
+  const MatchResult m = MatchScan(empty_field, Room(), Pose2(), {});
+  EXPECT_EQ(m.score, 0);
+  EXPECT_EQ(MatchScan(LikelihoodField(Room(), {}), {}, Pose2(), {}).score, 0);
+
+  std::vector<Keyframe> kfs(2);
+  kfs[0].points = Room();
+  kfs[1].utime = 1;  // no points: an all-NaN scan
+  KeyframeMatchPlugin sm;
+  MeasurementPlugin& plugin = sm;  // used through the interface
+  EXPECT_TRUE(plugin.OnKeyframe(kfs).empty());
+  EXPECT_EQ(plugin.counters().at("empty_scan"), 1);
+  EXPECT_EQ(plugin.name(), "scan_match");
+  // A single keyframe is no attempt at all.
+  kfs.resize(1);
+  EXPECT_TRUE(plugin.OnKeyframe(kfs).empty());
+  EXPECT_EQ(plugin.counters().at("attempts"), 1);
+
+  LoopClosureOptions lo;
+  lo.min_index_gap = 1;
+  LoopClosurePlugin lc(lo);
+  kfs.resize(2);
+  kfs[1].points.clear();
+  EXPECT_TRUE(lc.OnKeyframe(kfs).empty());
+  EXPECT_EQ(lc.counters().at("empty_scan"), 1);
+}
+
+TEST(PoseGraphPlugins, KeyframePluginSyntheticFactor) {
+  std::vector<Keyframe> kfs(2);
+  kfs[0].estimate = Pose2(5, 5, 0.5);
+  kfs[0].points = Room();
+  const Pose2 truth(0.2, 0.05, 4 * kDeg);
+  kfs[1].utime = 100;
+  kfs[1].estimate = kfs[0].estimate * Pose2(0.1, 0.12, 0);  // odometry guess, off by 12 cm, 4 deg
+  kfs[1].points = Transformed(Room(), truth.Inverse());
+  KeyframeMatchPlugin p;
+  const auto f = p.OnKeyframe(kfs);
+  ASSERT_EQ(f.size(), 1u);
+  EXPECT_EQ(f[0].from_utime, 0);
+  EXPECT_EQ(f[0].to_utime, 100);
+  EXPECT_EQ(f[0].plugin, "scan_match");
+  EXPECT_NEAR(f[0].delta.x, truth.x, 0.01);
+  EXPECT_NEAR(f[0].delta.y, truth.y, 0.01);
+  EXPECT_NEAR(f[0].delta.theta, truth.theta, 0.5 * kDeg);
+  EXPECT_EQ(p.counters().at("accepted"), 1);
+  // With the ICP polish the bias of the field's interpolation goes away on dense submaps.
+  KeyframeMatchOptions o;
+  o.window.icp_polish = true;
+  KeyframeMatchPlugin icp(o);
+  const auto g = icp.OnKeyframe(kfs);
+  ASSERT_EQ(g.size(), 1u);
+  EXPECT_NEAR(g[0].delta.x, truth.x, 0.002);
+  EXPECT_NEAR(g[0].delta.y, truth.y, 0.002);
+  EXPECT_NEAR(g[0].delta.theta, truth.theta, 0.05 * kDeg);
+}
+
+// ---- Real scans: intel-corrected ----
+
+struct IntelScans {
+  std::vector<Keyframe> kfs;  // every FLASER scan, estimate = corrected pose
+};
+
+const IntelScans* LoadIntel(const std::string& path) {
+  static std::unique_ptr<IntelScans> cache;
+  if (cache) return cache.get();
+  auto log = io::ReadCarmenLog(path);
+  if (!log.ok()) return nullptr;
+  cache = std::make_unique<IntelScans>();
+  for (const auto& r : log.value().records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    const auto& l = r.laser;
+    LaserScan2 s;
+    s.utime = static_cast<int64_t>(l.timestamp_s * 1e6);
+    s.angle_min_rad = l.angle_min_rad;
+    s.angle_increment_rad = l.angle_increment_rad;
+    s.max_range_m = l.max_range_m;
+    s.ranges_m = l.ranges_m;
+    Keyframe k;
+    k.utime = s.utime;
+    k.estimate = l.laser_pose;  // corrected pose of the laser; points in the laser frame
+    k.points = ScanToPoints(s, nullptr);
+    cache->kfs.push_back(std::move(k));
+  }
+  return cache.get();
+}
+
+#define OMNI_LOAD_INTEL(var)                                                    \
+  OMNI_REQUIRE_DATASET(intel_path_, "carmen-corrected/intel-corrected.log.gz"); \
+  const IntelScans* var = LoadIntel(intel_path_);                               \
+  ASSERT_NE(var, nullptr);                                                      \
+  ASSERT_GT(var->kfs.size(), 900u)
+
+TEST(PoseGraphPlugins, IntelKeyframeMatchRecoversPerturbation) {
+  OMNI_LOAD_INTEL(intel);
+  // 22 keyframes spread over the log, each matched against a submap of the 3 previous scans.
+  // The odometry guess is the corrected relative pose with a known error added; the result must
+  // hardly depend on that error (the answer from the corrected guess, up to the sub-cell polish
+  // ending on a different point of a flat optimum), and must agree with the
+  // corrected poses up to their own accuracy (GMapping's, a few cm and tenths of a degree).
+  const Pose2 perturbation(0.15, -0.10, 3 * kDeg);
+  std::vector<double> err_xy, err_th;
+  double worst_diff_xy = 0, worst_diff_th = 0;
+  for (int cur = 40; cur < 900; cur += 40) {
+    std::vector<Keyframe> kfs(intel->kfs.begin() + cur - 3, intel->kfs.begin() + cur + 1);
+    const Pose2 truth = kfs[2].estimate.Between(kfs[3].estimate);
+    KeyframeMatchPlugin exact;
+    const auto f0 = exact.OnKeyframe(kfs);
+    kfs[3].estimate = kfs[3].estimate * perturbation;  // odometry guess with an error
+    KeyframeMatchPlugin p;
+    const auto f = p.OnKeyframe(kfs);
+    ASSERT_EQ(f.size(), 1u) << "scan " << cur << " score " << p.last_match().score;
+    ASSERT_EQ(f0.size(), 1u) << "scan " << cur;
+    const Pose2 diff = f0[0].delta.Between(f[0].delta);
+    worst_diff_xy = std::max(worst_diff_xy, std::hypot(diff.x, diff.y));
+    worst_diff_th = std::max(worst_diff_th, std::abs(diff.theta));
+    const Pose2 err = truth.Between(f[0].delta);
+    err_xy.push_back(std::hypot(err.x, err.y));
+    err_th.push_back(std::abs(err.theta));
+    // Covariance: positive definite, a few cm and under a degree.
+    EXPECT_GT(f[0].covariance.determinant(), 0);
+    EXPECT_LT(std::sqrt(f[0].covariance(0, 0)), 0.05);
+    EXPECT_LT(std::sqrt(f[0].covariance(2, 2)), 1 * kDeg);
+  }
+  std::sort(err_xy.begin(), err_xy.end());
+  std::sort(err_th.begin(), err_th.end());
+  const size_t n = err_xy.size();
+  std::printf(
+      "keyframe match, %zu pairs: vs corrected poses median %.3f m %.2f deg, worst %.3f m "
+      "%.2f deg; perturbed vs exact guess worst %.4f m %.3f deg\n",
+      n, err_xy[n / 2], err_th[n / 2] / kDeg, err_xy.back(), err_th.back() / kDeg, worst_diff_xy,
+      worst_diff_th / kDeg);
+  EXPECT_LT(worst_diff_xy, 0.05);
+  EXPECT_LT(worst_diff_th, 1.2 * kDeg);
+  EXPECT_LT(err_xy[n / 2], 0.03);
+  EXPECT_LT(err_th[n / 2], 0.6 * kDeg);
+  EXPECT_LT(err_xy.back(), 0.07);
+  EXPECT_LT(err_th.back(), 1.5 * kDeg);
+}
+
+TEST(PoseGraphPlugins, IntelLoopClosureFindsTrueLoop) {
+  OMNI_LOAD_INTEL(intel);
+  // Scan 866 revisits the place of scan 76 (0.12 m, 13 deg apart in the corrected poses), 790
+  // scans later. Drift: the new keyframe's estimate is off by 0.8 m and 10 deg.
+  std::vector<Keyframe> kfs(intel->kfs.begin(), intel->kfs.begin() + 867);
+  const Pose2 drift(0.6, -0.5, 10 * kDeg);
+  kfs.back().estimate = kfs.back().estimate * drift;
+  LoopClosureOptions o;
+  o.min_index_gap = 300;
+  LoopClosurePlugin lc(o);
+  const auto factors = lc.OnKeyframe(kfs);
+  ASSERT_FALSE(factors.empty());
+  for (const auto& at : lc.last_attempts())
+    std::printf("candidate %d: %s score %.3f inliers %.2f second %.3f\n", at.candidate,
+                at.reason.c_str(), at.match.score, at.match.inlier_fraction, at.match.second_score);
+  double worst_xy = 0, worst_th = 0;
+  for (const auto& f : factors) {
+    int cand = -1;
+    for (int i = 0; i < 867; ++i)
+      if (intel->kfs[i].utime == f.from_utime) cand = i;
+    ASSERT_GE(cand, 0);
+    EXPECT_LE(cand, 866 - o.min_index_gap);
+    const Pose2 truth = intel->kfs[cand].estimate.Between(intel->kfs[866].estimate);
+    const Pose2 err = truth.Between(f.delta);
+    worst_xy = std::max(worst_xy, std::hypot(err.x, err.y));
+    worst_th = std::max(worst_th, std::abs(err.theta));
+  }
+  std::printf("loop closure: %zu factors, worst error %.3f m %.2f deg\n", factors.size(), worst_xy,
+              worst_th / kDeg);
+  EXPECT_LT(worst_xy, 0.05);
+  EXPECT_LT(worst_th, 1 * kDeg);
+  EXPECT_EQ(lc.counters().at("accepted"), static_cast<int64_t>(factors.size()));
+}
+
+TEST(PoseGraphPlugins, IntelLoopClosureVerifiesRevisits) {
+  OMNI_LOAD_INTEL(intel);
+  // Revisits picked from the corrected poses: same place within 0.5 m and 30 deg, >= 300 scans
+  // apart. The new keyframe's estimate drifted by (0.6 m, -0.5 m, 10 deg).
+  const std::pair<int, int> revisits[] = {{28, 346},  {35, 370},  {43, 405}, {56, 444},
+                                          {63, 485},  {70, 544},  {73, 560}, {181, 640},
+                                          {379, 722}, {527, 850}, {541, 881}};
+  LoopClosurePlugin lc;
+  int accepted = 0;
+  double worst_xy = 0, worst_th = 0;
+  for (const auto& [old_i, new_i] : revisits) {
+    std::vector<Keyframe> kfs(intel->kfs.begin(), intel->kfs.begin() + new_i + 1);
+    kfs.back().estimate = kfs.back().estimate * Pose2(0.6, -0.5, 10 * kDeg);
+    const LoopAttempt at = lc.TryCandidate(kfs, old_i);
+    const Pose2 truth = intel->kfs[old_i].estimate.Between(intel->kfs[new_i].estimate);
+    const Pose2 err = truth.Between(at.match.pose);
+    std::printf("revisit %d-%d: %s score %.3f inliers %.2f second %.3f err %.3f m %.2f deg\n",
+                old_i, new_i, at.reason.c_str(), at.match.score, at.match.inlier_fraction,
+                at.match.second_score, std::hypot(err.x, err.y), err.theta / kDeg);
+    if (!at.accepted) continue;
+    ++accepted;
+    worst_xy = std::max(worst_xy, std::hypot(err.x, err.y));
+    worst_th = std::max(worst_th, std::abs(err.theta));
+  }
+  std::printf("revisits accepted %d of %zu, worst error %.3f m %.2f deg\n", accepted,
+              std::size(revisits), worst_xy, worst_th / kDeg);
+  EXPECT_GE(accepted, 8);
+  EXPECT_LT(worst_xy, 0.08);
+  EXPECT_LT(worst_th, 1.5 * kDeg);
+}
+
+TEST(PoseGraphPlugins, IntelLoopClosureRejectsFalseLoops) {
+  OMNI_LOAD_INTEL(intel);
+  LoopClosurePlugin lc;
+  // Pairs of scans far apart (> 5 m in the corrected poses), the new one's estimate wrongly
+  // placed on top of the old one's.
+  int tried = 0;
+  for (int old_i = 20; old_i < 400; old_i += 60) {
+    for (int new_i = old_i + 400; new_i < 910; new_i += 97) {
+      const double d =
+          (intel->kfs[old_i].estimate.translation() - intel->kfs[new_i].estimate.translation())
+              .norm();
+      if (d < 5) continue;
+      std::vector<Keyframe> kfs(intel->kfs.begin(), intel->kfs.begin() + new_i + 1);
+      kfs.back().estimate = kfs[old_i].estimate * Pose2(0.3, 0.2, 0.1);
+      const LoopAttempt at = lc.TryCandidate(kfs, old_i);
+      if (getenv("PG_DEBUG"))
+        std::printf("false %d-%d: %s score %.3f inliers %.2f second %.3f\n", old_i, new_i,
+                    at.reason.c_str(), at.match.score, at.match.inlier_fraction,
+                    at.match.second_score);
+      EXPECT_FALSE(at.accepted) << old_i << " vs " << new_i << " (" << d << " m apart) score "
+                                << at.match.score << " inliers " << at.match.inlier_fraction
+                                << " second " << at.match.second_score;
+      ++tried;
+    }
+  }
+  std::printf("false loops tried: %d\n", tried);
+  EXPECT_GT(tried, 10);
+}
+
+}  // namespace
+}  // namespace omni::pgm
