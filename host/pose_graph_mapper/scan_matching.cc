@@ -191,7 +191,7 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
   double best = -1;
   int ba = 0, bbx = 0, bby = 0;
   for (const auto& b : blocks) {
-    if (b.bound <= best) break;
+    if (b.bound <= best || b.bound < win.min_score) break;
     for (int x = b.bx; x < std::min(b.bx + k, nx + 1); ++x)
       for (int y = b.by; y < std::min(b.by + k, ny + 1); ++y) {
         const double s = fine_score(b.a, x, y);
@@ -202,6 +202,10 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
           bby = y;
         }
       }
+  }
+  if (best < win.min_score || best < 0) {
+    out.below_min_score = true;
+    return out;
   }
   // Best candidate "elsewhere": same search restricted to candidates far from the best.
   auto far = [&](int a, int x, int y) {

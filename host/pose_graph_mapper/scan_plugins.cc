@@ -63,7 +63,9 @@ std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
   }
   const LikelihoodField field(submap, o_.field);
   const Pose2 guess = keyframes[prev].estimate.Between(keyframes[cur].estimate);
-  last_ = MatchScan(field, query, guess, o_.window);
+  SearchWindow w = o_.window;
+  w.min_score = o_.min_score;
+  last_ = MatchScan(field, query, guess, w);
   if (last_.score < o_.min_score || last_.inlier_fraction < o_.min_inlier_fraction) {
     Count("no_match");
     return out;
@@ -86,7 +88,9 @@ LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyfram
   }
   const LikelihoodField field(submap, o_.field);
   const Pose2 guess = keyframes[candidate].estimate.Between(keyframes[cur].estimate);
-  at.match = MatchScan(field, query, guess, o_.window);
+  SearchWindow w = o_.window;
+  w.min_score = o_.min_score;
+  at.match = MatchScan(field, query, guess, w);
   if (at.match.score < o_.min_score) {
     at.reason = "low_score";
   } else if (at.match.inlier_fraction < o_.min_inlier_fraction) {

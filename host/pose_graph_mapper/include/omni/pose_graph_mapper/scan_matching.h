@@ -68,6 +68,9 @@ struct SearchWindow {
   double ambiguity_theta_rad = 0.2;
   double covariance_kappa = 2.0;   // weight exp(kappa * n * (s - s_best)) of the candidates
   double inlier_likelihood = 0.5;  // a point whose field value is >= this is "matched"
+  // Blocks whose bound is below this are never refined (the caller would reject such a match
+  // anyway); when no candidate reaches it the search stops early with `below_min_score` set.
+  double min_score = 0;
   // Final point-to-line ICP polish against the submap points (pairs closer than icp_pair_m);
   // kept only when it stays within icp_max_shift_m / icp_max_turn_rad of the search result.
   // Off by default: on the Intel scans it does not beat the field's optimum (nearest-neighbour
@@ -85,8 +88,9 @@ struct MatchResult {
   double second_score = 0;     // best score of a candidate "elsewhere" (0 when none)
   double inlier_fraction = 0;  // fraction of query points that are matched
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
-  long evaluated = 0;  // fine candidates scored (for the search-effort figures)
-  long bounded = 0;    // coarse blocks scored
+  long evaluated = 0;            // fine candidates scored (for the search-effort figures)
+  long bounded = 0;              // coarse blocks scored
+  bool below_min_score = false;  // no candidate reached SearchWindow::min_score (score = 0)
 };
 
 // Matches `query` (points in the query's own frame) against the field. `query` must not be
