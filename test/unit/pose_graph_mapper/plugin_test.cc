@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <iterator>
 #include <limits>
+#include <map>
 #include <memory>
 #include <vector>
 
@@ -169,11 +170,12 @@ struct IntelScans {
 };
 
 const IntelScans* LoadIntel(const std::string& path) {
-  static std::unique_ptr<IntelScans> cache;
-  if (cache) return cache.get();
+  static std::map<std::string, std::unique_ptr<IntelScans>> cache;
+  auto& entry = cache[path];
+  if (entry) return entry.get();
   auto log = io::ReadCarmenLog(path);
   if (!log.ok()) return nullptr;
-  cache = std::make_unique<IntelScans>();
+  entry = std::make_unique<IntelScans>();
   for (const auto& r : log.value().records) {
     if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
     const auto& l = r.laser;
@@ -187,9 +189,9 @@ const IntelScans* LoadIntel(const std::string& path) {
     k.utime = s.utime;
     k.estimate = l.laser_pose;  // corrected pose of the laser; points in the laser frame
     k.points = ScanToPoints(s, nullptr);
-    cache->kfs.push_back(std::move(k));
+    entry->kfs.push_back(std::move(k));
   }
-  return cache.get();
+  return entry.get();
 }
 
 #define OMNI_LOAD_INTEL(var)                                                    \
@@ -350,6 +352,67 @@ TEST(PoseGraphPlugins, IntelLoopClosureRejectsFalseLoops) {
   const LoopAttempt at = lenient.TryCandidate(kfs, 200);
   EXPECT_FALSE(at.accepted);
   EXPECT_EQ(at.reason, "few_inliers") << at.match.score << " " << at.match.inlier_fraction;
+}
+
+}  // namespace
+}  // namespace omni::pgm
+
+namespace omni::pgm {
+namespace {
+
+// The same checks on a second building (Freiburg 079, 4791 scans): the thresholds were chosen on
+// Intel.
+TEST(PoseGraphPlugins, Fr079LoopClosureRevisitsAndFalseLoops) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/freiburg-079-corrected.log.gz");
+  const IntelScans* fr = LoadIntel(path);
+  ASSERT_NE(fr, nullptr);
+  ASSERT_GT(fr->kfs.size(), 4700u);
+  const std::pair<int, int> revisits[] = {{346, 1019},  {449, 1261},  {575, 1640},
+                                          {2154, 2671}, {32, 2883},   {167, 3543},
+                                          {213, 3591},  {2896, 3990}, {3110, 4659}};
+  LoopClosurePlugin lc;
+  auto attempt = [&](int old_i, int new_i, const Pose2& new_estimate) {
+    std::vector<Keyframe> kfs(fr->kfs.begin() + old_i - 2, fr->kfs.begin() + old_i + 3);
+    kfs.push_back(fr->kfs[new_i]);
+    kfs.back().estimate = new_estimate;
+    return lc.TryCandidate(kfs, 2);
+  };
+  int accepted = 0;
+  double worst_xy = 0, worst_th = 0;
+  for (const auto& [old_i, new_i] : revisits) {
+    const LoopAttempt at =
+        attempt(old_i, new_i, fr->kfs[new_i].estimate * Pose2(0.6, -0.5, 10 * kDeg));
+    const Pose2 truth = fr->kfs[old_i].estimate.Between(fr->kfs[new_i].estimate);
+    const Pose2 err = truth.Between(at.match.pose);
+    std::printf("fr079 revisit %d-%d: %s score %.3f inliers %.2f second %.3f err %.3f m %.2f deg\n",
+                old_i, new_i, at.reason.c_str(), at.match.score, at.match.inlier_fraction,
+                at.match.second_score, std::hypot(err.x, err.y), err.theta / kDeg);
+    if (!at.accepted) continue;
+    ++accepted;
+    worst_xy = std::max(worst_xy, std::hypot(err.x, err.y));
+    worst_th = std::max(worst_th, std::abs(err.theta));
+  }
+  int false_tried = 0, false_accepted = 0;
+  for (int old_i = 100; old_i < 4700; old_i += 450)
+    for (int new_i = old_i + 700; new_i < 4780; new_i += 1100) {
+      if ((fr->kfs[old_i].estimate.translation() - fr->kfs[new_i].estimate.translation()).norm() <
+          5)
+        continue;
+      const LoopAttempt at = attempt(old_i, new_i, fr->kfs[old_i].estimate * Pose2(0.3, 0.2, 0.1));
+      EXPECT_FALSE(at.accepted) << old_i << " vs " << new_i << " score " << at.match.score;
+      ++false_tried;
+      false_accepted += at.accepted;
+    }
+  std::printf(
+      "fr079: revisits accepted %d of %zu, worst error %.3f m %.2f deg; false loops "
+      "rejected %d of %d\n",
+      accepted, std::size(revisits), worst_xy, worst_th / kDeg, false_tried - false_accepted,
+      false_tried);
+  EXPECT_GE(accepted, 5);
+  // Against the corrected poses, which drift too over a loop of 3400 scans (worst pair 213-3591).
+  EXPECT_LT(worst_xy, 0.12);
+  EXPECT_LT(worst_th, 1.5 * kDeg);
+  EXPECT_GT(false_tried, 10);
 }
 
 }  // namespace
