@@ -140,6 +140,32 @@ Pose2 RefinePointToLine(const std::vector<Eigen::Vector2d>& reference,
 
 namespace {
 
+// Coordinate hill climb on the interpolated score, steps halved 6 times; returns the score.
+double HillClimb(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+                 double sxy, double sth, Pose2* pose) {
+  double score = ScoreAt(field, query, *pose);
+  for (int level = 0; level < 6; ++level) {
+    bool improved = true;
+    while (improved) {
+      improved = false;
+      const Pose2 moves[6] = {{sxy, 0, 0},  {-sxy, 0, 0}, {0, sxy, 0},
+                              {0, -sxy, 0}, {0, 0, sth},  {0, 0, -sth}};
+      for (const auto& m : moves) {
+        const Pose2 cand(pose->x + m.x, pose->y + m.y, WrapAngle(pose->theta + m.theta));
+        const double s = ScoreAt(field, query, cand);
+        if (s > score) {
+          score = s;
+          *pose = cand;
+          improved = true;
+        }
+      }
+    }
+    sxy /= 2;
+    sth /= 2;
+  }
+  return score;
+}
+
 struct Block {
   float bound;
   int a, bx, by;  // rotation index, first translation cell of the block
@@ -227,42 +253,42 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   Eigen::Matrix3d m2 = Eigen::Matrix3d::Zero();
   const double n = static_cast<double>(query.size());
-  for (int a = std::max(-na, ba - r); a <= std::min(na, ba + r); ++a)
+  // Per rotation, the best translation in the window: nearby optima the polish starts from.
+  struct Start {
+    double s;
+    int a, x, y;
+  };
+  std::vector<Start> starts;
+  for (int a = std::max(-na, ba - r); a <= std::min(na, ba + r); ++a) {
+    Start top{-1, a, 0, 0};
     for (int x = bbx - r; x <= bbx + r; ++x)
       for (int y = bby - r; y <= bby + r; ++y) {
         const double s = fine_score(a, x, y);
+        if (s > top.s) top = {s, a, x, y};
         const double w = std::exp(win.covariance_kappa * n * (s - best));
         const Eigen::Vector3d d((x - bbx) * res, (y - bby) * res, (a - ba) * astep);
         wsum += w;
         mean += w * d;
         m2 += w * d * d.transpose();
       }
+    if (top.s >= best - win.polish_score_gap) starts.push_back(top);
+  }
   mean /= wsum;
   out.covariance = m2 / wsum - mean * mean.transpose();
   out.covariance.diagonal() += Eigen::Vector3d(res * res / 12, res * res / 12, astep * astep / 12);
 
-  // Continuous polish of the discrete optimum (hill climb on the interpolated field).
-  Pose2 pose(guess.x + bbx * res, guess.y + bby * res, WrapAngle(guess.theta + ba * astep));
-  double score = ScoreAt(field, query, pose);
-  double sxy = res / 2, sth = astep / 2;
-  for (int level = 0; level < 6; ++level) {
-    bool improved = true;
-    while (improved) {
-      improved = false;
-      const Pose2 moves[6] = {{sxy, 0, 0},  {-sxy, 0, 0}, {0, sxy, 0},
-                              {0, -sxy, 0}, {0, 0, sth},  {0, 0, -sth}};
-      for (const auto& m : moves) {
-        const Pose2 cand(pose.x + m.x, pose.y + m.y, WrapAngle(pose.theta + m.theta));
-        const double s = ScoreAt(field, query, cand);
-        if (s > score) {
-          score = s;
-          pose = cand;
-          improved = true;
-        }
-      }
+  // Continuous polish (hill climb on the interpolated field) from the discrete optimum and from
+  // the best translation of each nearby rotation that scores almost as well: the grid can put
+  // its optimum next to the wrong one of two close optima.
+  Pose2 pose = guess;
+  double score = -1;
+  for (const Start& st : starts) {
+    Pose2 p(guess.x + st.x * res, guess.y + st.y * res, WrapAngle(guess.theta + st.a * astep));
+    const double s = HillClimb(field, query, res / 2, astep / 2, &p);
+    if (s > score) {
+      score = s;
+      pose = p;
     }
-    sxy /= 2;
-    sth /= 2;
   }
   if (win.icp_polish) {
     const Pose2 icp = RefinePointToLine(field.points(), query, pose, win.icp_pair_m);

@@ -93,7 +93,8 @@ TEST(PoseGraphPlugins, MatcherRecoversSyntheticOffsetAndPrunes) {
   const MatchResult m = MatchScan(field, query, Pose2(), w);
   EXPECT_NEAR(m.pose.x, truth.x, 0.01);
   EXPECT_NEAR(m.pose.y, truth.y, 0.01);
-  EXPECT_NEAR(m.pose.theta, truth.theta, 0.2 * kDeg);
+  // The bilinear field biases the optimum by a few tenths of a degree (see the ICP polish test).
+  EXPECT_NEAR(m.pose.theta, truth.theta, 0.5 * kDeg);
   EXPECT_GT(m.score, 0.9);
   EXPECT_GT(m.inlier_fraction, 0.99);
   EXPECT_LT(m.second_score, 0.8 * m.score);
@@ -204,10 +205,10 @@ TEST(PoseGraphPlugins, IntelKeyframeMatchRecoversPerturbation) {
   OMNI_LOAD_INTEL(intel);
   // 22 keyframes spread over the log, each matched against a submap of the 3 previous scans.
   // The odometry guess is the corrected relative pose with a known error added; the result must
-  // hardly depend on that error (21 of the 22 agree with the answer from the corrected guess to
-  // 1 cm and 0.3 deg; at scan 320 two optima 3.5 cm and 1 deg apart score 0.721 and 0.733, and
-  // the search grid anchored at the corrected guess ends on the worse one), and must agree with
-  // the corrected poses up to their own accuracy (GMapping's, a few cm and tenths of a degree).
+  // hardly depend on that error (the answer from the corrected guess, to a few mm; at scan 320
+  // two optima 3.5 cm and 1 deg apart used to make it differ, until the polish also started from
+  // the nearby rotations), and must agree with the corrected poses up to their own accuracy
+  // (GMapping's, a few cm and tenths of a degree).
   const Pose2 perturbation(0.15, -0.10, 3 * kDeg);
   std::vector<double> err_xy, err_th;
   double worst_diff_xy = 0, worst_diff_th = 0;
@@ -240,8 +241,8 @@ TEST(PoseGraphPlugins, IntelKeyframeMatchRecoversPerturbation) {
       "%.2f deg; perturbed vs exact guess worst %.4f m %.3f deg\n",
       n, err_xy[n / 2], err_th[n / 2] / kDeg, err_xy.back(), err_th.back() / kDeg, worst_diff_xy,
       worst_diff_th / kDeg);
-  EXPECT_LT(worst_diff_xy, 0.05);
-  EXPECT_LT(worst_diff_th, 1.2 * kDeg);
+  EXPECT_LT(worst_diff_xy, 0.015);
+  EXPECT_LT(worst_diff_th, 0.5 * kDeg);
   EXPECT_LT(err_xy[n / 2], 0.03);
   EXPECT_LT(err_th[n / 2], 0.6 * kDeg);
   EXPECT_LT(err_xy.back(), 0.07);

@@ -71,6 +71,9 @@ struct SearchWindow {
   // Blocks whose bound is below this are never refined (the caller would reject such a match
   // anyway); when no candidate reaches it the search stops early with `below_min_score` set.
   double min_score = 0;
+  // The polish also starts from the best translation of each rotation within 4 steps of the
+  // optimum whose fine score is within this of the best (0: the optimum only).
+  double polish_score_gap = 0.02;
   // Final point-to-line ICP polish against the submap points (pairs closer than icp_pair_m);
   // kept only when it stays within icp_max_shift_m / icp_max_turn_rad of the search result.
   // Off by default: on the Intel scans it does not beat the field's optimum (nearest-neighbour
