@@ -164,6 +164,62 @@ TEST(PoseGraphPlugins, KeyframePluginSyntheticFactor) {
   EXPECT_NEAR(g[0].delta.theta, truth.theta, 0.05 * kDeg);
 }
 
+TEST(PoseGraphPlugins, KeyframePluginCountsPoorMatch) {
+  // The new scan sees a round room, the submap a rectangular one: no factor, counted.
+  std::vector<Keyframe> kfs(2);
+  kfs[0].points = Room();
+  for (int i = 0; i < 180; ++i)
+    kfs[1].points.emplace_back(1.3 * std::cos(i * 2 * kDeg), 1.3 * std::sin(i * 2 * kDeg));
+  kfs[1].utime = 1;
+  KeyframeMatchPlugin p;
+  EXPECT_TRUE(p.OnKeyframe(kfs).empty());
+  EXPECT_EQ(p.counters().at("no_match"), 1);
+  EXPECT_EQ(p.counters().count("accepted"), 0u);
+}
+
+TEST(PoseGraphPlugins, LoopCandidatesRespectGapAndRadius) {
+  // 30 keyframes 0.5 m apart on a line, then one back near keyframe 2. Only the candidate
+  // selection is under test: every scan is the same room, so every match is the identity.
+  std::vector<Keyframe> kfs;
+  for (int i = 0; i < 30; ++i) {
+    Keyframe k;
+    k.utime = i;
+    k.estimate = Pose2(0.5 * i, 0, 0);
+    k.points = Room();
+    kfs.push_back(k);
+  }
+  Keyframe back = kfs[2];
+  back.utime = 30;
+  back.estimate = Pose2(1.2, 0.1, 0.05);  // a drifted estimate near keyframe 2 (1, 0, 0)
+  kfs.push_back(back);
+  LoopClosureOptions o;
+  o.min_index_gap = 25;     // keyframes 0..5 only
+  o.search_radius_m = 1.0;  // ... and within 1 m of (1.2, 0.1): keyframes 1, 2, 3, 4
+  o.submap_half_width = 0;  // each candidate's own scan (the room as seen from it)
+  o.max_candidates = 10;
+  LoopClosurePlugin lc(o);
+  const auto f = lc.OnKeyframe(kfs);
+  std::vector<int> tried;
+  for (const auto& at : lc.last_attempts()) tried.push_back(at.candidate);
+  std::sort(tried.begin(), tried.end());
+  EXPECT_EQ(tried, (std::vector<int>{1, 2, 3, 4}));
+  bool found2 = false;
+  for (const auto& fac : f)
+    if (fac.from_utime == 2) {
+      found2 = true;
+      EXPECT_NEAR(fac.delta.x, 0, 0.01);
+      EXPECT_NEAR(fac.delta.y, 0, 0.01);
+      EXPECT_NEAR(fac.delta.theta, 0, 0.5 * kDeg);
+      EXPECT_EQ(fac.to_utime, 30);
+      EXPECT_EQ(fac.plugin, "loop_closure");
+    }
+  EXPECT_TRUE(found2);
+  // Too early for any loop: nothing tried.
+  kfs.resize(20);
+  EXPECT_TRUE(lc.OnKeyframe(kfs).empty());
+  EXPECT_TRUE(lc.last_attempts().empty());
+}
+
 // ---- Real scans: intel-corrected ----
 
 struct IntelScans {
