@@ -7,9 +7,11 @@
 // score is computed on a max-pooled copy of the field (each coarse value is the maximum of the
 // K x K fine cells it covers), which bounds the fine score of every translation in the block
 // from above. Blocks are visited best bound first and a block is only refined while its bound
-// beats the best fine score found, so the result equals the exhaustive fine search.
-// The discrete optimum is then polished by a continuous hill climb on the bilinearly
-// interpolated field (optionally followed by point-to-line ICP against the submap points); the
+// beats the best fine score found, so the result equals the exhaustive fine search (unless it
+// scores below SearchWindow::min_score, when the search gives up early).
+// The discrete optimum (and the best of each nearby rotation scoring almost as well) is then
+// polished by a continuous hill climb on the bilinearly interpolated field (optionally followed
+// by point-to-line ICP against the submap points); the
 // covariance comes from the spread of the good fine candidates around the optimum (each weighted by
 // exp(kappa * n * (score - best)), Olson's correlative matcher idea), plus the discretisation
 // variance.
@@ -84,6 +86,14 @@ struct SearchWindow {
   double icp_max_shift_m = 0.1;
   double icp_max_turn_rad = 0.035;
 };
+
+// A window of +-xy_m in x and y and +-theta_rad, other settings at their defaults.
+inline SearchWindow MakeSearchWindow(double xy_m, double theta_rad) {
+  SearchWindow w;
+  w.x_m = w.y_m = xy_m;
+  w.theta_rad = theta_rad;
+  return w;
+}
 
 struct MatchResult {
   Pose2 pose;                  // the query scan's pose in the submap frame

@@ -27,7 +27,7 @@ struct KeyframeMatchOptions {
   double min_score = 0.35;    // below: "no match"
   double min_inlier_fraction = 0.4;
   LikelihoodFieldOptions field;
-  SearchWindow window{0.3, 0.3, 0.17, 0.0087, 0.5, 0.2, 2.0, 0.5};
+  SearchWindow window = MakeSearchWindow(0.3, 0.17);
 };
 
 class KeyframeMatchPlugin final : public MeasurementPlugin {
@@ -55,7 +55,7 @@ struct LoopClosureOptions {
   double min_inlier_fraction = 0.78;
   double max_ambiguity_ratio = 0.9;  // second best elsewhere / best; <= 0 disables the check
   LikelihoodFieldOptions field;
-  SearchWindow window{2.0, 2.0, 0.5, 0.0087, 0.5, 0.2, 2.0, 0.5};
+  SearchWindow window = MakeSearchWindow(2.0, 0.5);
 };
 
 struct LoopAttempt {
