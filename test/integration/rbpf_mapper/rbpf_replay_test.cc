@@ -97,6 +97,35 @@ TEST(RbpfMapperProcess, MapsAReplayedLog) {
   EXPECT_GT(map->width, 100);
 }
 
+// Two processes over real UDP multicast in a private network namespace: the prefix replayed flat
+// out (a burst far faster than the filter) must reach rbpf_mapper without a lost scan.
+TEST(RbpfMapperProcess, MapsABurstReplayedOverUdpInANetns) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  OMNI_REQUIRE_DATASET(ref, "slam-noisy-odom/intel.reference.txt");
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = testing::TempDir();
+  const std::string log = dir + "/burst.lcmlog";
+  WritePrefixLog(clf, log);
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
+      << testing::Bin("rbpf_mapper") << " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml"
+      << " --out " << dir << "/out --idle-exit 2 & m=$!\nsleep 0.5\n"
+      << "timeout 60 " << testing::Bin("omni-replay") << " " << log << " --speed 0\n"
+      << "rc=$?\nwait $m\nexit $((rc + $?))\n";
+  }
+  const auto r = testing::Run("timeout 200 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("150 scans"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("0 lost on the bus"), std::string::npos) << r.output;
+  size_t matched = 0;
+  const double ate = Ate(ref, dir + "/out/trajectory.txt", &matched);
+  EXPECT_GE(matched, kScans - 5);
+  EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
+}
+
 TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   auto bus_or = bus::Bus::Create("memq://");
