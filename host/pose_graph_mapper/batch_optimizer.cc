@@ -10,6 +10,7 @@
 #include "omni/pose_graph_mapper/chi2.h"
 #include "omni/pose_graph_mapper/cost_functions.h"
 #include "omni/pose_graph_mapper/manifolds.h"
+#include "omni/pose_graph_mapper/pose_graph_slam.h"
 
 namespace omni::pgm {
 namespace {
@@ -48,6 +49,9 @@ Result<BatchOptions> LoadBatchOptionsFile(const std::string& path) {
   if (!r.ok()) return r.error();
   ConfigReader batch = r->Section("batch");
   auto o = BatchOptions::Load(batch);
+  // The online mapper's `slam` section shares the file: its keys are checked, not ignored.
+  ConfigReader slam = r->Section("slam");
+  (void)PoseGraphSlamOptions::Load(slam);
   if (Status s = r->Finish(); !s.ok()) return s.error();
   return o;
 }

@@ -153,7 +153,6 @@ Status SlidingWindowOptimizer::MarginalizeOldest() {
   }
   // Schur complement onto the other variables.
   const int nk = n - 3;
-  prior_ids_.assign(vars.begin() + 1, vars.end());
   if (nk > 0) {
     const Eigen::Matrix3d hmm = h.topLeftCorner(3, 3);
     Eigen::LDLT<Eigen::Matrix3d> hmm_ldlt(hmm);
@@ -164,6 +163,8 @@ Status SlidingWindowOptimizer::MarginalizeOldest() {
                                     1e-12 * Eigen::MatrixXd::Identity(nk, nk));
     if (llt.info() != Eigen::Success)
       return MakeError(ErrorCode::kInternal, "marginal prior is not positive definite");
+    // Only now: a failed marginalisation leaves the old prior and its ids consistent.
+    prior_ids_.assign(vars.begin() + 1, vars.end());
     prior_s_ = llt.matrixU();
     prior_r0_ = llt.matrixL().solve(gp);
     prior_x0_.resize(nk);
@@ -172,6 +173,7 @@ Status SlidingWindowOptimizer::MarginalizeOldest() {
       prior_x0_.segment(3 * i, 3) << x[0], x[1], x[2];
     }
   } else {
+    prior_ids_.clear();
     prior_s_.resize(0, 0);
     prior_r0_.resize(0);
     prior_x0_.resize(0);

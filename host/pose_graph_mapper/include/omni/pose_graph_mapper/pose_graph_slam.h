@@ -1,0 +1,158 @@
+// Online 2D pose-graph SLAM: the mapper core that drives the pieces of this library.
+//
+// Odometry and laser scans arrive in time order. A scan becomes a keyframe when the odometry
+// moved at least keyframe_distance_m or keyframe_angle_rad since the last keyframe; every other
+// scan is stored as (keyframe, odometry motion since it), so every accepted scan gets a pose that
+// follows its keyframe's optimised estimate. Consecutive keyframes are linked by the odometry
+// source's factor (propagated covariance) and, when it matches, by the keyframe scan-matching
+// plugin's factor. After each keyframe the sliding window (last N keyframes) is optimised; then
+// the loop-closure plugin runs on the new keyframe, and accepted loops trigger a batch
+// optimisation of the whole graph with a robust loss, after which the window is rebuilt from
+// the result. Bad input is rejected and counted (SlamCounters), never fatal.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/geometry.h"
+#include "omni/common/result.h"
+#include "omni/common/time.h"
+#include "omni/io/g2o.h"
+#include "omni/io/grid.h"
+#include "omni/pose_graph_mapper/batch_optimizer.h"
+#include "omni/pose_graph_mapper/continuous_source.h"
+#include "omni/pose_graph_mapper/measurement_plugin.h"
+#include "omni/pose_graph_mapper/scan_plugins.h"
+#include "omni/pose_graph_mapper/window_optimizer.h"
+
+namespace omni::pgm {
+
+struct PoseGraphSlamOptions {
+  // Keyframe gating on the odometry motion since the last keyframe.
+  double keyframe_distance_m = 0.5;
+  double keyframe_angle_rad = 0.35;
+  int window_size = 50;  // keyframes optimised per update (N)
+  int window_max_iterations = 10;
+  // Input checks.
+  int min_beams = 30;                // scans with fewer usable beams are rejected
+  double max_odom_jump_m = 1.0;      // a larger step between two odometry samples is a jump
+  double max_odom_jump_rad = 1.0;    // ... or a larger turn
+  double max_scan_odom_gap_s = 0.5;  // a scan this much newer than the odometry is rejected
+  OdometryNoise odometry_noise;      // odometry factor covariance growth
+  double scan_match_information_scale = 1.0;  // scales the keyframe matcher's information
+  // Global optimisation on accepted loops.
+  std::string global_loss = "cauchy";  // none | huber | cauchy
+  double global_loss_scale = 1.0;
+  int global_max_iterations = 30;
+  int global_min_keyframes_between = 10;  // at most one global optimisation per this many
+  int loop_every_keyframes = 2;           // loop closure tried on every k-th keyframe
+  int loop_cooldown_keyframes = 5;        // no loop attempts for this many after an accepted one
+  int num_threads = 2;
+  KeyframeMatchOptions match;
+  LoopClosureOptions loop;
+
+  // Reads the `slam` section (Finish is the caller's).
+  static Result<PoseGraphSlamOptions> Load(ConfigReader& r);
+  Status Validate() const;
+};
+
+// Reads config/pose_graph_mapper.yaml: the `slam` section and the `batch` section (used by the
+// global optimisation). Unknown keys anywhere are errors naming file, line and key.
+Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, BatchOptions* batch);
+
+struct SlamCounters {
+  int64_t scans_in = 0, scans_used = 0;
+  int64_t scans_time_backwards = 0, scans_too_few_beams = 0, scans_no_odom = 0;
+  int64_t invalid_beams = 0;  // NaN/inf or out-of-range beams skipped inside used scans
+  int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
+  int64_t keyframes = 0;
+  int64_t scan_match_factors = 0, scan_match_failures = 0;
+  int64_t loops_accepted = 0, loops_rejected = 0;
+  int64_t window_updates = 0, window_failures = 0;
+  int64_t global_optimizations = 0, global_failures = 0;
+};
+
+struct ScanPose {
+  int64_t scan_index = 0;
+  int64_t utime = 0;
+  Pose2 pose;
+};
+
+class PoseGraphSlam {
+ public:
+  // `clock` (may be null) times the window updates for the latency figures.
+  PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOptions& batch, const Clock* clock);
+
+  // Odometry pose of the robot base in the odometry frame.
+  void AddOdometry(int64_t utime, const Pose2& odom_pose);
+  // Returns true when the scan was accepted (it then has a pose in Trajectory()).
+  bool AddScan(int64_t scan_index, const LaserScan2& scan);
+
+  // Final estimate of every accepted scan: its keyframe's estimate composed with the odometry
+  // motion since that keyframe.
+  std::vector<ScanPose> Trajectory() const;
+  const std::vector<Keyframe>& keyframes() const { return keyframes_; }
+  // The keyframe graph (vertex ids = keyframe indices) at the current estimates.
+  io::PoseGraph Graph() const;
+  // Occupancy grid of the keyframe scans at their current estimates.
+  io::GridMap RenderMap(const io::LogOddsOptions& options) const;
+  // Runs a last global optimisation if loops are pending.
+  void Finish();
+
+  const SlamCounters& counters() const { return c_; }
+  const std::vector<double>& window_latency_ms() const { return window_ms_; }
+  const std::vector<double>& global_latency_ms() const { return global_ms_; }
+  std::map<std::string, int64_t> PluginCounters() const;
+
+ private:
+  struct KeyframeScan {
+    LaserScan2 scan;  // kept for the map
+  };
+  struct Link {
+    int from, to;
+    Pose2 z;
+    Eigen::Matrix3d information;
+  };
+  struct ScanRef {
+    int64_t scan_index, utime;
+    int keyframe;
+    Pose2 delta;  // pose at the scan in the keyframe's frame (odometry)
+  };
+  void NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
+                   std::vector<Eigen::Vector2d> points);
+  void OptimizeWindow();
+  void OptimizeGlobal();
+  void ResetWindow();
+  double NowMs() const;
+
+  PoseGraphSlamOptions o_;
+  BatchOptions batch_;
+  const Clock* clock_;
+  OdometrySource odom_;
+  bool have_odom_ = false;
+  // Logs such as intel.clf stamp several messages with one time: equal stamps are nudged by
+  // 1 us so the odometry buffer stays strictly ordered (internal time).
+  int64_t last_odom_utime_ = 0;     // as received
+  int64_t last_odom_internal_ = 0;  // after nudging
+  int last_loop_keyframe_ = -1000000;
+  Pose2 last_raw_, last_corrected_, correction_;
+  int64_t last_scan_utime_ = INT64_MIN;
+  std::vector<Keyframe> keyframes_;
+  std::vector<KeyframeScan> kf_scans_;
+  std::map<int64_t, int> kf_by_utime_;
+  std::vector<Link> links_;
+  std::vector<ScanRef> scans_;
+  std::unique_ptr<SlidingWindowOptimizer> window_;
+  KeyframeMatchPlugin match_;
+  LoopClosurePlugin loop_;
+  bool loops_pending_ = false;
+  int last_global_keyframe_ = -1000000;
+  std::vector<double> window_ms_, global_ms_;
+  SlamCounters c_;
+};
+
+}  // namespace omni::pgm

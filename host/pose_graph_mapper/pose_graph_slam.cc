@@ -1,0 +1,341 @@
+#include "omni/pose_graph_mapper/pose_graph_slam.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/LU>
+
+namespace omni::pgm {
+namespace {
+
+// Anchors the window's oldest pose (1 mm, 1 mrad): the global solution places the window.
+Eigen::Matrix3d AnchorInformation() { return 1e6 * Eigen::Matrix3d::Identity(); }
+
+}  // namespace
+
+Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
+  PoseGraphSlamOptions o;
+  r.Get("keyframe_distance_m", &o.keyframe_distance_m, Optional(), Positive<double>());
+  r.Get("keyframe_angle_rad", &o.keyframe_angle_rad, Optional(), Positive<double>());
+  r.Get("window_size", &o.window_size, Optional(), InRange(2, 100000));
+  r.Get("window_max_iterations", &o.window_max_iterations, Optional(), InRange(1, 1000));
+  r.Get("min_beams", &o.min_beams, Optional(), InRange(1, 100000));
+  r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
+  r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
+  r.Get("max_scan_odom_gap_s", &o.max_scan_odom_gap_s, Optional(), NonNegative<double>());
+  ConfigReader n = r.Section("odometry_noise");
+  n.Get("xy_var_per_m", &o.odometry_noise.xy_var_per_m, Optional(), NonNegative<double>());
+  n.Get("xy_var_per_rad", &o.odometry_noise.xy_var_per_rad, Optional(), NonNegative<double>());
+  n.Get("theta_var_per_m", &o.odometry_noise.theta_var_per_m, Optional(), NonNegative<double>());
+  n.Get("theta_var_per_rad", &o.odometry_noise.theta_var_per_rad, Optional(),
+        NonNegative<double>());
+  n.Get("xy_var_per_s", &o.odometry_noise.xy_var_per_s, Optional(), Positive<double>());
+  n.Get("theta_var_per_s", &o.odometry_noise.theta_var_per_s, Optional(), Positive<double>());
+  r.Get("scan_match_information_scale", &o.scan_match_information_scale, Optional(),
+        Positive<double>());
+  r.Get("global_loss", &o.global_loss, Optional(), OneOf({"none", "huber", "cauchy"}));
+  r.Get("global_loss_scale", &o.global_loss_scale, Optional(), Positive<double>());
+  r.Get("global_max_iterations", &o.global_max_iterations, Optional(), InRange(1, 10000));
+  r.Get("global_min_keyframes_between", &o.global_min_keyframes_between, Optional(),
+        InRange(0, 100000));
+  r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
+  r.Get("loop_cooldown_keyframes", &o.loop_cooldown_keyframes, Optional(), InRange(0, 100000));
+  r.Get("num_threads", &o.num_threads, Optional(), InRange(1, 64));
+  ConfigReader m = r.Section("scan_match");
+  m.Get("submap_keyframes", &o.match.submap_keyframes, Optional(), InRange(1, 100));
+  m.Get("min_score", &o.match.min_score, Optional(), InRange(0.0, 1.0));
+  m.Get("min_inlier_fraction", &o.match.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
+  ConfigReader l = r.Section("loop_closure");
+  l.Get("min_index_gap", &o.loop.min_index_gap, Optional(), InRange(1, 1000000));
+  l.Get("search_radius_m", &o.loop.search_radius_m, Optional(), Positive<double>());
+  l.Get("max_candidates", &o.loop.max_candidates, Optional(), InRange(1, 100));
+  l.Get("min_score", &o.loop.min_score, Optional(), InRange(0.0, 1.0));
+  l.Get("min_inlier_fraction", &o.loop.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
+  l.Get("max_ambiguity_ratio", &o.loop.max_ambiguity_ratio, Optional(), InRange(0.0, 1.0));
+  return o;
+}
+
+Status PoseGraphSlamOptions::Validate() const {
+  if (!(keyframe_distance_m > 0) || !(keyframe_angle_rad > 0))
+    return MakeError(ErrorCode::kOutOfRange, "keyframe_distance_m/keyframe_angle_rad must be > 0");
+  if (window_size < 2) return MakeError(ErrorCode::kOutOfRange, "window_size must be >= 2");
+  if (loop.min_index_gap < window_size)
+    return MakeError(ErrorCode::kOutOfRange,
+                     "loop_closure.min_index_gap must be >= window_size (loops close outside "
+                     "the window)");
+  if (min_beams < 1) return MakeError(ErrorCode::kOutOfRange, "min_beams must be >= 1");
+  if (num_threads < 1) return MakeError(ErrorCode::kOutOfRange, "num_threads must be >= 1");
+  return Status::Ok();
+}
+
+Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam,
+                          BatchOptions* batch) {
+  auto r = ConfigReader::FromFile(path);
+  if (!r.ok()) return r.error();
+  ConfigReader b = r->Section("batch");
+  auto bo = BatchOptions::Load(b);
+  ConfigReader s = r->Section("slam");
+  auto so = PoseGraphSlamOptions::Load(s);
+  if (Status st = r->Finish(); !st.ok()) return st;
+  if (!bo.ok()) return bo.error();
+  if (!so.ok()) return so.error();
+  *batch = *bo;
+  *slam = *so;
+  return slam->Validate();
+}
+
+PoseGraphSlam::PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOptions& batch,
+                             const Clock* clock)
+    : o_(options),
+      batch_(batch),
+      clock_(clock),
+      odom_(options.odometry_noise),
+      match_(options.match),
+      loop_(options.loop) {
+  ResetWindow();
+}
+
+double PoseGraphSlam::NowMs() const {
+  return clock_ ? static_cast<double>(clock_->NowUtime()) * 1e-3 : 0.0;
+}
+
+void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
+  ++c_.odom_in;
+  if (!std::isfinite(raw.x) || !std::isfinite(raw.y) || !std::isfinite(raw.theta)) {
+    ++c_.odom_invalid;
+    return;
+  }
+  if (have_odom_ && utime < last_odom_utime_) {
+    ++c_.odom_out_of_order;
+    return;
+  }
+  const int64_t internal = have_odom_ ? std::max(utime, last_odom_internal_ + 1) : utime;
+  if (have_odom_) {
+    const Pose2 step = last_raw_.Between(raw);
+    if (std::hypot(step.x, step.y) > o_.max_odom_jump_m ||
+        std::abs(step.theta) > o_.max_odom_jump_rad) {
+      // A jump (reset or glitch): continue from the last good pose as if the robot stood still.
+      ++c_.odom_jumps;
+      correction_ = last_corrected_ * raw.Inverse();
+    }
+  }
+  const Pose2 corrected = correction_ * raw;
+  odom_.AddSample(internal, corrected);
+  have_odom_ = true;
+  last_odom_utime_ = utime;
+  last_odom_internal_ = internal;
+  last_raw_ = raw;
+  last_corrected_ = corrected;
+}
+
+bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
+  ++c_.scans_in;
+  if (scan.utime < last_scan_utime_) {
+    ++c_.scans_time_backwards;
+    return false;
+  }
+  ScanConversionStats st;
+  std::vector<Eigen::Vector2d> points = ScanToPoints(scan, &st);
+  if (static_cast<int>(points.size()) < o_.min_beams) {
+    ++c_.scans_too_few_beams;
+    return false;
+  }
+  if (!have_odom_ || scan.utime < odom_.oldest_utime() ||
+      static_cast<double>(scan.utime - last_odom_utime_) > o_.max_scan_odom_gap_s * 1e6) {
+    ++c_.scans_no_odom;
+    return false;
+  }
+  // A scan at or slightly after the newest odometry sample uses that sample's pose.
+  const int64_t t = scan.utime >= last_odom_utime_ ? last_odom_internal_ : scan.utime;
+  RelativeMotion motion;
+  if (!keyframes_.empty()) {
+    const int64_t kt = keyframes_.back().utime;
+    if (t < kt) {
+      ++c_.scans_no_odom;
+      return false;
+    }
+    auto m = odom_.Between(kt, t);
+    if (!m) {
+      ++c_.scans_no_odom;
+      return false;
+    }
+    motion = *m;
+  }
+  last_scan_utime_ = scan.utime;
+  ++c_.scans_used;
+  c_.invalid_beams += st.not_finite + st.out_of_range;
+  const bool make_kf = keyframes_.empty() ||
+                       std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
+                       std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
+  if (make_kf) {
+    NewKeyframe(scan, t, motion, std::move(points));
+    scans_.push_back({scan_index, scan.utime, static_cast<int>(keyframes_.size()) - 1, Pose2()});
+  } else {
+    scans_.push_back(
+        {scan_index, scan.utime, static_cast<int>(keyframes_.size()) - 1, motion.delta});
+  }
+  return true;
+}
+
+void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
+                                std::vector<Eigen::Vector2d> points) {
+  const int k = static_cast<int>(keyframes_.size());
+  Keyframe kf;
+  kf.utime = utime;
+  kf.estimate = k == 0 ? Pose2() : keyframes_.back().estimate * motion.delta;
+  kf.points = std::move(points);
+  keyframes_.push_back(std::move(kf));
+  kf_scans_.push_back({scan});
+  kf_by_utime_[utime] = k;
+  ++c_.keyframes;
+  (void)window_->AddPose(k, keyframes_.back().estimate);
+  if (k == 0) {
+    // The gauge: without it the first marginalisation would leave a singular prior.
+    (void)window_->AddAbsolute(0, Pose2(), AnchorInformation());
+    return;
+  }
+
+  Eigen::Matrix3d cov = motion.covariance + 1e-9 * Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d info = cov.inverse();
+  links_.push_back({k - 1, k, motion.delta, info});
+  (void)window_->AddRelative(k - 1, k, motion.delta, info);
+
+  const auto factors = match_.OnKeyframe(keyframes_);
+  int used = 0;
+  for (const auto& f : factors) {
+    auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
+    if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
+    const Eigen::Matrix3d fi = o_.scan_match_information_scale * f.Information();
+    if (!window_->AddRelative(a->second, b->second, f.delta, fi).ok()) continue;
+    links_.push_back({a->second, b->second, f.delta, fi});
+    ++used;
+  }
+  if (used > 0)
+    c_.scan_match_factors += used;
+  else
+    ++c_.scan_match_failures;
+
+  OptimizeWindow();
+
+  if (k % o_.loop_every_keyframes != 0 || k - last_loop_keyframe_ < o_.loop_cooldown_keyframes) {
+    if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
+      OptimizeGlobal();
+    return;
+  }
+  const auto loops = loop_.OnKeyframe(keyframes_);
+  for (const auto& at : loop_.last_attempts())
+    if (!at.accepted) ++c_.loops_rejected;
+  for (const auto& f : loops) {
+    auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
+    if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
+    links_.push_back({a->second, b->second, f.delta, f.Information()});
+    ++c_.loops_accepted;
+    loops_pending_ = true;
+    last_loop_keyframe_ = k;
+  }
+  if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
+    OptimizeGlobal();
+}
+
+void PoseGraphSlam::OptimizeWindow() {
+  const double t0 = NowMs();
+  auto u = window_->Update();
+  if (clock_) window_ms_.push_back(NowMs() - t0);
+  ++c_.window_updates;
+  if (!u.ok()) {
+    ++c_.window_failures;
+    return;
+  }
+  for (int id : window_->WindowIds())
+    if (auto e = window_->Estimate(id)) keyframes_[static_cast<size_t>(id)].estimate = *e;
+}
+
+io::PoseGraph PoseGraphSlam::Graph() const {
+  io::PoseGraph g;
+  g.vertices2.reserve(keyframes_.size());
+  for (size_t i = 0; i < keyframes_.size(); ++i)
+    g.vertices2.push_back({static_cast<int>(i), keyframes_[i].estimate});
+  g.edges2.reserve(links_.size());
+  for (const auto& l : links_) {
+    io::Edge2 e;
+    e.from = l.from;
+    e.to = l.to;
+    e.measurement = l.z;
+    e.information = 0.5 * (l.information + l.information.transpose());
+    g.edges2.push_back(e);
+  }
+  return g;
+}
+
+void PoseGraphSlam::OptimizeGlobal() {
+  const double t0 = NowMs();
+  io::PoseGraph g = Graph();
+  BatchOptions b = batch_;
+  b.initialization = Initialization::kNone;
+  b.loss = o_.global_loss;
+  b.loss_scale = o_.global_loss_scale;
+  b.max_iterations = o_.global_max_iterations;
+  b.num_threads = o_.num_threads;
+  auto r = OptimizeGraph(&g, b);
+  ++c_.global_optimizations;
+  loops_pending_ = false;
+  last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
+  if (!r.ok()) {
+    ++c_.global_failures;
+    return;
+  }
+  for (const auto& v : g.vertices2) keyframes_[static_cast<size_t>(v.id)].estimate = v.pose;
+  ResetWindow();
+  if (clock_) global_ms_.push_back(NowMs() - t0);
+}
+
+void PoseGraphSlam::ResetWindow() {
+  WindowOptions w;
+  w.window_size = o_.window_size;
+  w.max_iterations = o_.window_max_iterations;
+  w.num_threads = 1;
+  window_ = std::make_unique<SlidingWindowOptimizer>(w);
+  const int k = static_cast<int>(keyframes_.size());
+  const int first = std::max(0, k - o_.window_size);
+  for (int i = first; i < k; ++i)
+    (void)window_->AddPose(i, keyframes_[static_cast<size_t>(i)].estimate);
+  if (k > 0)
+    (void)window_->AddAbsolute(first, keyframes_[static_cast<size_t>(first)].estimate,
+                               AnchorInformation());
+  // Only links inside the window are kept; the others are in the global solution.
+  for (const auto& l : links_)
+    if (l.from >= first && l.to >= first)
+      (void)window_->AddRelative(l.from, l.to, l.z, l.information);
+}
+
+void PoseGraphSlam::Finish() {
+  if (loops_pending_) OptimizeGlobal();
+}
+
+std::vector<ScanPose> PoseGraphSlam::Trajectory() const {
+  std::vector<ScanPose> out;
+  out.reserve(scans_.size());
+  for (const auto& s : scans_)
+    out.push_back(
+        {s.scan_index, s.utime, keyframes_[static_cast<size_t>(s.keyframe)].estimate * s.delta});
+  return out;
+}
+
+io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
+  io::LogOddsGrid grid(options);
+  for (size_t i = 0; i < keyframes_.size(); ++i) {
+    const LaserScan2& s = kf_scans_[i].scan;
+    grid.IntegrateScan(keyframes_[i].estimate * s.laser_in_base, s.ranges_m, s.angle_min_rad,
+                       s.angle_increment_rad, s.max_range_m);
+  }
+  return grid.ToGridMap();
+}
+
+std::map<std::string, int64_t> PoseGraphSlam::PluginCounters() const {
+  std::map<std::string, int64_t> out;
+  for (const auto& [k, v] : match_.counters()) out["scan_match." + k] = v;
+  for (const auto& [k, v] : loop_.counters()) out["loop_closure." + k] = v;
+  return out;
+}
+
+}  // namespace omni::pgm
