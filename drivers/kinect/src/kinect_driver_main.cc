@@ -12,6 +12,8 @@
 #include <memory>
 #include <string>
 
+#include "omni/common/driver_args.h"
+
 #include "omni/common/log.h"
 #include "omni/kinect/kinect_node.h"
 #include "omni/kinect/openni2_source.h"
@@ -36,44 +38,15 @@ int Usage(int code) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config, uri, lcm_url;
-  bool have_uri = false, have_url = false;
-  double duration_s = -1;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--config") {
-      config = next();
-    } else if (a == "--uri") {
-      uri = next();
-      have_uri = true;
-    } else if (a == "--lcm-url") {
-      lcm_url = next();
-      have_url = true;
-    } else if (a == "--duration-s") {
-      char* end = nullptr;
-      const std::string v = next();
-      duration_s = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0') {
-        std::fprintf(stderr, "--duration-s: '%s' is not a number\n", v.c_str());
-        return Usage(2);
-      }
-    } else {
-      std::fprintf(stderr, "unknown option %s\n", a.c_str());
-      return Usage(2);
-    }
-  }
-  if (config.empty()) {
-    std::fprintf(stderr, "--config is required\n");
-    return Usage(2);
-  }
+  omni::DriverArgs args;
+  if (const int code = omni::ParseDriverArgs(argc, argv, "--uri", Usage, &args); code >= 0)
+    return code;
+  const std::string& config = args.config;
+  const std::string& uri = args.device;
+  const std::string& lcm_url = args.lcm_url;
+  const bool have_url = args.have_url;
+  const double duration_s = args.duration_s;
+  const bool have_uri = args.have_device;
   omni::SetLogProcessName("kinect_driver");
   omni::kinect::KinectDriverOptions dopt;
   omni::kinect::KinectNodeOptions nopt;

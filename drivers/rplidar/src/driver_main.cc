@@ -10,6 +10,8 @@
 #include <cstdlib>
 #include <string>
 
+#include "omni/common/driver_args.h"
+
 #include "omni/common/log.h"
 #include "omni/rplidar/rplidar_node.h"
 
@@ -29,34 +31,14 @@ int Usage(int code) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config, port, lcm_url;
-  bool have_url = false;
-  double duration_s = -1;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--config") {
-      config = next();
-    } else if (a == "--port") {
-      port = next();
-    } else if (a == "--lcm-url") {
-      lcm_url = next();
-      have_url = true;
-    } else if (a == "--duration-s") {
-      duration_s = std::atof(next().c_str());
-    } else {
-      std::fprintf(stderr, "unknown option %s\n", a.c_str());
-      return Usage(2);
-    }
-  }
-  if (config.empty()) return Usage(2);
+  omni::DriverArgs args;
+  if (const int code = omni::ParseDriverArgs(argc, argv, "--port", Usage, &args); code >= 0)
+    return code;
+  const std::string& config = args.config;
+  const std::string& port = args.device;
+  const std::string& lcm_url = args.lcm_url;
+  const bool have_url = args.have_url;
+  const double duration_s = args.duration_s;
   omni::SetLogProcessName("rplidar_driver");
   omni::rplidar::DriverOptions dopt;
   omni::rplidar::NodeOptions nopt;
