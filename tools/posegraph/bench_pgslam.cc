@@ -1,0 +1,212 @@
+// omni-bench-pgslam: the online pose-graph mapper (omni-posegraph-slam) beside the RBPF mapper
+// (omni-slam rbpf) on intel-raw and the slam-noisy-odom logs, both as child processes in the same
+// run. Per run: ATE RMSE/max against the reference (omni::eval), wall time, peak resident memory
+// (wait4), and for ours the window-update latency p50/p99 from stats.json. Prints a table and
+// appends one JSON object per row to OUT/posegraph.jsonl (the batch benchmark's file).
+#include <fcntl.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "omni/common/time.h"
+#include "omni/eval/eval.h"
+#include "omni/io/trajectory_io.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Proc {
+  int exit_code = -1;
+  double wall_s = 0, rss_mb = 0;
+};
+
+Proc Spawn(const std::vector<std::string>& argv, const std::string& log_path) {
+  Proc r;
+  const int64_t t0 = omni::MonotonicMicros();
+  const pid_t pid = fork();
+  if (pid < 0) return r;
+  if (pid == 0) {
+    const int in = open("/dev/null", O_RDONLY);
+    const int out = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (in >= 0) dup2(in, 0);
+    if (out >= 0) {
+      dup2(out, 1);
+      dup2(out, 2);
+    }
+    std::vector<char*> args;
+    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  int status = 0;
+  struct rusage ru {};
+  while (wait4(pid, &status, 0, &ru) < 0 && errno == EINTR) {
+  }
+  r.wall_s = static_cast<double>(omni::MonotonicMicros() - t0) * 1e-6;
+  r.rss_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
+}
+
+// A number after "key": in a flat JSON object, or -1.
+double JsonNumber(const std::string& text, const std::string& key) {
+  const auto p = text.find("\"" + key + "\":");
+  if (p == std::string::npos) return -1;
+  return std::atof(text.c_str() + p + key.size() + 3);
+}
+
+struct Row {
+  std::string system, dataset, note;
+  bool ok = false;
+  double ate_rmse = 0, ate_max = 0, wall_s = 0, rss_mb = 0, p50 = -1, p99 = -1;
+  double loops = -1;
+};
+
+void Usage(std::FILE* f) {
+  std::fprintf(f,
+               "usage: omni-bench-pgslam [--datasets DIR] [--out DIR] [--no-rbpf] [--only NAME]\n"
+               "                         [--max-scans N]\n"
+               "  Online table: omni-posegraph-slam beside omni-slam rbpf on intel-raw and the\n"
+               "  four slam-noisy-odom logs: ATE RMSE/max, wall, peak RSS, window latency\n"
+               "  p50/p99. Rows are appended to OUT/posegraph.jsonl (default out/bench).\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string datasets = OMNI_DEFAULT_DATASETS, out = "out/bench", only, max_scans;
+  bool rbpf = true;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "omni-bench-pgslam: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--help" || a == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--datasets") {
+      datasets = val();
+    } else if (a == "--out") {
+      out = val();
+    } else if (a == "--only") {
+      only = val();
+    } else if (a == "--max-scans") {
+      max_scans = val();
+    } else if (a == "--no-rbpf") {
+      rbpf = false;
+    } else {
+      std::fprintf(stderr, "omni-bench-pgslam: unknown option '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  const fs::path bin = fs::path(argv[0]).parent_path();
+  struct Data {
+    std::string name, log, ref;
+  };
+  const std::vector<Data> all = {
+      {"intel-raw", "intel-raw/intel.clf", "intel-raw/intel.reference.txt"},
+      {"aces-noisy", "slam-noisy-odom/aces.noisy.clf.gz", "slam-noisy-odom/aces.reference.txt"},
+      {"intel-noisy", "slam-noisy-odom/intel.noisy.clf.gz", "slam-noisy-odom/intel.reference.txt"},
+      {"csail-noisy", "slam-noisy-odom/csail.noisy.clf.gz", "slam-noisy-odom/csail.reference.txt"},
+      {"fr079-noisy", "slam-noisy-odom/freiburg-079.noisy.clf.gz",
+       "slam-noisy-odom/freiburg-079.reference.txt"}};
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  std::vector<Row> rows;
+  for (const auto& d : all) {
+    if (!only.empty() && d.name != only) continue;
+    const std::string log = datasets + "/" + d.log, ref_path = datasets + "/" + d.ref;
+    for (const std::string system : {"omni-posegraph", "omni-rbpf"}) {
+      if (system == "omni-rbpf" && !rbpf) continue;
+      Row row;
+      row.system = system;
+      row.dataset = d.name;
+      if (!fs::exists(log) || !fs::exists(ref_path)) {
+        row.note = "dataset absent";
+        rows.push_back(row);
+        continue;
+      }
+      const std::string dir = out + "/pgslam-" + d.name + "-" + system;
+      std::vector<std::string> args = {(bin / "omni-slam").string(),
+                                       system == "omni-rbpf" ? "rbpf" : "posegraph",
+                                       log,
+                                       "--out",
+                                       dir,
+                                       "--quiet"};
+      if (!max_scans.empty()) {
+        args.push_back("--max-scans");
+        args.push_back(max_scans);
+      }
+      fs::create_directories(dir, ec);
+      const Proc p = Spawn(args, dir + ".log");
+      row.wall_s = p.wall_s;
+      row.rss_mb = p.rss_mb;
+      if (p.exit_code != 0) {
+        row.note = "exit " + std::to_string(p.exit_code) + " (see " + dir + ".log)";
+        rows.push_back(row);
+        continue;
+      }
+      auto ref = omni::io::ReadTrajectory(ref_path);
+      auto est = omni::io::ReadTrajectory(dir + "/trajectory.txt");
+      if (!ref.ok() || !est.ok()) {
+        row.note = "cannot read trajectories";
+        rows.push_back(row);
+        continue;
+      }
+      auto ate = omni::eval::ComputeAte(*ref, *est);
+      if (!ate.ok()) {
+        row.note = ate.error().message;
+        rows.push_back(row);
+        continue;
+      }
+      row.ok = true;
+      row.ate_rmse = ate->rmse_m;
+      row.ate_max = ate->max_m;
+      std::ifstream sf(dir + "/stats.json");
+      std::stringstream ss;
+      ss << sf.rdbuf();
+      if (system == "omni-posegraph") {
+        row.p50 = JsonNumber(ss.str(), "latency_p50_ms");
+        row.p99 = JsonNumber(ss.str(), "latency_p99_ms");
+        row.loops = JsonNumber(ss.str(), "loops_accepted");
+      }
+      rows.push_back(row);
+      std::fprintf(stderr, "omni-bench-pgslam: %s %s done (%.1f s)\n", d.name.c_str(),
+                   system.c_str(), row.wall_s);
+    }
+  }
+  std::printf(
+      "| dataset | system | ATE RMSE m | ATE max m | wall s | peak RSS MB | window p50 ms "
+      "| window p99 ms | loops | note |\n|---|---|---|---|---|---|---|---|---|---|\n");
+  std::ofstream jl(out + "/posegraph.jsonl", std::ios::app);
+  for (const auto& r : rows) {
+    std::printf("| %s | %s | %.3f | %.3f | %.1f | %.0f | %s | %s | %s | %s |\n", r.dataset.c_str(),
+                r.system.c_str(), r.ate_rmse, r.ate_max, r.wall_s, r.rss_mb,
+                r.p50 >= 0 ? std::to_string(r.p50).c_str() : "-",
+                r.p99 >= 0 ? std::to_string(r.p99).c_str() : "-",
+                r.loops >= 0 ? std::to_string(static_cast<long>(r.loops)).c_str() : "-",
+                r.note.c_str());
+    jl << "{\"bench\": \"pgslam\", \"system\": \"" << r.system << "\", \"dataset\": \"" << r.dataset
+       << "\", \"ok\": " << (r.ok ? "true" : "false") << ", \"ate_rmse_m\": " << r.ate_rmse
+       << ", \"ate_max_m\": " << r.ate_max << ", \"wall_s\": " << r.wall_s
+       << ", \"peak_rss_mb\": " << r.rss_mb << ", \"latency_p50_ms\": " << r.p50
+       << ", \"latency_p99_ms\": " << r.p99 << ", \"note\": \"" << r.note << "\"}\n";
+  }
+  return 0;
+}
