@@ -42,7 +42,9 @@ struct PoseGraphSlamOptions {
   double max_odom_jump_m = 1.0;      // a larger step between two odometry samples is a jump
   double max_odom_jump_rad = 1.0;    // ... or a larger turn
   double max_scan_odom_gap_s = 0.5;  // a scan this much newer than the odometry is rejected
-  OdometryNoise odometry_noise;      // odometry factor covariance growth
+  // Odometry factor covariance growth: 10x the source's defaults on distance and rotation, so
+  // the scan matches dominate (intel-raw: ATE 0.21 m with the defaults, 0.10 m with these).
+  OdometryNoise odometry_noise{1e-2, 1e-4, 1e-3, 1e-2, 1e-6, 1e-6};
   double scan_match_information_scale = 1.0;  // scales the keyframe matcher's information
   // Global optimisation on accepted loops.
   std::string global_loss = "cauchy";  // none | huber | cauchy
