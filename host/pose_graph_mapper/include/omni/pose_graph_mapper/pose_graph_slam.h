@@ -39,8 +39,8 @@ struct PoseGraphSlamOptions {
   int window_max_iterations = 10;
   // Input checks.
   int min_beams = 30;                // scans with fewer usable beams are rejected
-  double max_odom_jump_m = 1.0;      // a larger step between two odometry samples is a jump
-  double max_odom_jump_rad = 1.0;    // ... or a larger turn
+  double max_odom_jump_m = 3.0;      // a larger step between two odometry samples is a jump
+  double max_odom_jump_rad = 2.5;    // ... or a larger turn
   double max_scan_odom_gap_s = 0.5;  // a scan this much newer than the odometry is rejected
   // Odometry factor covariance growth: 10x the source's defaults on distance and rotation, so
   // the scan matches dominate (intel-raw: ATE 0.21 m with the defaults, 0.10 m with these).
