@@ -73,6 +73,14 @@ struct Row {
   double loops = -1;
 };
 
+// Two decimals, or "-" for a figure the system does not report.
+std::string Fixed(double v) {
+  if (v < 0) return "-";
+  char b[32];
+  std::snprintf(b, sizeof b, "%.2f", v);
+  return b;
+}
+
 void Usage(std::FILE* f) {
   std::fprintf(f,
                "usage: omni-bench-pgslam [--datasets DIR] [--out DIR] [--no-rbpf] [--only NAME]\n"
@@ -197,9 +205,8 @@ int main(int argc, char** argv) {
   std::ofstream jl(out + "/posegraph.jsonl", std::ios::app);
   for (const auto& r : rows) {
     std::printf("| %s | %s | %.3f | %.3f | %.1f | %.0f | %s | %s | %s | %s |\n", r.dataset.c_str(),
-                r.system.c_str(), r.ate_rmse, r.ate_max, r.wall_s, r.rss_mb,
-                r.p50 >= 0 ? std::to_string(r.p50).c_str() : "-",
-                r.p99 >= 0 ? std::to_string(r.p99).c_str() : "-",
+                r.system.c_str(), r.ate_rmse, r.ate_max, r.wall_s, r.rss_mb, Fixed(r.p50).c_str(),
+                Fixed(r.p99).c_str(),
                 r.loops >= 0 ? std::to_string(static_cast<long>(r.loops)).c_str() : "-",
                 r.note.c_str());
     jl << "{\"bench\": \"pgslam\", \"system\": \"" << r.system << "\", \"dataset\": \"" << r.dataset
