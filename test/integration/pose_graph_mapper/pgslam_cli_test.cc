@@ -23,8 +23,9 @@ const std::string kLog =
 const std::string kRef =
     std::string(OMNI_DATASETS_DIR) + "/slam-noisy-odom/freiburg-079.reference.txt";
 
-// Measured 0.142 m (ATE RMSE over the 800 scans, shipped config, 2026-12-01): 1.75x margin.
-constexpr double kAteBoundM = 0.25;
+// Measured 0.040 m (ATE RMSE over the first 400 scans, shipped config, 2026-12-01): 2.5x
+// margin. (400 scans: the test must also finish under ASan + UBSan in a Debug build.)
+constexpr double kAteBoundM = 0.10;
 
 double AteRmse(const std::string& output) {
   const auto p = output.find("RMSE ");
@@ -65,7 +66,7 @@ TEST(PoseGraphSlamCli, PrefixOfANoisyLogThroughOmniSlam) {
   const std::string dir = testing::TempDir() + "/out";
   const std::string cfg = std::string(OMNI_SOURCE_DIR) + "/config/pose_graph_mapper.yaml";
   auto r = testing::Run(Bin("omni-slam") + " posegraph " + kLog + " --out " + dir +
-                        " --max-scans 800 --quiet --config " + cfg);
+                        " --max-scans 400 --quiet --config " + cfg);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   for (const char* f :
        {"trajectory.txt", "map.pgm", "map.yaml", "map.png", "graph.g2o", "stats.json"})
@@ -73,7 +74,7 @@ TEST(PoseGraphSlamCli, PrefixOfANoisyLogThroughOmniSlam) {
   std::ifstream in(dir + "/stats.json");
   std::stringstream ss;
   ss << in.rdbuf();
-  EXPECT_NE(ss.str().find("\"scans\": 800"), std::string::npos) << ss.str();
+  EXPECT_NE(ss.str().find("\"scans\": 400"), std::string::npos) << ss.str();
   r = testing::Run(Bin("omni-eval") + " ate " + kRef + " " + dir + "/trajectory.txt");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_LT(AteRmse(r.output), kAteBoundM) << r.output;
