@@ -15,15 +15,12 @@
 #include <string>
 #include <vector>
 
+#include "omni/bus/slam_log.h"
 #include "omni/common/time.h"
-#include "omni/io/carmen.h"
 #include "omni/io/g2o.h"
 #include "omni/io/grid.h"
 #include "omni/io/image_io.h"
-#include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
-#include "omni/laser_scan_t.hpp"
-#include "omni/odometry_t.hpp"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 
 namespace fs = std::filesystem;
@@ -39,13 +36,6 @@ void Usage(std::FILE* f) {
       "  log (LIDAR_SCAN + WHEEL_ODOM). Writes DIR/trajectory.txt (every scan), DIR/map.pgm,\n"
       "  map.yaml, map.png, map_trajectory.png, DIR/graph.g2o and DIR/stats.json.\n"
       "  --config FILE   default: the built-in defaults (see config/pose_graph_mapper.yaml)\n");
-}
-
-bool IsLcmLog(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char b[4] = {0, 0, 0, 0};
-  in.read(reinterpret_cast<char*>(b), 4);
-  return in.gcount() == 4 && b[0] == 0xED && b[1] == 0xA1 && b[2] == 0xDA && b[3] == 0x01;
 }
 
 double Percentile(std::vector<double> v, double p) {
@@ -131,83 +121,40 @@ int main(int argc, char** argv) {
   const int64_t t_start = omni::MonotonicMicros();
   omni::SystemClock clock;
   omni::pgm::PoseGraphSlam slam(opt, batch, &clock);
-  int64_t scans = 0, decode_errors = 0;
+  int64_t scans = 0;
   auto progress = [&]() {
     if (!quiet && scans % 1000 == 0)
       std::fprintf(stderr, "omni-posegraph-slam: scan %lld, %zu keyframes, %lld loops\n",
                    static_cast<long long>(scans), slam.keyframes().size(),
                    static_cast<long long>(slam.counters().loops_accepted));
   };
-  if (IsLcmLog(input)) {
-    auto reader = omni::io::LcmLogReader::Open(input);
-    if (!reader.ok()) {
-      std::fprintf(stderr, "omni-posegraph-slam: %s\n", reader.error().message.c_str());
-      return 1;
-    }
-    omni::io::LcmLogEvent ev;
-    for (;;) {
-      auto more = reader->Next(&ev, /*resync=*/true);
-      if (!more.ok()) {
-        std::fprintf(stderr, "omni-posegraph-slam: %s (stopping there)\n",
-                     more.error().message.c_str());
-        break;
-      }
-      if (!*more) break;
-      const int size = static_cast<int>(ev.data.size());
-      if (ev.channel == "LIDAR_SCAN") {
-        omni::laser_scan_t m;
-        if (m.decode(ev.data.data(), 0, size) < 0) {
-          ++decode_errors;
-          continue;
-        }
-        omni::pgm::LaserScan2 s;
-        s.utime = m.utime;
-        s.laser_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-        s.angle_min_rad = m.angle_min_rad;
-        s.angle_increment_rad = m.angle_increment_rad;
-        s.min_range_m = m.range_min_m;
-        s.max_range_m = m.range_max_m;
-        s.ranges_m = m.ranges_m;
-        slam.AddScan(scans, s);
-        ++scans;
-        progress();
-        if (max_scans >= 0 && scans >= max_scans) break;
-      } else if (ev.channel == "WHEEL_ODOM") {
-        omni::odometry_t m;
-        if (m.decode(ev.data.data(), 0, size) < 0) {
-          ++decode_errors;
-          continue;
-        }
-        slam.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
-      }
-    }
-  } else {
-    auto log = omni::io::ReadCarmenLog(input);
-    if (!log.ok()) {
-      std::fprintf(stderr, "omni-posegraph-slam: %s\n", log.error().message.c_str());
-      return 1;
-    }
-    for (const auto& rec : log->records) {
-      if (max_scans >= 0 && scans >= max_scans) break;
-      if (rec.kind == omni::io::CarmenRecord::Kind::kOdom) {
-        slam.AddOdometry(omni::SecondsToUtime(rec.odom.timestamp_s), rec.odom.pose);
-        continue;
-      }
-      const auto& l = rec.laser;
-      omni::pgm::LaserScan2 s;
-      s.utime = omni::SecondsToUtime(l.timestamp_s);
-      s.laser_in_base = l.robot_pose.Between(l.laser_pose);
-      s.angle_min_rad = l.angle_min_rad;
-      s.angle_increment_rad = l.angle_increment_rad;
-      s.max_range_m = l.max_range_m;
-      s.ranges_m = l.ranges_m;
-      // The laser line carries the odometry pose at the scan.
-      slam.AddOdometry(s.utime, l.robot_pose);
-      slam.AddScan(scans, s);
-      ++scans;
-      progress();
-    }
+  omni::bus::SlamLogHandlers handlers;
+  handlers.scan = [&](const omni::bus::SlamScan& in) {
+    if (max_scans >= 0 && scans >= max_scans) return false;
+    omni::pgm::LaserScan2 s;
+    s.utime = in.utime;
+    s.laser_in_base = in.sensor_in_base;
+    s.angle_min_rad = in.angle_min_rad;
+    s.angle_increment_rad = in.angle_increment_rad;
+    if (in.range_min_m) s.min_range_m = *in.range_min_m;
+    s.max_range_m = in.range_max_m;
+    s.ranges_m = in.ranges_m;
+    // A CARMEN laser line carries the odometry pose at the scan.
+    if (in.odom) slam.AddOdometry(s.utime, *in.odom);
+    slam.AddScan(scans, s);
+    ++scans;
+    progress();
+    return !(max_scans >= 0 && scans >= max_scans);
+  };
+  handlers.odom = [&](int64_t utime, const omni::Pose2& p) { slam.AddOdometry(utime, p); };
+  auto read = omni::bus::ReadSlamLog(input, omni::bus::SlamLogChannels{}, handlers);
+  if (!read.ok()) {
+    std::fprintf(stderr, "omni-posegraph-slam: %s\n", read.error().message.c_str());
+    return 1;
   }
+  if (!read->stopped_early.empty())
+    std::fprintf(stderr, "omni-posegraph-slam: %s (stopping there)\n", read->stopped_early.c_str());
+  const int64_t decode_errors = read->decode_errors;
   slam.Finish();
   const auto traj = slam.Trajectory();
   const auto& c = slam.counters();

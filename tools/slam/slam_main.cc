@@ -20,16 +20,12 @@
 #include <string>
 #include <vector>
 
+#include "omni/bus/slam_log.h"
 #include "omni/common/config.h"
 #include "omni/common/time.h"
-#include "omni/imu_t.hpp"
-#include "omni/io/carmen.h"
 #include "omni/io/grid.h"
 #include "omni/io/image_io.h"
-#include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
-#include "omni/laser_scan_t.hpp"
-#include "omni/odometry_t.hpp"
 #include "omni/rbpf_mapper/rbpf.h"
 
 namespace fs = std::filesystem;
@@ -52,18 +48,9 @@ void Usage(std::FILE* f) {
       "usage: omni-slam posegraph ...   runs omni-posegraph-slam (pose-graph mapper) if built\n");
 }
 
-bool IsLcmLog(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char b[4] = {0, 0, 0, 0};
-  in.read(reinterpret_cast<char*>(b), 4);
-  return in.gcount() == 4 && b[0] == 0xED && b[1] == 0xA1 && b[2] == 0xDA && b[3] == 0x01;
-}
-
 struct Input {
   std::vector<double> scan_time_s;  // by scan index
 };
-
-double YawRateFromImu(const omni::imu_t& m) { return m.angular_velocity_rad_s[2]; }
 
 }  // namespace
 
@@ -193,83 +180,41 @@ int main(int argc, char** argv) {
 
   const int64_t t_start = omni::MonotonicMicros();
   omni::rbpf::RbpfSlam slam(opt);
-  int64_t scans = 0, decode_errors = 0;
+  int64_t scans = 0;
   auto report = [&](const omni::rbpf::ScanResult& r) {
     if (!quiet && r.scan_index % 500 == 0)
       std::fprintf(stderr, "omni-slam: scan %lld  pose %.2f %.2f %.3f\n",
                    static_cast<long long>(r.scan_index), r.pose.x, r.pose.y, r.pose.theta);
   };
-  if (IsLcmLog(input)) {
-    auto reader = omni::io::LcmLogReader::Open(input);
-    if (!reader.ok()) {
-      std::fprintf(stderr, "omni-slam: %s\n", reader.error().message.c_str());
-      return 1;
-    }
-    omni::io::LcmLogEvent ev;
-    for (;;) {
-      auto more = reader->Next(&ev, /*resync=*/true);
-      if (!more.ok()) {
-        std::fprintf(stderr, "omni-slam: %s (stopping there)\n", more.error().message.c_str());
-        break;
-      }
-      if (!*more) break;
-      const int size = static_cast<int>(ev.data.size());
-      if (ev.channel == opt.scan_channel) {
-        omni::laser_scan_t m;
-        if (m.decode(ev.data.data(), 0, size) < 0) {
-          ++decode_errors;
-          continue;
-        }
-        omni::rbpf::ScanInput s;
-        s.utime = m.utime;
-        s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-        s.angle_min_rad = m.angle_min_rad;
-        s.angle_increment_rad = m.angle_increment_rad;
-        s.range_min_m = m.range_min_m;
-        s.range_max_m = m.range_max_m;
-        s.ranges_m = m.ranges_m;
-        report(slam.AddScan(s));
-        if (max_scans >= 0 && ++scans >= max_scans) break;
-      } else if (ev.channel == opt.odom_channel) {
-        omni::odometry_t m;
-        if (m.decode(ev.data.data(), 0, size) < 0) {
-          ++decode_errors;
-          continue;
-        }
-        slam.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
-      } else if (ev.channel == opt.imu_channel) {
-        omni::imu_t m;
-        if (m.decode(ev.data.data(), 0, size) < 0) {
-          ++decode_errors;
-          continue;
-        }
-        slam.AddImuYawRate(m.utime, YawRateFromImu(m));
-      }
-    }
-  } else {
-    auto log = omni::io::ReadCarmenLog(input);
-    if (!log.ok()) {
-      std::fprintf(stderr, "omni-slam: %s\n", log.error().message.c_str());
-      return 1;
-    }
-    for (const auto& rec : log->records) {
-      if (rec.kind == omni::io::CarmenRecord::Kind::kOdom) {
-        slam.AddOdometry(omni::SecondsToUtime(rec.odom.timestamp_s), rec.odom.pose);
-        continue;
-      }
-      const auto& l = rec.laser;
-      omni::rbpf::ScanInput s;
-      s.utime = omni::SecondsToUtime(l.timestamp_s);
-      s.sensor_in_base = l.robot_pose.Between(l.laser_pose);
-      s.angle_min_rad = l.angle_min_rad;
-      s.angle_increment_rad = l.angle_increment_rad;
-      s.range_max_m = l.max_range_m;
-      s.ranges_m = l.ranges_m;
-      s.odom = l.robot_pose;
-      report(slam.AddScan(s));
-      if (max_scans >= 0 && ++scans >= max_scans) break;
-    }
+  omni::bus::SlamLogChannels channels;
+  channels.scan = opt.scan_channel;
+  channels.odom = opt.odom_channel;
+  channels.imu = opt.imu_channel;
+  omni::bus::SlamLogHandlers handlers;
+  handlers.scan = [&](const omni::bus::SlamScan& in) {
+    if (max_scans >= 0 && scans >= max_scans) return false;
+    omni::rbpf::ScanInput s;
+    s.utime = in.utime;
+    s.sensor_in_base = in.sensor_in_base;
+    s.angle_min_rad = in.angle_min_rad;
+    s.angle_increment_rad = in.angle_increment_rad;
+    if (in.range_min_m) s.range_min_m = *in.range_min_m;
+    s.range_max_m = in.range_max_m;
+    s.ranges_m = in.ranges_m;
+    s.odom = in.odom;
+    report(slam.AddScan(s));
+    return !(max_scans >= 0 && ++scans >= max_scans);
+  };
+  handlers.odom = [&](int64_t utime, const omni::Pose2& p) { slam.AddOdometry(utime, p); };
+  handlers.imu = [&](int64_t utime, double rate) { slam.AddImuYawRate(utime, rate); };
+  auto read = omni::bus::ReadSlamLog(input, channels, handlers);
+  if (!read.ok()) {
+    std::fprintf(stderr, "omni-slam: %s\n", read.error().message.c_str());
+    return 1;
   }
+  if (!read->stopped_early.empty())
+    std::fprintf(stderr, "omni-slam: %s (stopping there)\n", read->stopped_early.c_str());
+  const int64_t decode_errors = read->decode_errors;
   const auto& c = slam.counters();
   const auto traj = slam.BestTrajectory();
   const auto map = slam.BestMap();

@@ -1,0 +1,52 @@
+// A recorded log as the inputs of a 2D SLAM run: laser scans, wheel odometry and the gyro's yaw
+// rate, in file order, from a CARMEN log (.clf/.log, optionally gzip) or an LCM log of omni's
+// messages (recognised by its sync word). The offline SLAM runners share it.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "omni/common/geometry.h"
+#include "omni/common/result.h"
+
+namespace omni::bus {
+
+struct SlamScan {
+  int64_t utime = 0;
+  Pose2 sensor_in_base;
+  float angle_min_rad = 0;
+  float angle_increment_rad = 0;
+  std::optional<float> range_min_m;  // absent: the log does not say (CARMEN)
+  float range_max_m = 0;
+  std::vector<float> ranges_m;
+  std::optional<Pose2> odom;  // the base's odometry pose at the scan, when the line carries it
+};
+
+struct SlamLogChannels {
+  std::string scan = "LIDAR_SCAN";
+  std::string odom = "WHEEL_ODOM";
+  std::string imu = "IMU";
+};
+
+struct SlamLogHandlers {
+  std::function<bool(const SlamScan&)> scan;  // false stops the reading
+  std::function<void(int64_t utime, const Pose2& pose)> odom;
+  std::function<void(int64_t utime, double yaw_rate_rad_s)> imu;  // may be empty
+};
+
+struct SlamLogResult {
+  int64_t decode_errors = 0;  // LCM events on a SLAM channel that did not decode (skipped)
+  std::string stopped_early;  // a corrupt LCM log: where and why the reading stopped
+};
+
+bool IsLcmLogFile(const std::string& path);
+
+// Reads `path` and calls the handlers in file order. An unreadable file or a bad CARMEN line is
+// an error; corruption inside an LCM log ends the reading there (said in `stopped_early`).
+Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
+                                  const SlamLogHandlers& handlers);
+
+}  // namespace omni::bus

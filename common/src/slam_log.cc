@@ -1,0 +1,100 @@
+#include "omni/bus/slam_log.h"
+
+#include <fstream>
+
+#include "omni/common/time.h"
+#include "omni/imu_t.hpp"
+#include "omni/io/carmen.h"
+#include "omni/io/lcm_log.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odometry_t.hpp"
+
+namespace omni::bus {
+
+bool IsLcmLogFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[4] = {0, 0, 0, 0};
+  in.read(reinterpret_cast<char*>(b), 4);
+  return in.gcount() == 4 && b[0] == 0xED && b[1] == 0xA1 && b[2] == 0xDA && b[3] == 0x01;
+}
+
+namespace {
+
+Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& channels,
+                              const SlamLogHandlers& handlers) {
+  auto reader = io::LcmLogReader::Open(path);
+  if (!reader.ok()) return reader.error();
+  SlamLogResult out;
+  io::LcmLogEvent ev;
+  for (;;) {
+    auto more = reader->Next(&ev, /*resync=*/true);
+    if (!more.ok()) {
+      out.stopped_early = more.error().message;
+      break;
+    }
+    if (!*more) break;
+    const int size = static_cast<int>(ev.data.size());
+    if (ev.channel == channels.scan) {
+      omni::laser_scan_t m;
+      if (m.decode(ev.data.data(), 0, size) < 0) {
+        ++out.decode_errors;
+        continue;
+      }
+      SlamScan s;
+      s.utime = m.utime;
+      s.sensor_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+      s.angle_min_rad = m.angle_min_rad;
+      s.angle_increment_rad = m.angle_increment_rad;
+      s.range_min_m = m.range_min_m;
+      s.range_max_m = m.range_max_m;
+      s.ranges_m = std::move(m.ranges_m);
+      if (!handlers.scan(s)) break;
+    } else if (ev.channel == channels.odom) {
+      omni::odometry_t m;
+      if (m.decode(ev.data.data(), 0, size) < 0) {
+        ++out.decode_errors;
+        continue;
+      }
+      handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
+    } else if (handlers.imu && ev.channel == channels.imu) {
+      omni::imu_t m;
+      if (m.decode(ev.data.data(), 0, size) < 0) {
+        ++out.decode_errors;
+        continue;
+      }
+      handlers.imu(m.utime, m.angular_velocity_rad_s[2]);
+    }
+  }
+  return out;
+}
+
+Result<SlamLogResult> ReadCarmen(const std::string& path, const SlamLogHandlers& handlers) {
+  auto log = io::ReadCarmenLog(path);
+  if (!log.ok()) return log.error();
+  for (const auto& rec : log->records) {
+    if (rec.kind == io::CarmenRecord::Kind::kOdom) {
+      handlers.odom(SecondsToUtime(rec.odom.timestamp_s), rec.odom.pose);
+      continue;
+    }
+    const auto& l = rec.laser;
+    SlamScan s;
+    s.utime = SecondsToUtime(l.timestamp_s);
+    s.sensor_in_base = l.robot_pose.Between(l.laser_pose);
+    s.angle_min_rad = l.angle_min_rad;
+    s.angle_increment_rad = l.angle_increment_rad;
+    s.range_max_m = l.max_range_m;
+    s.ranges_m = l.ranges_m;
+    s.odom = l.robot_pose;
+    if (!handlers.scan(s)) break;
+  }
+  return SlamLogResult{};
+}
+
+}  // namespace
+
+Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
+                                  const SlamLogHandlers& handlers) {
+  return IsLcmLogFile(path) ? ReadLcm(path, channels, handlers) : ReadCarmen(path, handlers);
+}
+
+}  // namespace omni::bus
