@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/bench/measured_run.h"
 #include "omni/common/time.h"
 #include "omni/eval/eval.h"
 #include "omni/io/trajectory_io.h"
@@ -24,40 +25,6 @@
 namespace fs = std::filesystem;
 
 namespace {
-
-struct Proc {
-  int exit_code = -1;
-  double wall_s = 0, rss_mb = 0;
-};
-
-Proc Spawn(const std::vector<std::string>& argv, const std::string& log_path) {
-  Proc r;
-  const int64_t t0 = omni::MonotonicMicros();
-  const pid_t pid = fork();
-  if (pid < 0) return r;
-  if (pid == 0) {
-    const int in = open("/dev/null", O_RDONLY);
-    const int out = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (in >= 0) dup2(in, 0);
-    if (out >= 0) {
-      dup2(out, 1);
-      dup2(out, 2);
-    }
-    std::vector<char*> args;
-    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-    args.push_back(nullptr);
-    execv(args[0], args.data());
-    _exit(127);
-  }
-  int status = 0;
-  struct rusage ru {};
-  while (wait4(pid, &status, 0, &ru) < 0 && errno == EINTR) {
-  }
-  r.wall_s = static_cast<double>(omni::MonotonicMicros() - t0) * 1e-6;
-  r.rss_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  return r;
-}
 
 // A number after "key": in a flat JSON object, or -1.
 double JsonNumber(const std::string& text, const std::string& key) {
@@ -162,9 +129,9 @@ int main(int argc, char** argv) {
         args.push_back(max_scans);
       }
       fs::create_directories(dir, ec);
-      const Proc p = Spawn(args, dir + ".log");
+      const auto p = omni::bench::RunMeasured(args, dir + ".log");
       row.wall_s = p.wall_s;
-      row.rss_mb = p.rss_mb;
+      row.rss_mb = p.peak_rss_mb();
       if (p.exit_code != 0) {
         row.note = "exit " + std::to_string(p.exit_code) + " (see " + dir + ".log)";
         rows.push_back(row);

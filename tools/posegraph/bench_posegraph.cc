@@ -24,58 +24,13 @@
 #include <thread>
 #include <vector>
 
+#include "omni/bench/measured_run.h"
 #include "omni/io/g2o.h"
 #include "omni/pose_graph_mapper/chi2.h"
 
 namespace fs = std::filesystem;
 
 namespace {
-
-struct RunResult {
-  bool started = false;
-  int exit_code = -1;
-  bool timed_out = false;
-  double wall_s = 0;
-  long max_rss_kb = 0;
-};
-
-// Runs argv with stdout+stderr to `log`, waiting at most timeout_s.
-RunResult Run(const std::vector<std::string>& argv, const std::string& log, double timeout_s) {
-  RunResult r;
-  std::vector<char*> args;
-  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-  args.push_back(nullptr);
-  const auto t0 = std::chrono::steady_clock::now();
-  const pid_t pid = fork();
-  if (pid < 0) return r;
-  if (pid == 0) {
-    const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (fd >= 0) {
-      dup2(fd, 1);
-      dup2(fd, 2);
-      close(fd);
-    }
-    execv(args[0], args.data());
-    _exit(127);
-  }
-  r.started = true;
-  int status = 0;
-  struct rusage ru {};
-  while (true) {
-    const pid_t w = wait4(pid, &status, WNOHANG, &ru);
-    if (w == pid) break;
-    const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (el > timeout_s && !r.timed_out) {
-      kill(pid, SIGKILL);
-      r.timed_out = true;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  }
-  r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  r.max_rss_kb = ru.ru_maxrss;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  return r;
-}
 
 std::string ReadAll(const std::string& path) {
   std::ifstream f(path);
@@ -109,17 +64,6 @@ std::optional<double> ScoreResult(const omni::io::PoseGraph& graph, const std::s
     return std::nullopt;
   }
   return *chi2;
-}
-
-std::string FindInPath(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::istringstream in(path ? path : "/usr/bin:/bin");
-  std::string dir;
-  while (std::getline(in, dir, ':')) {
-    const fs::path p = fs::path(dir) / name;
-    if (access(p.c_str(), X_OK) == 0) return p.string();
-  }
-  return "";
 }
 
 struct Row {
@@ -196,7 +140,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni bench posegraph: %s is not built\n", ours.c_str());
     return 1;
   }
-  if (peer.empty()) peer = FindInPath("graph-slam");
+  if (peer.empty()) peer = omni::bench::FindInPath("graph-slam");
   if (peer == "none") peer.clear();
   if (peer.empty())
     std::printf(
@@ -231,9 +175,10 @@ int main(int argc, char** argv) {
     {
       const std::string out = (work / (name + ".ours.g2o")).string();
       const std::string log = (work / (name + ".ours.log")).string();
-      RunResult r = Run({ours, "optimize", file.string(), "-o", out, "--json"}, log, timeout_s);
+      omni::bench::MeasuredRun r = omni::bench::RunMeasured(
+          {ours, "optimize", file.string(), "-o", out, "--json"}, log, timeout_s);
       o.wall_s = r.wall_s;
-      o.max_rss_kb = r.max_rss_kb;
+      o.max_rss_kb = r.peak_rss_kb;
       const std::string text = ReadAll(log);
       if (r.timed_out) {
         o.status = "timeout";
@@ -258,10 +203,11 @@ int main(int argc, char** argv) {
       const std::string out = (work / (name + ".mrpt.g2o")).string();
       const std::string log = (work / (name + ".mrpt.log")).string();
       fs::remove(out);
-      RunResult r = Run({peer, "--levmarq", is3d ? "--3d" : "--2d", "-i", file.string(), "-o", out},
-                        log, timeout_s);
+      omni::bench::MeasuredRun r = omni::bench::RunMeasured(
+          {peer, "--levmarq", is3d ? "--3d" : "--2d", "-i", file.string(), "-o", out}, log,
+          timeout_s);
       p.wall_s = r.wall_s;
-      p.max_rss_kb = r.max_rss_kb;
+      p.max_rss_kb = r.peak_rss_kb;
       const std::string text = ReadAll(log);
       int it = -1;  // MRPT prints "Iter: k ,total sqr. err: ..." per iteration
       for (size_t at = text.find("Iter: "); at != std::string::npos;

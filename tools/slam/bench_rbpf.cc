@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/bench/measured_run.h"
 #include "omni/common/time.h"
 #include "omni/eval/eval.h"
 #include "omni/io/trajectory_io.h"
@@ -66,58 +67,6 @@ std::vector<std::string> Split(const std::string& s) {
   while (std::getline(ss, item, ','))
     if (!item.empty()) out.push_back(item);
   return out;
-}
-
-std::string FindInPath(const std::string& exe) {
-  const char* path = std::getenv("PATH");
-  if (!path) return "";
-  std::stringstream ss(path);
-  std::string dir;
-  while (std::getline(ss, dir, ':')) {
-    const fs::path p = fs::path(dir) / exe;
-    if (!dir.empty() && access(p.c_str(), X_OK) == 0) return p.string();
-  }
-  return "";
-}
-
-struct RunResult {
-  bool ok = false;
-  int exit_code = -1;
-  double wall_s = 0;
-  double peak_rss_mb = 0;
-};
-
-// Runs argv with stdin from /dev/null and stdout+stderr to `log_path`.
-RunResult Run(const std::vector<std::string>& argv, const std::string& log_path,
-              const std::string& cwd = "") {
-  RunResult r;
-  const int64_t t0 = omni::MonotonicMicros();
-  const pid_t pid = fork();
-  if (pid < 0) return r;
-  if (pid == 0) {
-    const int in = open("/dev/null", O_RDONLY);
-    const int out = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (in >= 0) dup2(in, 0);
-    if (out >= 0) {
-      dup2(out, 1);
-      dup2(out, 2);
-    }
-    if (!cwd.empty() && chdir(cwd.c_str()) != 0) _exit(127);
-    std::vector<char*> args;
-    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-    args.push_back(nullptr);
-    execv(args[0], args.data());
-    _exit(127);
-  }
-  int status = 0;
-  struct rusage ru {};
-  while (wait4(pid, &status, 0, &ru) < 0 && errno == EINTR) {
-  }
-  r.wall_s = static_cast<double>(omni::MonotonicMicros() - t0) * 1e-6;
-  r.peak_rss_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;  // KiB -> MiB
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  r.ok = r.exit_code == 0;
-  return r;
 }
 
 struct Row {
@@ -300,7 +249,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-bench-rbpf: %s is not built\n", ours.c_str());
     return 1;
   }
-  const std::string peer = FindInPath("rbpf-slam");
+  const std::string peer = omni::bench::FindInPath("rbpf-slam");
   const std::string shipped_ini = "/usr/share/mrpt/config_files/rbpf-slam/gridmapping_intel.ini";
   if (run_peer && peer.empty()) {
     std::printf(
@@ -361,9 +310,9 @@ int main(int argc, char** argv) {
             ours, "rbpf", d.input, "--out", dir, "--seed", std::to_string(seed), "--quiet"};
         if (!particles.empty()) args.insert(args.end(), {"--particles", particles});
         if (!threads.empty()) args.insert(args.end(), {"--threads", threads});
-        const RunResult rr = Run(args, dir + "/run.log");
-        Row row{"omni-rbpf", d.name, seed, rr.ok, "", 0, 0, rr.wall_s, rr.peak_rss_mb, 0};
-        if (rr.ok)
+        const auto rr = omni::bench::RunMeasured(args, dir + "/run.log");
+        Row row{"omni-rbpf", d.name, seed, rr.ok(), "", 0, 0, rr.wall_s, rr.peak_rss_mb(), 0};
+        if (rr.ok())
           Score(&row, d.reference, dir + "/trajectory.txt");
         else
           row.note = "exit " + std::to_string(rr.exit_code) + ", see " + dir + "/run.log";
@@ -386,14 +335,15 @@ int main(int argc, char** argv) {
           emit(row);
           continue;
         }
-        const RunResult rr = Run({peer, ini, fs::absolute(d.rawlog).string()}, dir + ".log", dir);
+        const auto rr = omni::bench::RunMeasured({peer, ini, fs::absolute(d.rawlog).string()},
+                                                 dir + ".log", 0, dir);
         row.wall_s = rr.wall_s;
-        row.rss_mb = rr.peak_rss_mb;
+        row.rss_mb = rr.peak_rss_mb();
         std::string note;
         if (ConvertPeerPath(dir, d.peer_index_offset, dir + "/trajectory.txt", &note)) {
           row.ok = true;
           row.note = note;
-          if (!rr.ok) row.note += " (exit " + std::to_string(rr.exit_code) + ")";
+          if (!rr.ok()) row.note += " (exit " + std::to_string(rr.exit_code) + ")";
           Score(&row, d.reference, dir + "/trajectory.txt");
         } else {
           row.note = note + ", exit " + std::to_string(rr.exit_code) + ", see " + dir + ".log";
