@@ -321,6 +321,13 @@ std::vector<ScanPose> PoseGraphSlam::Trajectory() const {
   return out;
 }
 
+bool PoseGraphSlam::LastScanPose(ScanPose* out) const {
+  if (scans_.empty()) return false;
+  const ScanRef& s = scans_.back();
+  *out = {s.scan_index, s.utime, keyframes_[static_cast<size_t>(s.keyframe)].estimate * s.delta};
+  return true;
+}
+
 io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
   io::LogOddsGrid grid(options);
   for (size_t i = 0; i < keyframes_.size(); ++i) {

@@ -97,6 +97,9 @@ class PoseGraphSlam {
   // Final estimate of every accepted scan: its keyframe's estimate composed with the odometry
   // motion since that keyframe.
   std::vector<ScanPose> Trajectory() const;
+  // The current estimate of the newest accepted scan (what AddScan just accepted); false when
+  // no scan has been accepted yet. O(1), for publishing the pose at scan rate.
+  bool LastScanPose(ScanPose* out) const;
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   // The keyframe graph (vertex ids = keyframe indices) at the current estimates.
   io::PoseGraph Graph() const;
