@@ -68,19 +68,23 @@ Status PoseGraphSlamOptions::Validate() const {
   return Status::Ok();
 }
 
-Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam,
-                          BatchOptions* batch) {
+Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, BatchOptions* batch,
+                          PoseGraphNodeOptions* node) {
   auto r = ConfigReader::FromFile(path);
   if (!r.ok()) return r.error();
   ConfigReader b = r->Section("batch");
   auto bo = BatchOptions::Load(b);
   ConfigReader s = r->Section("slam");
   auto so = PoseGraphSlamOptions::Load(s);
+  ConfigReader n = r->Section("node");
+  auto no = PoseGraphNodeOptions::Load(n);
   if (Status st = r->Finish(); !st.ok()) return st;
   if (!bo.ok()) return bo.error();
   if (!so.ok()) return so.error();
+  if (!no.ok()) return no.error();
   *batch = *bo;
   *slam = *so;
+  if (node) *node = *no;
   return slam->Validate();
 }
 

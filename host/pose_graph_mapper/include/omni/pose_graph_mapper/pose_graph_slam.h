@@ -26,6 +26,7 @@
 #include "omni/pose_graph_mapper/batch_optimizer.h"
 #include "omni/pose_graph_mapper/continuous_source.h"
 #include "omni/pose_graph_mapper/measurement_plugin.h"
+#include "omni/pose_graph_mapper/node_options.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
 #include "omni/pose_graph_mapper/window_optimizer.h"
 
@@ -62,9 +63,11 @@ struct PoseGraphSlamOptions {
   Status Validate() const;
 };
 
-// Reads config/pose_graph_mapper.yaml: the `slam` section and the `batch` section (used by the
-// global optimisation). Unknown keys anywhere are errors naming file, line and key.
-Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, BatchOptions* batch);
+// Reads config/pose_graph_mapper.yaml: the `slam` section, the `batch` section (used by the
+// global optimisation) and the `node` section (bus settings of the process; checked always,
+// returned when `node` is given). Unknown keys anywhere are errors naming file, line and key.
+Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, BatchOptions* batch,
+                          PoseGraphNodeOptions* node = nullptr);
 
 struct SlamCounters {
   int64_t scans_in = 0, scans_used = 0;
