@@ -19,8 +19,7 @@ std::string DepthIntrinsics::Validate() const {
   return "";
 }
 
-Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
-                                                   const DepthToPointsOptions& options) {
+Status CheckDepthFrame(const DepthImage& image, const DepthToPointsOptions& options) {
   const std::string bad = image.intrinsics.Validate();
   if (!bad.empty()) return MakeError(ErrorCode::kInvalidArgument, "depth intrinsics: " + bad);
   if (image.width <= 0 || image.height <= 0 ||
@@ -34,28 +33,18 @@ Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
     return MakeError(ErrorCode::kInvalidArgument, "pixel_stride must be >= 1");
   if (!(options.min_depth_m >= 0) || !(options.max_depth_m > options.min_depth_m))
     return MakeError(ErrorCode::kInvalidArgument, "need 0 <= min_depth_m < max_depth_m");
+  return Status::Ok();
+}
 
-  const DepthIntrinsics& k = image.intrinsics;
-  // Raw limits, so the per-pixel test is an integer compare.
-  const double dmin = options.min_depth_m * k.depth_scale;
-  const double dmax = options.max_depth_m * k.depth_scale;
-  const double inv_s = 1.0 / k.depth_scale;
-  const double inv_fx = 1.0 / k.fx, inv_fy = 1.0 / k.fy;
+Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
+                                                   const DepthToPointsOptions& options) {
+  if (Status s = CheckDepthFrame(image, options); !s.ok()) return s.error();
   std::vector<Eigen::Vector3f> points;
   const int stride = options.pixel_stride;
   points.reserve(static_cast<size_t>(image.width / stride + 1) * (image.height / stride + 1));
-  for (int v = 0; v < image.height; v += stride) {
-    const uint16_t* row = image.data.data() + static_cast<size_t>(v) * image.width;
-    const double yf = (v - k.cy) * inv_fy;
-    for (int u = 0; u < image.width; u += stride) {
-      const uint16_t d = row[u];
-      if (d == 0 || d < dmin || d > dmax) continue;
-      const double z = d * inv_s;                // (6)
-      const double x = (u - k.cx) * z * inv_fx;  // (7)
-      const double y = yf * z;                   // (8)
-      points.emplace_back(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
-    }
-  }
+  ForEachDepthPoint(image, options, [&points](int, int, float x, float y, float z) {
+    points.emplace_back(x, y, z);
+  });
   return points;
 }
 

@@ -1,6 +1,7 @@
 #include "omni/octomap_builder/map_output.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -9,6 +10,7 @@
 
 #include <octomap/AbstractOcTree.h>
 
+#include "omni/octomap_builder/color_image.h"
 #include "omni/octomap_builder/depth_io.h"
 
 namespace omni::octo {
@@ -32,16 +34,17 @@ namespace {
 // OctoMap's readers recurse on child bits read from the stream and never check for the end of
 // it, so a truncated or corrupt file can recurse without bound (a stack overflow). These walk
 // the same node layout over the bytes first, bounded by the buffer and the tree depth.
-//   full (.ot):   node = value (float) + 1 byte, bit i set: child i follows (depth first)
+//   full (.ot):   node = value (float) [+ R G B for a ColorOcTree] + 1 byte, bit i set: child i
+//                 follows (depth first)
 //   binary (.bt): node = 2 bytes, 2 bits per child (11: inner, its node follows afterwards)
-bool WalkFull(const std::string& b, size_t* pos, int depth) {
-  if (b.size() - *pos < 5) return false;
-  const auto mask = static_cast<uint8_t>(b[*pos + 4]);
-  *pos += 5;
+bool WalkFull(const std::string& b, size_t* pos, int depth, size_t node_size) {
+  if (b.size() - *pos < node_size) return false;
+  const auto mask = static_cast<uint8_t>(b[*pos + node_size - 1]);
+  *pos += node_size;
   if (mask != 0 && depth >= 16) return false;
   for (int i = 0; i < 8; ++i)
     if ((mask >> i) & 1)
-      if (!WalkFull(b, pos, depth + 1)) return false;
+      if (!WalkFull(b, pos, depth + 1, node_size)) return false;
   return true;
 }
 
@@ -57,18 +60,26 @@ bool WalkBinary(const std::string& b, size_t* pos, int depth) {
   return true;
 }
 
-// Checks the header ("id OcTree", "size N", "data") and the node layout after it.
-std::string ValidateTreeFile(const std::string& bytes, bool binary) {
+// Checks the header ("id <type>", "size N", "data") and the node layout after it. A full
+// node is its data (`node_bytes`: 4 for OcTree's float, 7 for ColorOcTree's float + RGB) and a
+// child-mask byte.
+std::string ValidateTreeFile(const std::string& bytes, bool binary,
+                             const std::string& type = "OcTree", size_t node_bytes = 4) {
   const size_t data = bytes.find("\ndata\n");
   if (data == std::string::npos) return "no 'data' line in the header";
   const std::string header = bytes.substr(0, data);
-  if (header.find("\nid OcTree") == std::string::npos) return "not an OcTree (id line)";
+  const std::string id = "\nid " + type;
+  const size_t at = header.find(id);
+  if (at == std::string::npos ||
+      (at + id.size() < header.size() &&
+       !std::isspace(static_cast<unsigned char>(header[at + id.size()]))))
+    return "not an " + type + " (id line)";
   const size_t sz = header.find("\nsize ");
   if (sz == std::string::npos) return "no 'size' line in the header";
   const long long n = std::atoll(header.c_str() + sz + 6);
   if (n == 0) return "";
   size_t pos = data + 6;
-  const bool ok = binary ? WalkBinary(bytes, &pos, 0) : WalkFull(bytes, &pos, 0);
+  const bool ok = binary ? WalkBinary(bytes, &pos, 0) : WalkFull(bytes, &pos, 0, node_bytes + 1);
   return ok ? "" : "truncated or corrupt node data";
 }
 
@@ -96,6 +107,33 @@ Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
   if (!oc || in.fail()) return MakeError(ErrorCode::kParse, path + ": not a readable .ot OcTree");
   any.release();
   return std::unique_ptr<octomap::OcTree>(oc);
+}
+
+std::string SerializeColorTree(const octomap::ColorOcTree& tree) {
+  std::ostringstream s(std::ios::binary);
+  tree.write(s);
+  return s.str();
+}
+
+Status SaveColorTree(const octomap::ColorOcTree& tree, const std::string& path) {
+  return WriteFileAtomic(path, SerializeColorTree(tree));
+}
+
+Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  if (!file) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
+  std::stringstream buf;
+  buf << file.rdbuf();
+  const std::string bytes = buf.str();
+  if (const std::string bad = ValidateTreeFile(bytes, false, "ColorOcTree", 7); !bad.empty())
+    return MakeError(ErrorCode::kParse, path + ": not a readable .ot ColorOcTree: " + bad);
+  std::istringstream in(bytes, std::ios::binary);
+  std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
+  auto* color = dynamic_cast<octomap::ColorOcTree*>(any.get());
+  if (!color || in.fail())
+    return MakeError(ErrorCode::kParse, path + ": not a readable .ot ColorOcTree");
+  any.release();
+  return std::unique_ptr<octomap::ColorOcTree>(color);
 }
 
 bool UpAxis::Parse(const std::string& text, UpAxis* out) {
@@ -178,7 +216,11 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProject
   return g;
 }
 
-io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
+namespace {
+
+// `color_of(node)`: PackRgb of a voxel's own colour, or 0 to colour it by height.
+template <class Tree, class ColorOf>
+io::Image RenderTop(const Tree& tree, const UpAxis& up, ColorOf color_of) {
   const double res = tree.getResolution();
   if (tree.size() == 0) return io::Image::Make(1, 1, 3, 128);
   double x0 = std::numeric_limits<double>::max(), y0 = x0;
@@ -196,6 +238,7 @@ io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
   if (static_cast<double>(w) * h > 1e8) return io::Image::Make(1, 1, 3, 128);
   std::vector<float> top(static_cast<size_t>(w) * h, -std::numeric_limits<float>::infinity());
   std::vector<uint8_t> known(static_cast<size_t>(w) * h, 0);
+  std::vector<uint32_t> top_rgb(static_cast<size_t>(w) * h, 0);  // colour of the top voxel
   double zmin = std::numeric_limits<double>::max(), zmax = std::numeric_limits<double>::lowest();
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
     const double half = it.getSize() / 2;
@@ -214,7 +257,10 @@ io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
       for (int c = c0; c < c1; ++c) {
         const size_t i = static_cast<size_t>(r) * w + c;
         known[i] = 1;
-        if (occ) top[i] = std::max(top[i], ztop);
+        if (occ && ztop > top[i]) {
+          top[i] = ztop;
+          top_rgb[i] = color_of(*it);
+        }
       }
   }
   io::Image im = io::Image::Make(w, h, 3, 40);  // dark: never seen
@@ -223,7 +269,11 @@ io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
     for (int c = 0; c < w; ++c) {
       const size_t i = static_cast<size_t>(r) * w + c;
       const int y = h - 1 - r;  // north up
-      if (std::isfinite(top[i])) {
+      if (std::isfinite(top[i]) && top_rgb[i] != 0) {
+        im.at(c, y, 0) = static_cast<uint16_t>((top_rgb[i] >> 16) & 0xff);
+        im.at(c, y, 1) = static_cast<uint16_t>((top_rgb[i] >> 8) & 0xff);
+        im.at(c, y, 2) = static_cast<uint16_t>(top_rgb[i] & 0xff);
+      } else if (std::isfinite(top[i])) {
         const double f = std::clamp((top[i] - zmin) / span, 0.0, 1.0);
         // blue -> green -> red
         const double rr = std::clamp(2 * f - 1, 0.0, 1.0), bb = std::clamp(1 - 2 * f, 0.0, 1.0);
@@ -236,6 +286,20 @@ io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
       }
     }
   return im;
+}
+
+}  // namespace
+
+io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up) {
+  return RenderTop(tree, up, [](const octomap::OcTreeNode&) { return uint32_t{0}; });
+}
+
+io::Image RenderTopViewColor(const octomap::ColorOcTree& tree, const UpAxis& up) {
+  return RenderTop(tree, up, [](const octomap::ColorOcTreeNode& n) -> uint32_t {
+    if (!n.isColorSet()) return 0;
+    const auto c = n.getColor();
+    return PackRgb(c.r, c.g, c.b);
+  });
 }
 
 }  // namespace omni::octo

@@ -29,7 +29,17 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   r.Get("depth_channel", &o.depth_channel, Optional(), NonEmpty());
   r.Get("octomap_channel", &o.octomap_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
+  r.Get("color_channel", &o.color_channel, Optional(), NonEmpty());
   r.Get("map_frame", &o.map_frame, Optional(), NonEmpty());
+
+  auto color = r.Section("color");
+  double pair_dt_s = 0.02;
+  int color_queue = 30;
+  color.Get("enabled", &o.color, Optional());
+  color.Get("max_pair_dt_s", &pair_dt_s, Optional(), InRange(0.0, 1.0));
+  color.Get("max_queued_frames", &color_queue, Optional(), InRange(1, 1000));
+  o.color_max_dt_us = static_cast<int64_t>(std::llround(pair_dt_s * 1e6));
+  o.color_queue = static_cast<size_t>(color_queue);
 
   auto tree = r.Section("tree");
   tree.Get("resolution_m", &o.resolution_m, Required(), InRange(0.005, 1.0));
@@ -116,6 +126,13 @@ OctomapBuilder::OctomapBuilder(const OctomapBuilderOptions& options)
   tree_->setProbMiss(options.prob_miss);
   tree_->setClampingThresMin(options.clamping_min);
   tree_->setClampingThresMax(options.clamping_max);
+  if (options.color) {
+    color_tree_ = std::make_unique<octomap::ColorOcTree>(options.resolution_m);
+    color_tree_->setProbHit(options.prob_hit);
+    color_tree_->setProbMiss(options.prob_miss);
+    color_tree_->setClampingThresMin(options.clamping_min);
+    color_tree_->setClampingThresMax(options.clamping_max);
+  }
 }
 
 Result<FrameStats> OctomapBuilder::InsertDepth(const DepthImage& image,
@@ -125,14 +142,34 @@ Result<FrameStats> OctomapBuilder::InsertDepth(const DepthImage& image,
   return InsertPoints(*pts, camera_in_map);
 }
 
+Result<FrameStats> OctomapBuilder::InsertDepthColor(const DepthImage& image,
+                                                    const ColorImage& color,
+                                                    const Eigen::Isometry3d& camera_in_map) {
+  if (!color_tree_)
+    return MakeError(ErrorCode::kInvalidArgument, "colour insertion needs the colour option");
+  const int64_t t0 = ParallelKeySetInserter::NowMicros();
+  auto pts = DepthToColoredPoints(image, color, options_.depth);
+  if (!pts.ok()) return pts.error();
+  const int64_t registration_us = ParallelKeySetInserter::NowMicros() - t0;
+  FrameStats st = InsertPoints(pts->points, camera_in_map, &pts->colors);
+  st.colored_points = pts->colored;
+  st.color_us += registration_us;
+  return st;
+}
+
 FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& points_camera,
-                                        const Eigen::Isometry3d& camera_in_map) {
+                                        const Eigen::Isometry3d& camera_in_map,
+                                        const std::vector<uint32_t>* colors) {
   FrameStats st;
   st.points = points_camera.size();
   const Eigen::Isometry3f t = camera_in_map.cast<float>();
   std::vector<Eigen::Vector3f> world;
   world.reserve(points_camera.size());
   for (const auto& p : points_camera) world.push_back(t * p);
+  // The colours belong to the points before filtering: keep those for the colour scan.
+  std::vector<Eigen::Vector3f> world_unfiltered;
+  const bool colored = color_tree_ && colors && colors->size() == world.size();
+  if (colored && options_.voxel_filter_m > 0) world_unfiltered = world;
   if (options_.voxel_filter_m > 0) world = VoxelDownsample(world, options_.voxel_filter_m);
   if (options_.keep_cloud) {
     const double inv = 1.0 / options_.cloud_voxel_m;
@@ -148,8 +185,25 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
       ++c.n;
     }
   }
-  st.insert = inserter_.Insert(tree_.get(), world, t.translation());
+  const KeySets sets = inserter_.ComputeKeySets(world, t.translation(), &st.insert);
+  const int64_t t0 = ParallelKeySetInserter::NowMicros();
+  ParallelKeySetInserter::Apply(tree_.get(), sets);
+  const int64_t t1 = ParallelKeySetInserter::NowMicros();
+  st.insert.update_us = t1 - t0;
   st.rays = st.insert.rays;
+  if (color_tree_) {
+    ScanColors scan;
+    if (colored) {
+      scan = ComputeScanColors(*color_tree_, sets,
+                               options_.voxel_filter_m > 0 ? world_unfiltered : world, *colors,
+                               t.translation(), options_.max_range_m);
+    } else {
+      scan.of_update.assign(sets.updates.size(), 0);
+    }
+    ApplyColored(color_tree_.get(), sets, scan);
+    st.colored_keys = scan.colored_keys;
+    st.color_us = ParallelKeySetInserter::NowMicros() - t1;
+  }
   ++frames_inserted_;
   return st;
 }
@@ -175,22 +229,108 @@ void OctomapPipeline::AddDepth(DepthImage image) {
   poser_.AddFrame(t, std::move(image));
 }
 
+void OctomapPipeline::AddColor(ColorImage image) {
+  const OctomapBuilderOptions& o = builder_.options();
+  if (!o.color) return;
+  ++counters_.color_frames_in;
+  if (!colors_.empty() && image.utime < colors_.back().image.utime) {
+    ++counters_.color_out_of_order;
+    return;
+  }
+  newest_utime_ = std::max(newest_utime_, image.utime);
+  colors_.push_back({std::move(image), false});
+  while (colors_.size() > o.color_queue) {
+    counters_.color_dropped += !colors_.front().used;
+    colors_.pop_front();
+  }
+}
+
+int OctomapPipeline::NearestColor(int64_t utime) const {
+  int best = -1;
+  int64_t best_dt = builder_.options().color_max_dt_us;
+  for (size_t i = 0; i < colors_.size(); ++i) {
+    const int64_t dt = std::abs(colors_[i].image.utime - utime);
+    if (dt <= best_dt) {  // ties: the later frame
+      best_dt = dt;
+      best = static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
+void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
+  const int64_t t0 = ParallelKeySetInserter::NowMicros();
+  const Eigen::Isometry3d cam = CameraInMap(posed.robot_in_map, builder_.options().mount);
+  Result<FrameStats> st = MakeError(ErrorCode::kInternal, "not inserted");
+  if (color) {
+    st = builder_.InsertDepthColor(posed.frame, *color, cam);
+    if (st.ok()) {
+      ++counters_.frames_colored;
+    } else if (CheckDepthFrame(posed.frame, builder_.options().depth).ok()) {
+      // The depth frame is fine: the colour frame is what cannot be used.
+      ++counters_.color_invalid;
+      last_error_ = "colour frame " + std::to_string(color->utime) + ": " + st.error().message;
+      color = nullptr;
+    }
+  }
+  if (!color) {
+    st = builder_.InsertDepth(posed.frame, cam);
+    if (st.ok() && builder_.options().color) ++counters_.frames_uncolored;
+  }
+  if (!st.ok()) {
+    ++counters_.frames_invalid;
+    last_error_ = st.error().message;
+    return;
+  }
+  ++counters_.frames_inserted;
+  counters_.points_inserted += static_cast<int64_t>(st->points);
+  counters_.last_frame_us = ParallelKeySetInserter::NowMicros() - t0;
+  newest_inserted_utime_ = std::max(newest_inserted_utime_, posed.utime);
+}
+
 int OctomapPipeline::Process(int64_t now_utime) {
+  const OctomapBuilderOptions& o = builder_.options();
   int n = 0;
   for (auto& posed : poser_.Poll(now_utime)) {
-    const int64_t t0 = ParallelKeySetInserter::NowMicros();
-    const Eigen::Isometry3d cam = CameraInMap(posed.robot_in_map, builder_.options().mount);
-    auto st = builder_.InsertDepth(posed.frame, cam);
-    if (!st.ok()) {
-      ++counters_.frames_invalid;
-      last_error_ = st.error().message;
-      continue;
+    if (!o.color) {
+      const int64_t before = counters_.frames_inserted;
+      Insert(posed, nullptr);
+      n += static_cast<int>(counters_.frames_inserted - before);
+    } else {
+      awaiting_color_.push_back(std::move(posed));
     }
-    ++counters_.frames_inserted;
-    counters_.points_inserted += static_cast<int64_t>(st->points);
-    counters_.last_frame_us = ParallelKeySetInserter::NowMicros() - t0;
-    newest_inserted_utime_ = std::max(newest_inserted_utime_, posed.utime);
-    ++n;
+  }
+  return n + PairAndInsert(now_utime, false);
+}
+
+int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime_, true); }
+
+int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
+  const OctomapBuilderOptions& o = builder_.options();
+  int n = 0;
+  while (!awaiting_color_.empty()) {
+    const Posed& f = awaiting_color_.front();
+    const bool later_color_seen =
+        !colors_.empty() && colors_.back().image.utime > f.utime + o.color_max_dt_us;
+    const bool expired = now_utime - f.utime > o.poser.max_latency_us;
+    if (!later_color_seen && !expired && !force) break;  // a nearer colour frame may come
+    const int best = NearestColor(f.utime);
+    const int64_t before = counters_.frames_inserted;
+    ColorImage* partner = nullptr;
+    if (best >= 0) {
+      colors_[static_cast<size_t>(best)].used = true;
+      partner = &colors_[static_cast<size_t>(best)].image;
+    }
+    Insert(f, partner);
+    n += static_cast<int>(counters_.frames_inserted - before);
+    // Later depth frames are later in time: colour frames too old for this one are too old
+    // for them.
+    const int64_t oldest_useful = f.utime - o.color_max_dt_us;
+    awaiting_color_.pop_front();
+    while (!colors_.empty() && colors_.front().image.utime < oldest_useful) {
+      counters_.color_dropped += !colors_.front().used;
+      colors_.pop_front();
+    }
   }
   return n;
 }

@@ -57,6 +57,34 @@ inline Eigen::Vector3d PixelToPoint(double u, double v, double d, const DepthInt
 Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
                                                    const DepthToPointsOptions& options);
 
+// The checks DepthToPoints makes before converting (intrinsics, size, options).
+Status CheckDepthFrame(const DepthImage& image, const DepthToPointsOptions& options);
+
+// Calls f(u, v, x, y, z) for every valid pixel in row order (the points DepthToPoints returns,
+// in the same order, as floats). Call CheckDepthFrame first.
+template <class F>
+void ForEachDepthPoint(const DepthImage& image, const DepthToPointsOptions& options, F&& f) {
+  const DepthIntrinsics& k = image.intrinsics;
+  // Raw limits, so the per-pixel test is an integer compare.
+  const double dmin = options.min_depth_m * k.depth_scale;
+  const double dmax = options.max_depth_m * k.depth_scale;
+  const double inv_s = 1.0 / k.depth_scale;
+  const double inv_fx = 1.0 / k.fx, inv_fy = 1.0 / k.fy;
+  const int stride = options.pixel_stride;
+  for (int v = 0; v < image.height; v += stride) {
+    const uint16_t* row = image.data.data() + static_cast<size_t>(v) * image.width;
+    const double yf = (v - k.cy) * inv_fy;
+    for (int u = 0; u < image.width; u += stride) {
+      const uint16_t d = row[u];
+      if (d == 0 || d < dmin || d > dmax) continue;
+      const double z = d * inv_s;                // (6)
+      const double x = (u - k.cx) * z * inv_fx;  // (7)
+      const double y = yf * z;                   // (8)
+      f(u, v, static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+    }
+  }
+}
+
 // Voxel-grid filter (like PCL's VoxelGrid): one point per occupied cube of edge `leaf_m`, at
 // the centroid of the points inside it. Order of the output follows first appearance.
 std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>& points,

@@ -73,7 +73,28 @@ class ParallelKeySetInserter {
   // Applies the updates to `tree` (OcTree, ColorOcTree, ...: any OccupancyOcTreeBase of the
   // same resolution), each key once with the tree's hit/miss log-odds and clamping.
   template <class Tree>
-  static void Apply(Tree* tree, const KeySets& sets);
+  static void Apply(Tree* tree, const KeySets& sets) {
+    NoApplyHook none;
+    Apply(tree, sets, none);
+  }
+  // The same walk, telling `hook` what it did, so per-node data (a ColorOcTree's colour) can be
+  // updated in the same pass:
+  //   hook.Leaf(node, update)          after an occupied update at the finest level;
+  //   hook.Pruned(node, begin, end)    a pruned node left alone (already clamped in the direction
+  //                                    of every update in [begin, end), upstream's early abort);
+  //   hook.Inner(node)                 after an inner node took its children's maximum (it was
+  //                                    not pruned), children first.
+  // `update` points into sets.updates.
+  template <class Tree, class Hook>
+  static void Apply(Tree* tree, const KeySets& sets, Hook& hook);
+  struct NoApplyHook {
+    template <class Node>
+    void Leaf(Node*, const uint64_t*) {}
+    template <class Node>
+    void Pruned(Node*, const uint64_t*, const uint64_t*) {}
+    template <class Node>
+    void Inner(Node*) {}
+  };
 
   // ComputeKeySets + Apply.
   template <class Tree>
@@ -92,9 +113,9 @@ class ParallelKeySetInserter {
   static int64_t NowMicros();
 
  private:
-  template <class Tree, class Node>
+  template <class Tree, class Node, class Hook>
   static void ApplyRecurs(Tree* tree, Node* node, bool just_created, unsigned depth,
-                          const uint64_t* begin, const uint64_t* end);
+                          const uint64_t* begin, const uint64_t* end, Hook& hook);
   std::vector<Eigen::Vector3f> Discretize(const std::vector<Eigen::Vector3f>& points) const;
   std::vector<Eigen::Vector3f> SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points) const;
 
@@ -104,18 +125,31 @@ class ParallelKeySetInserter {
 
 // ---------------------------------------------------------------------------------------------
 
-template <class Tree>
-void ParallelKeySetInserter::Apply(Tree* tree, const KeySets& sets) {
+template <class Tree, class Hook>
+void ParallelKeySetInserter::Apply(Tree* tree, const KeySets& sets, Hook& hook) {
   const uint64_t* begin = sets.updates.data();
   const uint64_t* end = begin + sets.updates.size();
   if (begin == end) return;
   if (tree->getRoot() == nullptr) {
     // The root can only be created through updateNode: let it apply the first update.
-    tree->updateNode(KeyFromMorton(*begin >> 1), (*begin & 1) != 0, false);
+    const octomap::OcTreeKey key = KeyFromMorton(*begin >> 1);
+    tree->updateNode(key, (*begin & 1) != 0, false);
+    if (*begin & 1) hook.Leaf(tree->search(key), begin);  // a fresh path: the leaf itself
+    // updateNode re-valued the inner nodes of that fresh path; the hook updates them too
+    // (deepest first). Those shared with later keys are visited again by the walk below.
+    std::vector<typename Tree::NodeType*> path;
+    auto* node = tree->getRoot();
+    const unsigned depth = tree->getTreeDepth();
+    for (unsigned d = 0; d < depth && tree->nodeHasChildren(node); ++d) {
+      path.push_back(node);
+      node =
+          tree->getNodeChild(node, octomap::computeChildIdx(key, static_cast<int>(depth - 1 - d)));
+    }
+    for (auto it = path.rbegin(); it != path.rend(); ++it) hook.Inner(*it);
     ++begin;
     if (begin == end) return;
   }
-  ApplyRecurs(tree, tree->getRoot(), false, 0, begin, end);
+  ApplyRecurs(tree, tree->getRoot(), false, 0, begin, end, hook);
 }
 
 // Mirrors OccupancyOcTreeBase::updateNode/updateNodeRecurs (lazy_eval = false) for a sorted
@@ -123,12 +157,13 @@ void ParallelKeySetInserter::Apply(Tree* tree, const KeySets& sets) {
 // direction of every update below it is left alone (upstream's early abort); otherwise it is
 // expanded; missing children are created; leaves get the hit/miss log-odds with clamping; on the
 // way back the node is pruned if possible, else takes the maximum of its children.
-template <class Tree, class Node>
+template <class Tree, class Node, class Hook>
 void ParallelKeySetInserter::ApplyRecurs(Tree* tree, Node* node, bool just_created, unsigned depth,
-                                         const uint64_t* begin, const uint64_t* end) {
+                                         const uint64_t* begin, const uint64_t* end, Hook& hook) {
   const unsigned max_depth = tree->getTreeDepth();
   if (depth == max_depth) {
     tree->updateNodeLogOdds(node, (*begin & 1) ? tree->getProbHitLog() : tree->getProbMissLog());
+    if (*begin & 1) hook.Leaf(node, begin);
     return;
   }
   if (!tree->nodeHasChildren(node) && !just_created) {
@@ -137,7 +172,10 @@ void ParallelKeySetInserter::ApplyRecurs(Tree* tree, Node* node, bool just_creat
     for (const uint64_t* p = begin; p != end && all_abort; ++p)
       all_abort =
           (*p & 1) ? v >= tree->getClampingThresMaxLog() : v <= tree->getClampingThresMinLog();
-    if (all_abort) return;
+    if (all_abort) {
+      hook.Pruned(node, begin, end);
+      return;
+    }
     tree->expandNode(node);
   }
   const unsigned shift = 3 * (max_depth - 1 - depth) + 1;  // +1: the occupied flag
@@ -150,10 +188,13 @@ void ParallelKeySetInserter::ApplyRecurs(Tree* tree, Node* node, bool just_creat
       tree->createNodeChild(node, idx);
       created = true;
     }
-    ApplyRecurs(tree, tree->getNodeChild(node, idx), created, depth + 1, p, q);
+    ApplyRecurs(tree, tree->getNodeChild(node, idx), created, depth + 1, p, q, hook);
     p = q;
   }
-  if (!tree->pruneNode(node)) node->updateOccupancyChildren();
+  if (!tree->pruneNode(node)) {
+    node->updateOccupancyChildren();
+    hook.Inner(node);
+  }
 }
 
 }  // namespace omni::octo

@@ -5,6 +5,7 @@
 #include <memory>
 #include <string>
 
+#include <octomap/ColorOcTree.h>
 #include <octomap/OcTree.h>
 
 #include "omni/common/result.h"
@@ -20,6 +21,13 @@ std::string SerializeTree(const octomap::OcTree& tree, bool binary);
 Status SaveTree(const octomap::OcTree& tree, const std::string& base);
 // Reads a .bt (binary) or .ot (full) file holding an OcTree.
 Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path);
+
+// A ColorOcTree in the full form (.ot: log-odds and R G B per node; OctoMap has no colour in
+// .bt), written through a temporary file and rename(); read back with octomap's
+// AbstractOcTree::read (after checking the node layout, as LoadTree does).
+std::string SerializeColorTree(const octomap::ColorOcTree& tree);
+Status SaveColorTree(const octomap::ColorOcTree& tree, const std::string& path);
+Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& path);
 
 // Which map axis is "up" (z for the robot's map frame; camera-posed datasets often have -y).
 // The grid's x, y are the remaining axes in right-handed order: up z -> (x, y), up y -> (z, x),
@@ -46,5 +54,8 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree,
 // Top view of the occupied voxels, one pixel per leaf column, coloured by the height of the
 // highest occupied voxel (blue low .. red high), light grey where only free space is known.
 io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up = {});
+// The same view with each pixel in the colour of its highest occupied voxel (by height where
+// that voxel has no colour).
+io::Image RenderTopViewColor(const octomap::ColorOcTree& tree, const UpAxis& up = {});
 
 }  // namespace omni::octo

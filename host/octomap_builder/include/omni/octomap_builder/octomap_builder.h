@@ -3,16 +3,20 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
+#include <octomap/ColorOcTree.h>
 #include <octomap/OcTree.h>
 #include <Eigen/Geometry>
 
 #include "omni/common/config.h"
 #include "omni/common/result.h"
+#include "omni/octomap_builder/color_image.h"
+#include "omni/octomap_builder/color_octree.h"
 #include "omni/octomap_builder/depth_points.h"
 #include "omni/octomap_builder/frame_poser.h"
 #include "omni/octomap_builder/key_set_inserter.h"
@@ -27,7 +31,14 @@ struct OctomapBuilderOptions {
   std::string depth_channel = "DEPTH";
   std::string octomap_channel = "OCTOMAP";
   std::string grid_channel = "GRID_OCTO";
+  std::string color_channel = "RGB";  // color_image_t, read when `color` is on
   std::string map_frame = "map";
+
+  // Colour (ColorOcTree beside the OcTree).
+  bool color = false;               // also build a ColorOcTree from the colour frames
+  int64_t color_max_dt_us = 20000;  // a depth frame pairs with the colour frame nearest in time
+                                    // within this; without one it is inserted uncoloured
+  size_t color_queue = 30;          // colour frames kept for pairing
 
   // Tree.
   double resolution_m = 0.05;
@@ -68,6 +79,9 @@ struct FrameStats {
   size_t points = 0;  // valid pixels turned into points
   size_t rays = 0;    // after filtering/discretizing
   InsertStats insert;
+  size_t colored_points = 0;  // points with a colour (colour insertion)
+  size_t colored_keys = 0;    // occupied voxels of the scan that integrated a colour
+  int64_t color_us = 0;       // colour part: scan colours + the ColorOcTree update (monotonic)
 };
 
 class OctomapBuilder {
@@ -77,12 +91,21 @@ class OctomapBuilder {
   // Eq. (6)-(8), filters, transform by `camera_in_map` (optical frame in the map frame), and
   // insertion with the camera's position as the ray origin.
   Result<FrameStats> InsertDepth(const DepthImage& image, const Eigen::Isometry3d& camera_in_map);
-  // Points already in the optical frame.
+  // The same with each point's colour from `color` (registration: color_image.h). Needs the
+  // colour option; the OcTree gets exactly what InsertDepth gives it. Fails as InsertDepth, or
+  // when the colour image cannot be registered (nothing is inserted then).
+  Result<FrameStats> InsertDepthColor(const DepthImage& image, const ColorImage& color,
+                                      const Eigen::Isometry3d& camera_in_map);
+  // Points already in the optical frame; `colors` (PackRgb or 0 per point) or null. With the
+  // colour option the ColorOcTree gets the same occupancy update (and no colour when null).
   FrameStats InsertPoints(const std::vector<Eigen::Vector3f>& points_camera,
-                          const Eigen::Isometry3d& camera_in_map);
+                          const Eigen::Isometry3d& camera_in_map,
+                          const std::vector<uint32_t>* colors = nullptr);
 
   const octomap::OcTree& tree() const { return *tree_; }
   octomap::OcTree& mutable_tree() { return *tree_; }
+  // Null unless the colour option is on.
+  const octomap::ColorOcTree* color_tree() const { return color_tree_.get(); }
   // Aggregate cloud (voxel centroids at cloud_voxel_m), empty unless keep_cloud.
   std::vector<Eigen::Vector3f> AggregateCloud() const;
   int64_t frames_inserted() const { return frames_inserted_; }
@@ -91,6 +114,7 @@ class OctomapBuilder {
  private:
   OctomapBuilderOptions options_;
   std::unique_ptr<octomap::OcTree> tree_;
+  std::unique_ptr<octomap::ColorOcTree> color_tree_;
   ParallelKeySetInserter inserter_;
   struct CloudCell {
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
@@ -102,15 +126,27 @@ class OctomapBuilder {
 
 // The process logic without the bus: depth frames and 2D poses in, posed frames inserted.
 // The node feeds it from LCM subscriptions, `omni-octomap build` from a log file.
+//
+// With the colour option, colour frames come in too (AddColor, in time order) and each posed
+// depth frame pairs with the colour frame nearest to it in time within color_max_dt_us. A
+// posed frame waits for its partner until a colour frame later than its time + color_max_dt_us
+// has arrived (no nearer one can come) or the data time has passed its time + the pose
+// latency (poses.max_latency_s); then it is inserted with the best partner found, or
+// uncoloured (counted) without one.
 class OctomapPipeline {
  public:
   explicit OctomapPipeline(const OctomapBuilderOptions& options);
 
   void AddPose(int64_t utime, const Pose2& robot_in_map);
   void AddDepth(DepthImage image);
+  // Ignored (not counted as input) unless the colour option is on.
+  void AddColor(ColorImage image);
   // Poses and inserts what can be posed by `now_utime` (the newest data time seen when
   // replaying). Returns the number of frames inserted.
   int Process(int64_t now_utime);
+  // Inserts the posed frames still waiting for a colour partner with the best one buffered (or
+  // uncoloured), e.g. on exit. Returns the number inserted.
+  int FlushAwaitingColor();
   // Newest time of any pose or frame given so far (the default `now`).
   int64_t newest_utime() const { return newest_utime_; }
 
@@ -119,6 +155,14 @@ class OctomapPipeline {
     int64_t frames_invalid = 0;  // posed but rejected by DepthToPoints (bad intrinsics, size)
     int64_t points_inserted = 0;
     int64_t last_frame_us = 0;  // time the last insertion took (monotonic clock)
+    // Colour option only:
+    int64_t color_frames_in = 0;
+    int64_t color_out_of_order = 0;  // older than the previous colour frame: rejected
+    int64_t color_dropped = 0;       // discarded without pairing with any depth frame
+    int64_t frames_colored = 0;      // inserted with a colour partner
+    int64_t frames_uncolored = 0;    // inserted without one (none within color_max_dt_us)
+    int64_t color_invalid = 0;       // partner could not be registered (size, bytes): inserted
+                                     // uncoloured, message in last_error()
   };
   const Counters& counters() const { return counters_; }
   const FramePoserCounters& poser_counters() const { return poser_.counters(); }
@@ -128,8 +172,22 @@ class OctomapPipeline {
   const std::string& last_error() const { return last_error_; }
 
  private:
+  using Posed = FramePoser<DepthImage>::Posed;
+  // Inserts one posed frame (with `color` or without) and counts.
+  void Insert(const Posed& posed, const ColorImage* color);
+  // Pairs and inserts the frames waiting for colour whose partner is decided (all with force).
+  int PairAndInsert(int64_t now_utime, bool force);
+  // Index of the colour frame nearest to `utime` within color_max_dt_us, or -1.
+  int NearestColor(int64_t utime) const;
+
   OctomapBuilder builder_;
   FramePoser<DepthImage> poser_;
+  std::deque<Posed> awaiting_color_;  // posed, waiting for their colour partner
+  struct BufferedColor {
+    ColorImage image;
+    bool used = false;  // paired with a depth frame
+  };
+  std::deque<BufferedColor> colors_;  // recent colour frames, in time order
   Counters counters_;
   int64_t newest_utime_ = 0;
   int64_t newest_inserted_utime_ = 0;
