@@ -5,7 +5,9 @@
 // ../shared/datasets/rgbd/*: depth/N.png|pgm for N = 1.., pose.txt "tx ty tz qx qy qz qw"
 // camera-to-world per line; intrinsics and depth scale as options or in INPUT/intrinsics.yaml).
 // Writes DIR/map.bt, DIR/map.ot, DIR/grid.{pgm,yaml,png}, DIR/view.png (and DIR/map.pcd
-// with --pcd).
+// with --pcd). With --color (or color.enabled in the config) also DIR/map_color.ot, a
+// ColorOcTree coloured from color/N.png (registered to the depth image) or the log's RGB
+// frames, and DIR/view_color.png.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -15,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/color_image_t.hpp"
 #include "omni/common/config.h"
 #include "omni/depth_image_t.hpp"
 #include "omni/io/grid.h"
@@ -54,13 +57,16 @@ void Usage(std::FILE* f) {
       "  --up x|y|z|-x|-y|-z  the map's up axis for the grid and view (default z; the camera-\n"
       "                       posed rgbd datasets have -y)\n"
       "  --source rbpf|pg     pose channel for a log INPUT (POSE_RBPF / POSE_PG)\n"
-      "  --pcd                also write the aggregate point cloud\n");
+      "  --pcd                also write the aggregate point cloud\n"
+      "  --color              also build a ColorOcTree: DIR/map_color.ot, DIR/view_color.png;\n"
+      "                       a folder needs color/N.png (same camera and size as depth/N),\n"
+      "                       a log the colour channel (RGB; color_image_t RGB8 or JPEG)\n");
 }
 
 struct Args {
   std::string input, out, config;
   std::vector<std::pair<std::string, std::string>> opts;  // option -> value, in order
-  bool exact = false, discretize = false, pcd = false;
+  bool exact = false, discretize = false, pcd = false, color = false;
 };
 
 std::string Get(const Args& a, const std::string& key, const std::string& def = "") {
@@ -112,6 +118,13 @@ omni::Status WriteOutputs(const omni::octo::OctomapBuilder& b, const OctomapBuil
   if (auto s = omni::io::WritePng(dir + "/view.png", omni::octo::RenderTopView(tree, o.grid.up));
       !s.ok())
     return s;
+  if (const octomap::ColorOcTree* color = b.color_tree()) {
+    if (auto s = omni::octo::SaveColorTree(*color, dir + "/map_color.ot"); !s.ok()) return s;
+    if (auto s = omni::io::WritePng(dir + "/view_color.png",
+                                    omni::octo::RenderTopViewColor(*color, o.grid.up));
+        !s.ok())
+      return s;
+  }
   if (pcd) return omni::octo::WritePcd(dir + "/map.pcd", b.AggregateCloud(), true);
   return omni::Status::Ok();
 }
@@ -144,6 +157,8 @@ int main(int argc, char** argv) {
       a.discretize = true;
     } else if (s == "--pcd") {
       a.pcd = true;
+    } else if (s == "--color") {
+      a.color = true;
     } else if (std::find(kValued.begin(), kValued.end(), s) != kValued.end()) {
       if (i + 1 >= argc) return Fail(s + " needs a value");
       a.opts.emplace_back(s, argv[++i]);
@@ -198,6 +213,7 @@ int main(int argc, char** argv) {
     o.subvoxel = 0;
   }
   o.keep_cloud = a.pcd;
+  if (a.color) o.color = true;
   if (!(o.resolution_m >= 0.001 && o.resolution_m <= 10))
     return Fail("--resolution must be in [0.001, 10]");
   if (o.depth.pixel_stride < 1 || o.threads < 1) return Fail("--stride and --threads must be >= 1");
@@ -243,24 +259,43 @@ int main(int argc, char** argv) {
     if (poses->empty()) return Fail(a.input + "/pose.txt has no poses");
     omni::octo::OctomapBuilder builder(o);
     size_t points = 0;
+    int64_t insert_us = 0;
     for (size_t i = 0; i < poses->size(); ++i) {
       std::string path = a.input + "/depth/" + std::to_string(i + 1) + ".png";
       if (!fs::exists(path)) path = a.input + "/depth/" + std::to_string(i + 1) + ".pgm";
       DepthImage im;
       if (auto s = omni::octo::ReadDepthFile(path, &im); !s.ok()) return Fail(s.message());
       im.intrinsics = k;
-      auto st = builder.InsertDepth(im, (*poses)[i]);
-      if (!st.ok()) return Fail(path + ": " + st.error().message);
+      omni::octo::ColorImage color;
+      const std::string color_path = a.input + "/color/" + std::to_string(i + 1) + ".png";
+      if (o.color) {
+        // Registered to the depth image: same camera, same size (no colour intrinsics).
+        if (auto s = omni::octo::ReadColorPng(color_path, &color); !s.ok())
+          return Fail(s.message());
+      }
+      const int64_t f0 = omni::octo::ParallelKeySetInserter::NowMicros();
+      auto st = o.color ? builder.InsertDepthColor(im, color, (*poses)[i])
+                        : builder.InsertDepth(im, (*poses)[i]);
+      const int64_t frame_us = omni::octo::ParallelKeySetInserter::NowMicros() - f0;
+      insert_us += frame_us;
+      if (!st.ok())
+        return Fail((o.color ? path + " + " + color_path : path) + ": " + st.error().message);
       points += st->points;
-      std::printf("frame %zu: %zu points, %zu rays, %zu free + %zu occupied keys, %.1f ms\n", i + 1,
-                  st->points, st->rays, st->insert.free_keys, st->insert.occupied_keys,
-                  (st->insert.keys_us + st->insert.update_us) * 1e-3);
+      std::printf("frame %zu: %zu points, %zu rays, %zu free + %zu occupied keys", i + 1,
+                  st->points, st->rays, st->insert.free_keys, st->insert.occupied_keys);
+      if (o.color)
+        std::printf(", %zu coloured keys (colour %.1f ms)", st->colored_keys, st->color_us * 1e-3);
+      std::printf(", %.1f ms\n", frame_us * 1e-3);
     }
+    std::printf("omni-octomap: insertion %.1f ms/frame%s\n",
+                insert_us * 1e-3 / static_cast<double>(poses->size()),
+                o.color ? " (OcTree + ColorOcTree)" : "");
     if (auto s = WriteOutputs(builder, o, a.out, a.pcd); !s.ok()) return Fail(s.message());
     std::printf(
-        "omni-octomap: %zu frames, %zu points, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",
+        "omni-octomap: %zu frames, %zu points, %.2f s -> %s/map.{bt,ot}%s (%zu leaves at %.3f m)\n",
         poses->size(), points, (omni::octo::ParallelKeySetInserter::NowMicros() - t0) * 1e-6,
-        a.out.c_str(), builder.tree().getNumLeafNodes(), o.resolution_m);
+        a.out.c_str(), o.color ? " + map_color.ot" : "", builder.tree().getNumLeafNodes(),
+        o.resolution_m);
     return 0;
   }
 
@@ -269,7 +304,7 @@ int main(int argc, char** argv) {
   if (!reader.ok()) return Fail(reader.error().message);
   omni::octo::OctomapPipeline pipeline(o);
   const std::string pose_channel = o.PoseChannel();
-  int64_t decode_errors = 0, events = 0;
+  int64_t decode_errors = 0, color_decode_errors = 0, events = 0;
   omni::io::LcmLogEvent ev;
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
@@ -295,6 +330,18 @@ int main(int argc, char** argv) {
         continue;
       }
       pipeline.AddDepth(std::move(*im));
+    } else if (o.color && ev.channel == o.color_channel) {
+      omni::color_image_t m;
+      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+        ++color_decode_errors;
+        continue;
+      }
+      auto im = omni::octo::FromColorMessage(m);
+      if (!im.ok()) {
+        ++color_decode_errors;
+        continue;
+      }
+      pipeline.AddColor(std::move(*im));
     } else {
       continue;
     }
@@ -303,6 +350,7 @@ int main(int argc, char** argv) {
   // End of log: whatever still waits for a pose can only be posed by what is there.
   pipeline.Process(pipeline.newest_utime());
   pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
+  pipeline.FlushAwaitingColor();
   const auto& pc = pipeline.poser_counters();
   const auto& c = pipeline.counters();
   if (c.frames_inserted == 0)
@@ -310,6 +358,13 @@ int main(int argc, char** argv) {
                 o.depth_channel + ", " + std::to_string(pc.poses_in) + " poses on " + pose_channel +
                 ", " + std::to_string(decode_errors) + " decode errors)");
   if (auto s = WriteOutputs(pipeline.builder(), o, a.out, a.pcd); !s.ok()) return Fail(s.message());
+  if (o.color)
+    std::printf(
+        "omni-octomap: colour: %lld frames in, %lld depth frames coloured, %lld uncoloured, %lld "
+        "colour errors -> %s/map_color.ot\n",
+        static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
+        static_cast<long long>(c.frames_uncolored),
+        static_cast<long long>(color_decode_errors + c.color_invalid), a.out.c_str());
   std::printf(
       "omni-octomap: %lld events; %lld frames in, %lld inserted, %lld dropped without pose, %lld "
       "out of order, %lld decode errors, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",

@@ -24,7 +24,9 @@ void Usage(std::FILE* f) {
       "  Inserts DEPTH frames, posed by the 2D SLAM's POSE_<source> (interpolated, camera\n"
       "  mount from the config), into an OctoMap; publishes OCTOMAP and GRID_OCTO and a\n"
       "  HEARTBEAT with frame counters; writes DIR/map.{bt,ot}, DIR/grid.{pgm,yaml,png},\n"
-      "  DIR/view.png every save interval and on SIGINT/SIGTERM (or after S seconds\n"
+      "  DIR/view.png (with color.enabled also DIR/map_color.ot, a ColorOcTree coloured from\n"
+      "  the RGB frames, and DIR/view_color.png) every save interval and on SIGINT/SIGTERM (or\n"
+      "  after S seconds\n"
       "  without messages once data has arrived). Default config:\n"
       "  config/octomap_builder.yaml; DIR overrides output.dir.\n");
 }
@@ -77,7 +79,8 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnCloudRequest);
-  LOG_INFO << "listening on " << opt->depth_channel << " + " << opt->PoseChannel();
+  LOG_INFO << "listening on " << opt->depth_channel << " + " << opt->PoseChannel()
+           << (opt->color ? " + " + opt->color_channel : std::string());
   int64_t last_msg_us = 0;
   while (!g_stop) {
     const int r = (*bus_or)->HandleTimeout(50);
@@ -111,6 +114,8 @@ int main(int argc, char** argv) {
   node.Tick(omni::MonotonicMicros());
   const auto& pc = node.pipeline().poser_counters();
   const auto& c = node.pipeline().counters();
+  // Posed frames still waiting for a colour partner: insert them with what has come.
+  node.pipeline().FlushAwaitingColor();
   omni::Status s = node.SaveOutputs();
   std::printf(
       "octomap_builder: %lld frames in, %lld posed, %lld inserted, %lld dropped without pose, "
@@ -120,6 +125,13 @@ int main(int argc, char** argv) {
       static_cast<long long>(pc.frames_dropped_queue),
       static_cast<long long>(pc.frames_out_of_order + pc.poses_out_of_order),
       static_cast<long long>(node.depth_decode_errors()), opt->out_dir.c_str());
+  if (opt->color)
+    std::printf(
+        "octomap_builder: %lld colour frames in, %lld frames coloured, %lld uncoloured, %lld "
+        "colour errors -> %s/map_color.ot\n",
+        static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
+        static_cast<long long>(c.frames_uncolored),
+        static_cast<long long>(node.color_decode_errors() + c.color_invalid), opt->out_dir.c_str());
   if (!s.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", s.message().c_str());
     return 1;

@@ -26,6 +26,23 @@ Result<DepthImage> FromDepthMessage(const omni::depth_image_t& m) {
   return im;
 }
 
+Result<ColorImage> FromColorMessage(const omni::color_image_t& m) {
+  ColorImage im;
+  im.utime = m.utime;
+  im.width = m.width;
+  im.height = m.height;
+  im.intrinsics = {m.fx, m.fy, m.cx, m.cy};
+  if (m.size != static_cast<int32_t>(m.data.size()))
+    return MakeError(ErrorCode::kParse, "colour message: size field disagrees with data");
+  Status s = DecodeColorData(m.encoding, m.data.data(), m.data.size(), m.width, m.height, &im.rgb);
+  if (!s.ok()) return s.error();
+  if (!im.intrinsics.Unset()) {
+    if (const std::string bad = im.intrinsics.Validate(); !bad.empty())
+      return MakeError(ErrorCode::kInvalidArgument, "colour message: " + bad);
+  }
+  return im;
+}
+
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source, bool binary) {
   omni::octomap_t msg;
@@ -65,6 +82,18 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
         }
         pipeline_.AddDepth(std::move(*im));
       });
+  if (options_.color) {
+    bus_->Subscribe<omni::color_image_t>(
+        options_.color_channel, [this](const omni::color_image_t& m, int64_t) {
+          auto im = FromColorMessage(m);
+          if (!im.ok()) {
+            ++color_decode_errors_;
+            LOG_DEBUG << "colour frame " << m.seq << ": " << im.error().message;
+            return;
+          }
+          pipeline_.AddColor(std::move(*im));
+        });
+  }
   const auto& pc = pipeline_.poser_counters();
   const auto& c = pipeline_.counters();
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
@@ -79,6 +108,16 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("frames_inserted", [&c] { return c.frames_inserted; });
   heartbeat_.AddCounter("frames_invalid", [&c] { return c.frames_invalid; });
   heartbeat_.AddCounter("last_frame_us", [&c] { return c.last_frame_us; });
+  if (options_.color) {
+    heartbeat_.AddCounter("color_frames_in", [&c] { return c.color_frames_in; });
+    heartbeat_.AddCounter("frames_colored", [&c] { return c.frames_colored; });
+    heartbeat_.AddCounter("frames_uncolored", [&c] { return c.frames_uncolored; });
+    // Colour input that could not be used: undecodable messages (bad byte count, corrupt
+    // JPEG, unknown encoding) and partners that could not be registered (size mismatch).
+    heartbeat_.AddCounter("color_errors",
+                          [this, &c] { return color_decode_errors_ + c.color_invalid; });
+    heartbeat_.AddCounter("color_dropped", [&c] { return c.color_dropped + c.color_out_of_order; });
+  }
   heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "waiting for depth and poses");
 }
 
@@ -149,6 +188,13 @@ Status OctomapNode::SaveOutputs() {
           io::WritePng(options_.out_dir + "/view.png", RenderTopView(tree, options_.grid.up));
       !s.ok())
     return s;
+  if (const octomap::ColorOcTree* color = pipeline_.builder().color_tree()) {
+    if (Status s = SaveColorTree(*color, options_.out_dir + "/map_color.ot"); !s.ok()) return s;
+    if (Status s = io::WritePng(options_.out_dir + "/view_color.png",
+                                RenderTopViewColor(*color, options_.grid.up));
+        !s.ok())
+      return s;
+  }
   if (options_.keep_cloud)
     return WritePcd(options_.out_dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true);
   return Status::Ok();

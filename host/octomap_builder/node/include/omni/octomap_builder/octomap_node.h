@@ -1,6 +1,7 @@
 // The octomap_builder node: bus I/O around OctomapPipeline. Subscribes to DEPTH and
-// POSE_<source>; publishes OCTOMAP and GRID_OCTO on their intervals; saves map.bt/.ot at an
-// interval and on exit; heartbeat with the frame counters.
+// POSE_<source> (and the colour channel, RGB, with color.enabled); publishes OCTOMAP and
+// GRID_OCTO on their intervals; saves map.bt/.ot (and map_color.ot) at an interval and on exit;
+// heartbeat with the frame counters.
 #pragma once
 
 #include <memory>
@@ -8,6 +9,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/color_image_t.hpp"
 #include "omni/common/time.h"
 #include "omni/depth_image_t.hpp"
 #include "omni/octomap_builder/octomap_builder.h"
@@ -17,6 +19,8 @@ namespace omni::octo {
 
 // Decodes a depth message (RAW, ZLIB and DELTA_ZLIB; see DecodeDepthData).
 Result<DepthImage> FromDepthMessage(const omni::depth_image_t& msg);
+// Decodes a colour message (RGB8 and JPEG; see DecodeColorData); the size field must match.
+Result<ColorImage> FromColorMessage(const omni::color_image_t& msg);
 // An OCTOMAP message holding the tree in binary (.bt) or full (.ot) form.
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source, bool binary);
@@ -34,12 +38,13 @@ class OctomapNode {
   void Tick(int64_t mono_us);
   bool PublishOctomap();
   bool PublishGrid();
-  // Writes out_dir/map.{bt,ot}, out_dir/grid.{pgm,yaml,png}, out_dir/view.png and, with
-  // keep_cloud, out_dir/map.pcd.
+  // Writes out_dir/map.{bt,ot}, out_dir/grid.{pgm,yaml,png}, out_dir/view.png, with the colour
+  // option out_dir/map_color.ot and out_dir/view_color.png, and with keep_cloud out_dir/map.pcd.
   Status SaveOutputs();
 
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }
+  int64_t color_decode_errors() const { return color_decode_errors_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
  private:
@@ -49,6 +54,7 @@ class OctomapNode {
   OctomapPipeline pipeline_;
   bus::Heartbeat heartbeat_;
   int64_t depth_decode_errors_ = 0;
+  int64_t color_decode_errors_ = 0;
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
 };
