@@ -52,6 +52,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   l.Get("min_score", &o.loop.min_score, Optional(), InRange(0.0, 1.0));
   l.Get("min_inlier_fraction", &o.loop.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   l.Get("max_ambiguity_ratio", &o.loop.max_ambiguity_ratio, Optional(), InRange(0.0, 1.0));
+  l.Get("field_cache_size", &o.loop.field_cache_size, Optional(), InRange(0, 1000));
   return o;
 }
 

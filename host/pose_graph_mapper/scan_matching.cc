@@ -2,10 +2,31 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
+#include <vector>
 
 #include <Eigen/Dense>
 
 namespace omni::pgm {
+namespace {
+
+// out item j = elementwise max of in items j .. j + k - 1, for j in [0, n_out); an item is
+// `width` consecutive floats and `in` holds n_out + k - 1 items (overwritten). Doubling: after
+// the pass with step p every item holds the max of 2p items, so width k costs about log2(k) + 1
+// maxima per value instead of k.
+void SlidingMax(float* in, int n_out, int k, int width, float* out) {
+  const size_t n_in = static_cast<size_t>(n_out + k - 1) * width;
+  // Item j + p starts p * width floats after item j: each pass is one flat, vectorisable loop.
+  size_t p = 1;
+  for (; 2 * p <= static_cast<size_t>(k); p *= 2) {
+    const size_t off = p * width, end = n_in - 2 * off + width;
+    for (size_t t = 0; t < end; ++t) in[t] = std::max(in[t], in[t + off]);
+  }
+  const size_t off = (static_cast<size_t>(k) - p) * width, n = static_cast<size_t>(n_out) * width;
+  for (size_t t = 0; t < n; ++t) out[t] = std::max(in[t], in[t + off]);
+}
+
+}  // namespace
 
 LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
                                  const LikelihoodFieldOptions& o)
@@ -22,39 +43,43 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
   fine_.assign(static_cast<size_t>(w_) * h_, 0.f);
   const int rc = static_cast<int>(std::ceil(3 * o.sigma_m / res_));
   const double inv2s2 = 1.0 / (2 * o.sigma_m * o.sigma_m);
+  // The Gaussian is separable: exp(-(dx^2 + dy^2) / 2s^2) = exp(-dx^2 / 2s^2) exp(-dy^2 / 2s^2),
+  // so each point needs 2 (2 rc + 1) exponentials instead of (2 rc + 1)^2.
+  std::vector<double> gx(2 * rc + 1), gy(2 * rc + 1);
   for (const auto& p : points) {
     const Eigen::Vector2i c = Cell(p);
+    for (int d = -rc; d <= rc; ++d) {
+      const double dx = origin_.x() + res_ * (c.x() + d + 0.5) - p.x();
+      const double dy = origin_.y() + res_ * (c.y() + d + 0.5) - p.y();
+      gx[static_cast<size_t>(d + rc)] = std::exp(-dx * dx * inv2s2);
+      gy[static_cast<size_t>(d + rc)] = std::exp(-dy * dy * inv2s2);
+    }
     for (int dy = -rc; dy <= rc; ++dy) {
       const int y = c.y() + dy;
       if (y < 0 || y >= h_) continue;
+      float* row = &fine_[static_cast<size_t>(y) * w_];
+      const double g = gy[static_cast<size_t>(dy + rc)];
       for (int dx = -rc; dx <= rc; ++dx) {
         const int x = c.x() + dx;
         if (x < 0 || x >= w_) continue;
-        const Eigen::Vector2d centre = origin_ + res_ * Eigen::Vector2d(x + 0.5, y + 0.5);
-        const float v = static_cast<float>(std::exp(-(centre - p).squaredNorm() * inv2s2));
-        float& cell = fine_[static_cast<size_t>(y) * w_ + x];
-        cell = std::max(cell, v);
+        row[x] = std::max(row[x], static_cast<float>(g * gx[static_cast<size_t>(dx + rc)]));
       }
     }
   }
-  // Max-pooling, separably: first along x, then along y. pooled(ix, iy) for ix in [-k+1, w).
+  // Max-pooling, separably: first along x, then along y, each a sliding maximum of width k over
+  // a zero-padded copy (pooled(ix, iy) for ix in [-k, w), iy in [-k, h)).
   const int pw = w_ + k_, ph = h_ + k_;
-  std::vector<float> rows(static_cast<size_t>(pw) * h_, 0.f);
-  for (int y = 0; y < h_; ++y)
-    for (int ix = -k_; ix < w_; ++ix) {
-      float m = 0;
-      for (int x = std::max(ix, 0); x < std::min(ix + k_, w_); ++x)
-        m = std::max(m, fine_[static_cast<size_t>(y) * w_ + x]);
-      rows[static_cast<size_t>(y) * pw + (ix + k_)] = m;
-    }
+  // Rows of the x-pooled field, with k zero rows above and k - 1 below for the y pass.
+  std::vector<float> rows(static_cast<size_t>(h_ + 2 * k_ - 1) * pw, 0.f);
+  std::vector<float> line(static_cast<size_t>(w_ + 2 * k_ - 1), 0.f);
+  for (int y = 0; y < h_; ++y) {
+    std::fill(line.begin(), line.end(), 0.f);  // SlidingMax overwrites its input
+    std::copy(fine_.begin() + static_cast<std::ptrdiff_t>(y) * w_,
+              fine_.begin() + static_cast<std::ptrdiff_t>(y + 1) * w_, line.begin() + k_);
+    SlidingMax(line.data(), pw, k_, 1, &rows[static_cast<size_t>(y + k_) * pw]);
+  }
   pooled_.assign(static_cast<size_t>(pw) * ph, 0.f);
-  for (int iy = -k_; iy < h_; ++iy)
-    for (int px = 0; px < pw; ++px) {
-      float m = 0;
-      for (int y = std::max(iy, 0); y < std::min(iy + k_, h_); ++y)
-        m = std::max(m, rows[static_cast<size_t>(y) * pw + px]);
-      pooled_[static_cast<size_t>(iy + k_) * pw + px] = m;
-    }
+  SlidingMax(rows.data(), ph, k_, pw, pooled_.data());
 }
 
 Eigen::Vector2i LikelihoodField::Cell(const Eigen::Vector2d& p) const {
@@ -79,6 +104,10 @@ double LikelihoodField::Interpolated(const Eigen::Vector2d& p) const {
   const double fx = (p.x() - origin_.x()) / res_ - 0.5, fy = (p.y() - origin_.y()) / res_ - 0.5;
   const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
   const double ax = fx - x0, ay = fy - y0;
+  if (x0 >= 0 && y0 >= 0 && x0 + 1 < w_ && y0 + 1 < h_) {
+    const float* f = &fine_[static_cast<size_t>(y0) * w_ + x0];
+    return (1 - ay) * ((1 - ax) * f[0] + ax * f[1]) + ay * ((1 - ax) * f[w_] + ax * f[w_ + 1]);
+  }
   return (1 - ay) * ((1 - ax) * Fine(x0, y0) + ax * Fine(x0 + 1, y0)) +
          ay * ((1 - ax) * Fine(x0, y0 + 1) + ax * Fine(x0 + 1, y0 + 1));
 }
@@ -86,8 +115,10 @@ double LikelihoodField::Interpolated(const Eigen::Vector2d& p) const {
 double ScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
                const Pose2& pose) {
   if (query.empty()) return 0;
+  const double c = std::cos(pose.theta), sn = std::sin(pose.theta);
   double s = 0;
-  for (const auto& p : query) s += field.Interpolated(pose.Transform(p));
+  for (const auto& p : query)
+    s += field.Interpolated({pose.x + c * p.x() - sn * p.y(), pose.y + sn * p.x() + c * p.y()});
   return s / static_cast<double>(query.size());
 }
 
@@ -166,6 +197,22 @@ double HillClimb(const LikelihoodField& field, const std::vector<Eigen::Vector2d
   return score;
 }
 
+// Sum of base[i] over the offsets, in four partial sums: one running sum would make every
+// addition wait for the previous one.
+double SumAt(const float* base, const std::vector<int>& offsets) {
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  const size_t n = offsets.size(), n4 = n & ~size_t{3};
+  const int* o = offsets.data();
+  for (size_t i = 0; i < n4; i += 4) {
+    s0 += base[o[i]];
+    s1 += base[o[i + 1]];
+    s2 += base[o[i + 2]];
+    s3 += base[o[i + 3]];
+  }
+  for (size_t i = n4; i < n; ++i) s0 += base[o[i]];
+  return (s0 + s1) + (s2 + s3);
+}
+
 struct Block {
   float bound;
   int a, bx, by;  // rotation index, first translation cell of the block
@@ -186,32 +233,78 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
   const int na = static_cast<int>(std::ceil(win.theta_rad / astep));
   const double inv_n = 1.0 / static_cast<double>(query.size());
 
-  // Cells of the rotated query at the guess' translation, one set per rotation.
-  std::vector<std::vector<Eigen::Vector2i>> cells(2 * na + 1);
+  // Fine scores are also taken up to r cells beyond the window (covariance, polish starts).
+  const int r = 4;
+  // Cells of the rotated query at the guess' translation, one set per rotation, split for the
+  // inner loops: points that stay inside the grid for every translation the search can ask for
+  // are kept as flat array offsets (no bounds checks), the others as cells (checked lookups).
+  struct Rotation {
+    std::vector<int> fine_in, pooled_in;
+    std::vector<Eigen::Vector2i> fine_out, pooled_out;
+  };
+  const int fw = field.width(), fh = field.height();
+  const int pw = field.pooled_width(), ph = field.pooled_height();
+  const float* fine = field.fine_data();
+  const float* pooled = field.pooled_data();
+  std::vector<Rotation> rots(static_cast<size_t>(2 * na + 1));
   for (int a = -na; a <= na; ++a) {
     const Pose2 rot(guess.x, guess.y, guess.theta + a * astep);
-    auto& c = cells[a + na];
-    c.reserve(query.size());
-    for (const auto& p : query) c.push_back(field.Cell(rot.Transform(p)));
+    Rotation& rc = rots[static_cast<size_t>(a + na)];
+    rc.fine_in.reserve(query.size());
+    rc.pooled_in.reserve(query.size());
+    for (const auto& p : query) {
+      const Eigen::Vector2i c = field.Cell(rot.Transform(p));
+      // A point outside the grid for every translation always scores 0 and is dropped.
+      const int fx = c.x(), fy = c.y();
+      if (fx - nx - r >= 0 && fx + nx + r < fw && fy - ny - r >= 0 && fy + ny + r < fh)
+        rc.fine_in.push_back(fy * fw + fx);
+      else if (fx + nx + r >= 0 && fx - nx - r < fw && fy + ny + r >= 0 && fy - ny - r < fh)
+        rc.fine_out.push_back(c);
+      const int px = fx + k, py = fy + k;  // pooled storage coordinates
+      if (px - nx >= 0 && px + nx < pw && py - ny >= 0 && py + ny < ph)
+        rc.pooled_in.push_back(py * pw + px);
+      else if (px + nx >= 0 && px - nx < pw && py + ny >= 0 && py - ny < ph)
+        rc.pooled_out.push_back({px, py});
+    }
   }
   auto fine_score = [&](int a, int bx, int by) {
-    double s = 0;
-    for (const auto& c : cells[a + na]) s += field.Fine(c.x() + bx, c.y() + by);
+    const Rotation& rc = rots[static_cast<size_t>(a + na)];
+    const float* base = fine + (static_cast<std::ptrdiff_t>(by) * fw + bx);
+    double s = SumAt(base, rc.fine_in);
+    for (const auto& c : rc.fine_out) {
+      const int x = c.x() + bx, y = c.y() + by;
+      if (x >= 0 && x < fw && y >= 0 && y < fh) s += fine[static_cast<size_t>(y) * fw + x];
+    }
     ++out.evaluated;
+    return s * inv_n;
+  };
+  auto bound = [&](int a, int bx, int by) {
+    const Rotation& rc = rots[static_cast<size_t>(a + na)];
+    const float* base = pooled + (static_cast<std::ptrdiff_t>(by) * pw + bx);
+    double s = SumAt(base, rc.pooled_in);
+    for (const auto& c : rc.pooled_out) {
+      const int x = c.x() + bx, y = c.y() + by;
+      if (x >= 0 && x < pw && y >= 0 && y < ph) s += pooled[static_cast<size_t>(y) * pw + x];
+    }
     return s * inv_n;
   };
 
   std::vector<Block> blocks;
+  blocks.reserve(static_cast<size_t>(2 * na + 1) * static_cast<size_t>((2 * nx) / k + 1) *
+                 static_cast<size_t>((2 * ny) / k + 1));
   for (int a = -na; a <= na; ++a)
     for (int bx = -nx; bx <= nx; bx += k)
-      for (int by = -ny; by <= ny; by += k) {
-        double s = 0;
-        for (const auto& c : cells[a + na]) s += field.Pooled(c.x() + bx, c.y() + by);
-        blocks.push_back({static_cast<float>(s * inv_n), a, bx, by});
-      }
+      for (int by = -ny; by <= ny; by += k)
+        blocks.push_back({static_cast<float>(bound(a, bx, by)), a, bx, by});
   out.bounded = static_cast<long>(blocks.size());
-  std::sort(blocks.begin(), blocks.end(),
-            [](const Block& l, const Block& r) { return l.bound > r.bound; });
+  // Best bound first. Blocks bounded below min_score are never refined by the first pass, so
+  // only the others are sorted now; the rest is sorted if the second-best pass reaches it.
+  auto by_bound = [](const Block& l, const Block& r) { return l.bound > r.bound; };
+  const auto low = std::partition(blocks.begin(), blocks.end(), [&](const Block& b) {
+    return static_cast<double>(b.bound) >= win.min_score;
+  });
+  std::sort(blocks.begin(), low, by_bound);
+  bool low_sorted = low == blocks.end();
 
   // Best fine candidate: refine blocks while their bound can still beat it.
   double best = -1;
@@ -239,7 +332,12 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
            std::abs(a - ba) * astep > win.ambiguity_theta_rad;
   };
   double second = 0;
-  for (const auto& b : blocks) {
+  for (auto it = blocks.begin(); it != blocks.end(); ++it) {
+    if (it == low && !low_sorted) {
+      std::sort(low, blocks.end(), by_bound);
+      low_sorted = true;
+    }
+    const Block& b = *it;
     if (b.bound <= second) break;
     for (int x = b.bx; x < std::min(b.bx + k, nx + 1); ++x)
       for (int y = b.by; y < std::min(b.by + k, ny + 1); ++y)
@@ -248,7 +346,6 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
   out.second_score = second;
 
   // Covariance from the good candidates around the optimum.
-  const int r = 4;
   double wsum = 0;
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   Eigen::Matrix3d m2 = Eigen::Matrix3d::Zero();

@@ -1,6 +1,7 @@
 #include "omni/pose_graph_mapper/scan_plugins.h"
 
 #include <algorithm>
+#include <memory>
 #include <utility>
 
 namespace omni::pgm {
@@ -75,18 +76,54 @@ std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
   return out;
 }
 
+std::shared_ptr<const LikelihoodField> LoopClosurePlugin::CandidateField(
+    const std::vector<Keyframe>& keyframes, int candidate) {
+  const int n = static_cast<int>(keyframes.size());
+  if (candidate < 0 || candidate >= n) return nullptr;
+  const int first = std::max(candidate - o_.submap_half_width, 0);
+  const int last = std::min(candidate + o_.submap_half_width, n - 1);
+  CachedField entry;
+  entry.key.push_back(candidate);
+  const Pose2 inv = keyframes[candidate].estimate.Inverse();
+  for (int i = first; i <= last; ++i) {
+    entry.key.push_back(keyframes[i].utime);
+    entry.key.push_back(static_cast<int64_t>(keyframes[i].points.size()));
+    entry.poses.push_back(inv * keyframes[i].estimate);
+  }
+  auto same = [&](const CachedField& c) {
+    if (c.key != entry.key) return false;
+    for (size_t i = 0; i < c.poses.size(); ++i)
+      if (c.poses[i].x != entry.poses[i].x || c.poses[i].y != entry.poses[i].y ||
+          c.poses[i].theta != entry.poses[i].theta)
+        return false;
+    return true;
+  };
+  for (auto it = cache_.begin(); it != cache_.end(); ++it)
+    if (same(*it)) {
+      Count("field_cache_hits");
+      std::rotate(it, it + 1, cache_.end());  // now the most recently used
+      return cache_.back().field;
+    }
+  const auto submap = BuildSubmap(keyframes, first, last, candidate, o_.max_range_m);
+  if (submap.empty()) return nullptr;
+  entry.field = std::make_shared<const LikelihoodField>(submap, o_.field);
+  if (o_.field_cache_size <= 0) return entry.field;
+  if (static_cast<int>(cache_.size()) >= o_.field_cache_size) cache_.erase(cache_.begin());
+  cache_.push_back(std::move(entry));
+  return cache_.back().field;
+}
+
 LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyframes, int candidate) {
   LoopAttempt at;
   at.candidate = candidate;
   const int cur = static_cast<int>(keyframes.size()) - 1;
   const auto query = Clip(keyframes[cur].points, o_.max_range_m);
-  const auto submap = BuildSubmap(keyframes, candidate - o_.submap_half_width,
-                                  candidate + o_.submap_half_width, candidate, o_.max_range_m);
-  if (query.empty() || submap.empty()) {
+  const auto field_ptr = query.empty() ? nullptr : CandidateField(keyframes, candidate);
+  if (query.empty() || !field_ptr) {
     at.reason = "empty_scan";
     return at;
   }
-  const LikelihoodField field(submap, o_.field);
+  const LikelihoodField& field = *field_ptr;
   const Pose2 guess = keyframes[candidate].estimate.Between(keyframes[cur].estimate);
   SearchWindow w = o_.window;
   w.min_score = o_.min_score;

@@ -106,6 +106,68 @@ TEST(PoseGraphPlugins, MatcherRecoversSyntheticOffsetAndPrunes) {
   EXPECT_LT(m.covariance(0, 0), 0.01);
 }
 
+// The pooled field (computed by sliding maxima) is the maximum of the fine field over each
+// K x K block, including blocks that hang over the grid's edges; also for K not a power of 2.
+TEST(PoseGraphPlugins, PooledFieldIsTheBlockMaximum) {
+  for (int k : {8, 5, 1}) {
+    LikelihoodFieldOptions o;
+    o.coarse_cells = k;
+    const LikelihoodField field(Room(), o);
+    ASSERT_FALSE(field.empty());
+    long checked = 0;
+    for (int iy = -k - 2; iy < field.height() + 2; iy += 3)
+      for (int ix = -k - 2; ix < field.width() + 2; ix += 2) {
+        float m = 0;
+        for (int y = iy; y < iy + k; ++y)
+          for (int x = ix; x < ix + k; ++x) m = std::max(m, field.Fine(x, y));
+        ASSERT_EQ(field.Pooled(ix, iy), m) << "k " << k << " cell " << ix << " " << iy;
+        ++checked;
+      }
+    EXPECT_GT(checked, 1000);
+  }
+}
+
+// The loop-closure plugin reuses a candidate's field only while its submap is exactly the same:
+// the attempt's result is the same with and without the cache.
+TEST(PoseGraphPlugins, LoopFieldCacheReusesOnlyUnchangedSubmaps) {
+  const auto room = Room();
+  std::vector<Keyframe> kfs(4);
+  const Pose2 poses[4] = {{0, 0, 0}, {0.4, 0.1, 0.05}, {0.8, 0.2, 0.1}, {0.5, -0.3, 0.2}};
+  for (int i = 0; i < 4; ++i) {
+    kfs[i].utime = i;
+    kfs[i].estimate = poses[i];
+    kfs[i].points = Transformed(room, poses[i].Inverse());
+  }
+  kfs[3].estimate = poses[3] * Pose2(0.2, -0.1, 0.05);  // drifted estimate
+  LoopClosureOptions o;
+  o.min_score = 0.5;
+  o.min_inlier_fraction = 0.5;
+  LoopClosurePlugin cached(o);
+  o.field_cache_size = 0;
+  LoopClosurePlugin uncached(o);
+  const LoopAttempt first = cached.TryCandidate(kfs, 1);
+  const LoopAttempt again = cached.TryCandidate(kfs, 1);
+  const LoopAttempt plain = uncached.TryCandidate(kfs, 1);
+  ASSERT_TRUE(first.accepted) << first.reason;
+  EXPECT_EQ(cached.counters().at("field_cache_hits"), 1);
+  EXPECT_EQ(uncached.counters().count("field_cache_hits"), 0u);
+  for (const LoopAttempt* at : {&again, &plain}) {
+    EXPECT_EQ(at->match.pose.x, first.match.pose.x);
+    EXPECT_EQ(at->match.pose.y, first.match.pose.y);
+    EXPECT_EQ(at->match.pose.theta, first.match.pose.theta);
+    EXPECT_EQ(at->match.score, first.match.score);
+    EXPECT_EQ(at->match.second_score, first.match.second_score);
+  }
+  // A submap keyframe moved relative to the candidate: a new field, not a hit.
+  kfs[0].estimate = Pose2(0.01, 0, 0);
+  (void)cached.TryCandidate(kfs, 1);
+  EXPECT_EQ(cached.counters().at("field_cache_hits"), 1);
+  // Back to the first submap, still in the cache: a hit.
+  kfs[0].estimate = poses[0];
+  (void)cached.TryCandidate(kfs, 1);
+  EXPECT_EQ(cached.counters().at("field_cache_hits"), 2);
+}
+
 TEST(PoseGraphPlugins, EmptyInputsAreCountedNotMatched) {
   const LikelihoodField empty_field({}, {});
   EXPECT_TRUE(empty_field.empty());

@@ -49,6 +49,15 @@ class LikelihoodField {
   // Bilinear interpolation of the fine field at a point.
   double Interpolated(const Eigen::Vector2d& p) const;
   const std::vector<Eigen::Vector2d>& points() const { return points_; }
+  // Raw storage for the matcher's inner loops (no bounds checks there): fine values row-major,
+  // width() x height(); pooled values row-major, pooled_width() x pooled_height(), with
+  // Pooled(ix, iy) at (iy + K) * pooled_width() + (ix + K).
+  int width() const { return w_; }
+  int height() const { return h_; }
+  int pooled_width() const { return w_ + k_; }
+  int pooled_height() const { return h_ + k_; }
+  const float* fine_data() const { return fine_.data(); }
+  const float* pooled_data() const { return pooled_.data(); }
 
  private:
   std::vector<Eigen::Vector2d> points_;

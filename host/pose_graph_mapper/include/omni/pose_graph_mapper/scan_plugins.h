@@ -8,6 +8,8 @@
 //    rejection is counted by reason and kept in last_attempts().
 #pragma once
 
+#include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -56,6 +58,12 @@ struct LoopClosureOptions {
   double max_ambiguity_ratio = 0.9;  // second best elsewhere / best; <= 0 disables the check
   LikelihoodFieldOptions field;
   SearchWindow window = MakeSearchWindow(2.0, 0.5);
+  // Likelihood fields of the most recent candidates' submaps kept for reuse: consecutive
+  // keyframes near one place try the same old keyframes, whose submap is unchanged until a
+  // global optimisation moves them. A field is reused only when the submap's keyframes (times,
+  // point counts, poses relative to the candidate) are exactly those it was built from, so the
+  // result is the same as without the cache. 0 disables it; each field takes about 1-3 MB.
+  int field_cache_size = 8;
 };
 
 struct LoopAttempt {
@@ -75,8 +83,18 @@ class LoopClosurePlugin final : public MeasurementPlugin {
   const std::vector<LoopAttempt>& last_attempts() const { return attempts_; }
 
  private:
+  // A candidate submap's field and what it was built from (see field_cache_size).
+  struct CachedField {
+    std::vector<int64_t> key;  // candidate, then per keyframe: utime, point count
+    std::vector<Pose2> poses;  // submap keyframes relative to the candidate
+    std::shared_ptr<const LikelihoodField> field;
+  };
+  std::shared_ptr<const LikelihoodField> CandidateField(const std::vector<Keyframe>& keyframes,
+                                                        int candidate);
+
   LoopClosureOptions o_;
   std::vector<LoopAttempt> attempts_;
+  std::vector<CachedField> cache_;  // most recently used last
 };
 
 }  // namespace omni::pgm
