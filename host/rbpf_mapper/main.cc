@@ -1,22 +1,19 @@
 // rbpf_mapper process: LIDAR_SCAN + WHEEL_ODOM (+ IMU) -> POSE_RBPF, GRID_RBPF, HEARTBEAT; on
 // SIGINT/SIGTERM, at the end of a file:// log, or after --idle-exit seconds without messages,
 // writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
-#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
 
 #include "omni/bus/bus.h"
+#include "omni/bus/node_loop.h"
 #include "omni/common/config.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/rbpf_mapper/rbpf_node.h"
 
 namespace {
-
-volatile std::sig_atomic_t g_stop = 0;
-void OnSignal(int) { g_stop = 1; }
 
 void Usage(std::FILE* f) {
   std::fprintf(f,
@@ -93,34 +90,15 @@ int main(int argc, char** argv) {
   auto& bus = **bus_or;
   omni::SystemClock clock;
   omni::rbpf::RbpfNode node(&bus, opt, &clock);
-  std::signal(SIGINT, OnSignal);
-  std::signal(SIGTERM, OnSignal);
+  omni::bus::InstallStopSignals();
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << "), " << opt.particles << " particles";
   node.set_deferred(true);
-  int64_t last_msg_us = 0;
-  bool bus_ended = false;
-  int processed = 0;
-  while (!g_stop) {
-    // Wait for traffic only when the last round found nothing ready; then empty the socket into
-    // the node's queue before each filter update, so the kernel buffer never overflows.
-    int r = bus_ended ? 0 : bus.HandleTimeout(processed > 0 ? 0 : 100);
-    while (r > 0 && !g_stop) {
-      last_msg_us = omni::MonotonicMicros();
-      r = bus.HandleTimeout(0);
-    }
-    if (r < 0 && !g_stop && !bus_ended) {
-      LOG_INFO << "bus ended (end of log) or failed; finishing the queue and writing the map";
-      bus_ended = true;
-    }
-    processed = node.ProcessReady(1);
-    node.Tick();
-    if (bus_ended && processed == 0) break;
-    const int64_t now = omni::MonotonicMicros();
-    if (idle_exit_s > 0 && last_msg_us > 0 && processed == 0 &&
-        now - last_msg_us > static_cast<int64_t>(idle_exit_s * 1e6))
-      break;
-  }
+  omni::bus::NodeLoopOptions loop;
+  loop.idle_exit_s = idle_exit_s;
+  const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
+      bus, loop, [&] { return node.ProcessReady(1); }, [&] { node.Tick(); });
+  LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); writing the map";
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   const omni::Status s = node.WriteOutputs(out_dir);
   const auto& c = node.slam().counters();

@@ -1,0 +1,30 @@
+// The main loop shared by the mapper processes (rbpf_mapper, pose_graph_mapper): wait for bus
+// traffic only when nothing is ready, empty the socket into the node's queues before each unit of
+// work (so a slow update never leaves datagrams to overflow the kernel's receive buffer), tick
+// the node, and stop on SIGINT/SIGTERM, at the end of a file:// log once the queues are empty,
+// or after an idle period without messages.
+#pragma once
+
+#include <functional>
+
+#include "omni/bus/bus.h"
+
+namespace omni::bus {
+
+// SIGINT and SIGTERM set a flag that StopRequested() reads (and that ends RunNodeLoop).
+void InstallStopSignals();
+bool StopRequested();
+
+enum class LoopEnd { kSignal, kBusEnded, kIdle };
+const char* LoopEndName(LoopEnd e);
+
+struct NodeLoopOptions {
+  double idle_exit_s = 0;  // > 0: stop this long after the last message once nothing is ready
+};
+
+// `process` does one unit of queued work and returns how many items it handled (0: nothing was
+// ready); `tick` runs after every round (heartbeat, periodic publications).
+LoopEnd RunNodeLoop(Bus& bus, const NodeLoopOptions& options, const std::function<int()>& process,
+                    const std::function<void()>& tick);
+
+}  // namespace omni::bus
