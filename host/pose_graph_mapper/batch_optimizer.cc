@@ -49,9 +49,12 @@ Result<BatchOptions> LoadBatchOptionsFile(const std::string& path) {
   if (!r.ok()) return r.error();
   ConfigReader batch = r->Section("batch");
   auto o = BatchOptions::Load(batch);
-  // The online mapper's `slam` section shares the file: its keys are checked, not ignored.
+  // The online mapper's `slam` and `node` sections share the file: their keys are checked, not
+  // ignored.
   ConfigReader slam = r->Section("slam");
   (void)PoseGraphSlamOptions::Load(slam);
+  ConfigReader node = r->Section("node");
+  (void)PoseGraphNodeOptions::Load(node);
   if (Status s = r->Finish(); !s.ok()) return s.error();
   return o;
 }

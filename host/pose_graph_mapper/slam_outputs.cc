@@ -1,0 +1,110 @@
+#include "omni/pose_graph_mapper/slam_outputs.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+
+#include "omni/common/time.h"
+#include "omni/io/g2o.h"
+#include "omni/io/grid.h"
+#include "omni/io/image_io.h"
+#include "omni/io/trajectory_io.h"
+
+namespace omni::pgm {
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  return v[i];
+}
+
+namespace {
+
+// JSON string contents: quotes, backslashes and control characters escaped.
+std::string JsonEscape(const std::string& s) {
+  std::string out;
+  for (const char ch : s) {
+    if (ch == '"' || ch == '\\') {
+      out += '\\';
+      out += ch;
+    } else if (static_cast<unsigned char>(ch) < 0x20) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(ch));
+      out += buf;
+    } else {
+      out += ch;
+    }
+  }
+  return out;
+}
+
+Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const SlamRunInfo& info) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) return MakeError(ErrorCode::kIo, "cannot write " + path + ": " + std::strerror(errno));
+  const SlamCounters& c = slam.counters();
+  const auto& lat = slam.window_latency_ms();
+  const auto& glat = slam.global_latency_ms();
+  auto ll = [](int64_t v) { return static_cast<long long>(v); };
+  std::fprintf(
+      f,
+      "{\"system\": \"%s\", \"input\": \"%s\", \"window_size\": %d, \"wall_s\": "
+      "%.3f, \"scans\": %lld, \"scans_used\": %lld, \"scans_time_backwards\": %lld, "
+      "\"scans_too_few_beams\": %lld, \"scans_no_odom\": %lld, \"invalid_beams\": %lld, "
+      "\"odom_invalid\": %lld, \"odom_out_of_order\": %lld, \"odom_jumps\": %lld, "
+      "\"decode_errors\": %lld, \"keyframes\": %lld, \"scan_match_factors\": %lld, "
+      "\"scan_match_failures\": %lld, \"loops_accepted\": %lld, \"loops_rejected\": %lld, "
+      "\"window_updates\": %lld, \"window_failures\": %lld, \"latency_p50_ms\": %.3f, "
+      "\"latency_p99_ms\": %.3f, \"latency_max_ms\": %.3f, \"global_optimizations\": %lld, "
+      "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f",
+      JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
+      info.wall_s, ll(c.scans_in), ll(c.scans_used), ll(c.scans_time_backwards),
+      ll(c.scans_too_few_beams), ll(c.scans_no_odom), ll(c.invalid_beams), ll(c.odom_invalid),
+      ll(c.odom_out_of_order), ll(c.odom_jumps), ll(info.decode_errors), ll(c.keyframes),
+      ll(c.scan_match_factors), ll(c.scan_match_failures), ll(c.loops_accepted),
+      ll(c.loops_rejected), ll(c.window_updates), ll(c.window_failures), Percentile(lat, 0.5),
+      Percentile(lat, 0.99), Percentile(lat, 1.0), ll(c.global_optimizations),
+      ll(c.global_failures), Percentile(glat, 0.5), Percentile(glat, 1.0));
+  for (const auto& [k, v] : info.extra)
+    std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));
+  std::fprintf(f, "}\n");
+  if (std::fclose(f) != 0)
+    return MakeError(ErrorCode::kIo, "cannot write " + path + ": " + std::strerror(errno));
+  return Status();
+}
+
+}  // namespace
+
+Status WriteSlamOutputs(const PoseGraphSlam& slam, const std::string& dir,
+                        const SlamRunInfo& info) {
+  const auto traj = slam.Trajectory();
+  if (traj.empty()) {
+    const SlamCounters& c = slam.counters();
+    return MakeError(ErrorCode::kNotFound,
+                     "no scan could be used (scans " + std::to_string(c.scans_in) +
+                         ", no odometry " + std::to_string(c.scans_no_odom) + ", too few beams " +
+                         std::to_string(c.scans_too_few_beams) + ", time backwards " +
+                         std::to_string(c.scans_time_backwards) + "): nothing to write to " + dir);
+  }
+  std::vector<io::TrajectoryEntry> entries;
+  io::Polyline line;
+  for (const auto& e : traj) {
+    entries.push_back(io::MakeEntry2D(e.scan_index, UtimeToSeconds(e.utime), e.pose));
+    line.poses.push_back(e.pose);
+  }
+  io::LogOddsOptions grid_options;
+  grid_options.resolution_m = info.grid_resolution_m;
+  const io::GridMap map = slam.RenderMap(grid_options);
+  Status s = io::WriteTrajectory2D(
+      dir + "/trajectory.txt", entries,
+      "scan_index timestamp x y theta (pose-graph SLAM, final optimised estimate)");
+  if (s.ok()) s = io::WriteMapServer(map, dir + "/map");
+  if (s.ok()) s = io::WritePng(dir + "/map.png", io::RenderGrid(map, {}, 1));
+  if (s.ok()) s = io::WritePng(dir + "/map_trajectory.png", io::RenderGrid(map, {line}, 1));
+  if (s.ok()) s = io::WriteG2o(dir + "/graph.g2o", slam.Graph());
+  if (s.ok()) s = WriteStats(slam, dir + "/stats.json", info);
+  return s;
+}
+
+}  // namespace omni::pgm
