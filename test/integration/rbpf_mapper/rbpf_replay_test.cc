@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "../../unit/common/test_paths.h"
+#include "../tools/mapper_replay.h"
 #include "../tools/run.h"
 #include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
@@ -31,46 +32,12 @@ namespace {
 
 constexpr size_t kScans = 150;
 
-// Writes the first kScans scans (and the odometry around them) as an LCM log, the way
-// `omni import carmen` lays it out: odometry on WHEEL_ODOM, scans on LIDAR_SCAN.
 void WritePrefixLog(const std::string& clf, const std::string& out) {
-  auto log = io::ReadCarmenLog(clf);
-  ASSERT_TRUE(log.ok()) << log.error().message;
-  auto w = io::LcmLogWriter::Open(out);
-  ASSERT_TRUE(w.ok());
-  int64_t seq = 0, oseq = 0;
-  auto put = [&](const auto& msg, const std::string& channel, int64_t utime) {
-    std::vector<uint8_t> buf(static_cast<size_t>(msg.getEncodedSize()));
-    msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
-    ASSERT_TRUE(w->Write(utime, channel, buf.data(), buf.size()).ok());
-  };
-  for (const auto& r : log->records) {
-    if (r.kind == io::CarmenRecord::Kind::kOdom) {
-      const auto m = bus::ToOdometry(r.odom, oseq++);
-      put(m, "WHEEL_ODOM", m.utime);
-      continue;
-    }
-    // The laser line's own odometry pose, as odometry at the scan's time.
-    io::CarmenOdom o;
-    o.timestamp_s = r.laser.timestamp_s;
-    o.pose = r.laser.robot_pose;
-    const auto om = bus::ToOdometry(o, oseq++);
-    put(om, "WHEEL_ODOM", om.utime);
-    const auto m = bus::ToLaserScan(r.laser, seq);
-    put(m, "LIDAR_SCAN", m.utime);
-    if (static_cast<size_t>(++seq) >= kScans) break;
-  }
-  ASSERT_TRUE(w->Close().ok());
+  testing::WriteCarmenPrefixLog(clf, out, kScans);
 }
 
 double Ate(const std::string& ref_path, const std::string& est_path, size_t* matched) {
-  auto ref = io::ReadTrajectory(ref_path);
-  auto est = io::ReadTrajectory(est_path);
-  if (!ref.ok() || !est.ok()) return 1e9;
-  auto ate = eval::ComputeAte(*ref, *est);
-  if (!ate.ok()) return 1e9;
-  *matched = ate->matched;
-  return ate->rmse_m;
+  return testing::AteRmse(ref_path, est_path, matched);
 }
 
 TEST(RbpfMapperProcess, MapsAReplayedLog) {

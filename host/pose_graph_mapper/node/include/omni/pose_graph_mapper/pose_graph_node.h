@@ -1,0 +1,98 @@
+// The pose_graph_mapper node: bus I/O around the PoseGraphSlam library. Subscribes LIDAR_SCAN
+// (laser_scan_t) and WHEEL_ODOM (odometry_t); publishes POSE_PG (pose2d_t, the estimate of every
+// accepted scan when it is accepted), TRAJECTORY_PG (trajectory_t, every accepted scan at the
+// current optimised estimate: poses move when a loop closes), GRID_PG (occupancy_grid_t rendered
+// from the optimised keyframes) and HEARTBEAT with the mapper's and the plugins' counters.
+//
+// Input order: messages are queued in arrival order. Odometry is handed to the mapper in that
+// order; a scan waits until odometry at or after its time has arrived (then the odometry that
+// arrived before it, plus what is needed to reach its time, is added first, so logs that stamp
+// several messages with one time give each scan the odometry it arrived with), or until it is
+// max_odom_wait_s behind the newest message, when the mapper decides with what it has.
+//
+// Deferred mode (the process): the bus callbacks only queue and the owner calls ProcessReady()
+// between draining the socket, so a slow keyframe (matching, loop search, global optimisation)
+// never leaves datagrams to overflow the kernel buffer. The queue is bounded (kMaxQueued):
+// beyond it the oldest scan is processed at once.
+//
+// POSE_PG's covariance is all zeros: the window's marginal covariance is not computed.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+
+#include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/common/time.h"
+#include "omni/pose_graph_mapper/node_options.h"
+#include "omni/pose_graph_mapper/pose_graph_slam.h"
+#include "omni/pose_graph_mapper/slam_outputs.h"
+
+namespace omni::pgm {
+
+class PoseGraphNode {
+ public:
+  PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node, const PoseGraphSlamOptions& slam,
+                const BatchOptions& batch, const Clock* clock);
+
+  // Heartbeat and the periodic grid and trajectory publications; call often.
+  void Tick();
+  void set_deferred(bool deferred) { deferred_ = deferred; }
+  // Handles queued messages until `max_scans` scans were given to the mapper or nothing more is
+  // ready; returns the number of scans handled.
+  int ProcessReady(int max_scans);
+  // End of input: every queued message is handed to the mapper and pending loops are optimised.
+  void Flush();
+  // Flush, publish the final grid and trajectory, write DIR/{trajectory.txt, map.*, graph.g2o,
+  // stats.json}.
+  Status WriteOutputs(const std::string& dir, SlamRunInfo info);
+
+  const PoseGraphSlam& slam() const { return slam_; }
+  bus::Heartbeat& heartbeat() { return heartbeat_; }
+  size_t queued_scans() const { return queued_scans_; }
+  int64_t max_queued_scans() const { return max_queued_scans_; }
+  int64_t scans_lost() const { return scans_lost_; }
+  int64_t poses_published() const { return poses_published_; }
+  int64_t grids_published() const { return grids_published_; }
+  int64_t trajectories_published() const { return trajectories_published_; }
+  int64_t scans_forced() const { return scans_forced_; }
+
+  static constexpr size_t kMaxQueued = 3000;  // scans
+
+ private:
+  struct Item {
+    bool is_scan = false;
+    int64_t utime = 0;
+    Pose2 odom;       // odometry item
+    LaserScan2 scan;  // scan item
+  };
+  void OnMessage(Item item);
+  int Drain(bool all, int max_scans);
+  void HandOdometry(const Item& odom);
+  void HandleScan(const LaserScan2& scan);
+  void PublishGrid();
+  void PublishTrajectory();
+
+  bus::Bus* bus_;
+  PoseGraphNodeOptions o_;
+  const Clock* clock_;
+  PoseGraphSlam slam_;
+  bus::Heartbeat heartbeat_;
+  std::deque<Item> queue_;
+  size_t queued_scans_ = 0;
+  int64_t max_queued_scans_ = 0;
+  int64_t newest_msg_utime_ = INT64_MIN;
+  int64_t handed_odom_utime_ = INT64_MIN;  // newest odometry given to the mapper
+  int64_t last_seq_ = -1;
+  int64_t scan_index_ = 0;
+  int64_t scans_lost_ = 0, scans_forced_ = 0;
+  int64_t poses_published_ = 0, grids_published_ = 0, trajectories_published_ = 0;
+  int64_t pose_seq_ = 0;
+  int64_t last_grid_wall_ = 0, last_traj_wall_ = 0;
+  int64_t used_at_last_grid_ = 0, used_at_last_traj_ = 0;
+  bool deferred_ = false;
+};
+
+}  // namespace omni::pgm

@@ -1,0 +1,224 @@
+#include "omni/pose_graph_mapper/pose_graph_node.h"
+
+#include <algorithm>
+#include <climits>
+
+#include "omni/bus/convert.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odometry_t.hpp"
+#include "omni/pose2d_t.hpp"
+#include "omni/trajectory_t.hpp"
+
+namespace omni::pgm {
+
+PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
+                             const PoseGraphSlamOptions& slam, const BatchOptions& batch,
+                             const Clock* clock)
+    : bus_(bus),
+      o_(node),
+      clock_(clock),
+      slam_(slam, batch, clock),
+      heartbeat_(bus, "pose_graph_mapper", clock) {
+  bus_->Subscribe<omni::laser_scan_t>(
+      o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
+        if (m.seq >= 0) {
+          if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
+          last_seq_ = m.seq;
+        }
+        Item it;
+        it.is_scan = true;
+        it.utime = m.utime;
+        it.scan.utime = m.utime;
+        it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+        it.scan.angle_min_rad = m.angle_min_rad;
+        it.scan.angle_increment_rad = m.angle_increment_rad;
+        it.scan.min_range_m = m.range_min_m;
+        it.scan.max_range_m = m.range_max_m;
+        it.scan.ranges_m = m.ranges_m;
+        OnMessage(std::move(it));
+      });
+  bus_->Subscribe<omni::odometry_t>(o_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
+    Item it;
+    it.utime = m.utime;
+    it.odom = Pose2(m.x_m, m.y_m, m.yaw_rad);
+    OnMessage(std::move(it));
+  });
+
+  const SlamCounters& c = slam_.counters();
+  heartbeat_.AddCounter("scans_in", [&c] { return c.scans_in; });
+  heartbeat_.AddCounter("scans_used", [&c] { return c.scans_used; });
+  heartbeat_.AddCounter("scans_time_backwards", [&c] { return c.scans_time_backwards; });
+  heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
+  heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
+  heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
+  heartbeat_.AddCounter("odom_in", [&c] { return c.odom_in; });
+  heartbeat_.AddCounter("odom_invalid", [&c] { return c.odom_invalid; });
+  heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
+  heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
+  heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
+  heartbeat_.AddCounter("scan_match_factors", [&c] { return c.scan_match_factors; });
+  heartbeat_.AddCounter("scan_match_failures", [&c] { return c.scan_match_failures; });
+  heartbeat_.AddCounter("loops_accepted", [&c] { return c.loops_accepted; });
+  heartbeat_.AddCounter("loops_rejected", [&c] { return c.loops_rejected; });
+  heartbeat_.AddCounter("window_failures", [&c] { return c.window_failures; });
+  heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
+  heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
+  heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
+  heartbeat_.AddCounter("scans_forced", [this] { return scans_forced_; });
+  heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
+  heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });
+  heartbeat_.AddCounter("max_scans_queued", [this] { return max_queued_scans_; });
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
+}
+
+void PoseGraphNode::OnMessage(Item item) {
+  newest_msg_utime_ = std::max(newest_msg_utime_, item.utime);
+  if (item.is_scan) {
+    ++queued_scans_;
+    max_queued_scans_ = std::max(max_queued_scans_, static_cast<int64_t>(queued_scans_));
+  }
+  queue_.push_back(std::move(item));
+  // The mapper is far behind or odometry stopped: stay bounded by forcing the oldest scans.
+  while (queued_scans_ > kMaxQueued) Drain(true, 1);
+  if (!deferred_) Drain(false, INT32_MAX);
+}
+
+int PoseGraphNode::ProcessReady(int max_scans) { return Drain(false, max_scans); }
+
+void PoseGraphNode::Flush() {
+  Drain(true, INT32_MAX);
+  slam_.Finish();
+}
+
+int PoseGraphNode::Drain(bool all, int max_scans) {
+  const int64_t wait = static_cast<int64_t>(o_.max_odom_wait_s * 1e6);
+  int done = 0;
+  while (!queue_.empty() && done < max_scans) {
+    if (!queue_.front().is_scan) {
+      HandOdometry(queue_.front());
+      queue_.pop_front();
+      continue;
+    }
+    const int64_t t = queue_.front().utime;
+    // The scan is covered when odometry at or after its time was handed over, or is queued
+    // behind it: then the odometry up to that one goes first, in arrival order.
+    bool covered = handed_odom_utime_ >= t;
+    if (!covered) {
+      size_t reach = 1;
+      while (reach < queue_.size() && (queue_[reach].is_scan || queue_[reach].utime < t)) ++reach;
+      if (reach < queue_.size()) {
+        std::deque<Item> rest;
+        for (size_t i = 1; i < queue_.size(); ++i) {
+          if (i <= reach && !queue_[i].is_scan)
+            HandOdometry(queue_[i]);
+          else
+            rest.push_back(std::move(queue_[i]));
+        }
+        rest.push_front(std::move(queue_.front()));
+        queue_.swap(rest);
+        covered = true;
+      }
+    }
+    const bool stale = newest_msg_utime_ - t > wait;
+    if (!covered && !stale && !all) break;
+    if (!covered) ++scans_forced_;
+    HandleScan(queue_.front().scan);
+    queue_.pop_front();
+    --queued_scans_;
+    ++done;
+  }
+  return done;
+}
+
+void PoseGraphNode::HandOdometry(const Item& odom) {
+  slam_.AddOdometry(odom.utime, odom.odom);
+  handed_odom_utime_ = std::max(handed_odom_utime_, odom.utime);
+}
+
+void PoseGraphNode::HandleScan(const LaserScan2& scan) {
+  if (!slam_.AddScan(scan_index_++, scan)) {
+    ++bus_->counters().drops;  // the reason is in the mapper's counters
+    return;
+  }
+  ScanPose sp;
+  if (!slam_.LastScanPose(&sp)) return;
+  omni::pose2d_t p{};
+  p.utime = sp.utime;
+  p.seq = pose_seq_++;
+  p.frame = o_.map_frame;
+  p.source = "posegraph";
+  p.x_m = sp.pose.x;
+  p.y_m = sp.pose.y;
+  p.yaw_rad = sp.pose.theta;
+  if (bus_->Publish(o_.pose_channel, p)) ++poses_published_;
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+}
+
+void PoseGraphNode::PublishGrid() {
+  io::LogOddsOptions g;
+  g.resolution_m = o_.grid_resolution_m;
+  const io::GridMap map = slam_.RenderMap(g);
+  if (map.width == 0) return;
+  if (bus_->Publish(o_.grid_channel, bus::ToGridMessage(map, clock_->NowUtime(), "posegraph")))
+    ++grids_published_;
+}
+
+void PoseGraphNode::PublishTrajectory() {
+  const std::vector<ScanPose> traj = slam_.Trajectory();
+  if (traj.empty()) return;
+  omni::trajectory_t m;
+  m.utime = traj.back().utime;
+  m.frame = o_.map_frame;
+  m.source = "posegraph";
+  m.num_poses = static_cast<int32_t>(traj.size());
+  m.pose_utime.reserve(traj.size());
+  m.x_m.reserve(traj.size());
+  m.y_m.reserve(traj.size());
+  m.yaw_rad.reserve(traj.size());
+  for (const auto& e : traj) {
+    m.pose_utime.push_back(e.utime);
+    m.x_m.push_back(e.pose.x);
+    m.y_m.push_back(e.pose.y);
+    m.yaw_rad.push_back(e.pose.theta);
+  }
+  if (bus_->Publish(o_.trajectory_channel, m)) ++trajectories_published_;
+}
+
+void PoseGraphNode::Tick() {
+  heartbeat_.Tick();
+  const int64_t now = clock_->NowUtime();
+  const int64_t used = slam_.counters().scans_used;
+  auto due = [&](double interval_s, int64_t last_wall, int64_t used_then) {
+    return interval_s > 0 && used > used_then &&
+           now - last_wall >= static_cast<int64_t>(interval_s * 1e6);
+  };
+  if (due(o_.trajectory_publish_interval_s, last_traj_wall_, used_at_last_traj_)) {
+    PublishTrajectory();
+    last_traj_wall_ = now;
+    used_at_last_traj_ = used;
+  }
+  if (due(o_.grid_publish_interval_s, last_grid_wall_, used_at_last_grid_)) {
+    PublishGrid();
+    last_grid_wall_ = now;
+    used_at_last_grid_ = used;
+  }
+}
+
+Status PoseGraphNode::WriteOutputs(const std::string& dir, SlamRunInfo info) {
+  Flush();
+  PublishTrajectory();
+  PublishGrid();
+  heartbeat_.Tick(true);
+  info.grid_resolution_m = o_.grid_resolution_m;
+  info.decode_errors = bus_->counters().decode_errors.load();
+  info.extra.emplace_back("scans_lost", scans_lost_);
+  info.extra.emplace_back("scans_forced", scans_forced_);
+  info.extra.emplace_back("max_scans_queued", max_queued_scans_);
+  info.extra.emplace_back("poses_published", poses_published_);
+  info.extra.emplace_back("grids_published", grids_published_);
+  info.extra.emplace_back("trajectories_published", trajectories_published_);
+  return WriteSlamOutputs(slam_, dir, info);
+}
+
+}  // namespace omni::pgm

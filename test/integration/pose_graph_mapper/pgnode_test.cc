@@ -1,0 +1,296 @@
+// The pose_graph_mapper process on a replayed log (file:// URL, and a burst over UDP multicast
+// in a private network namespace) and its node on memq:// in-process: what it publishes, how it
+// orders scans and odometry, what it counts. Data: a prefix of
+// ../shared/datasets/slam-noisy-odom/intel.noisy.clf.gz.
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "../../unit/common/test_paths.h"
+#include "../tools/mapper_replay.h"
+#include "../tools/run.h"
+#include "omni/bus/bus.h"
+#include "omni/bus/convert.h"
+#include "omni/common/time.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/carmen.h"
+#include "omni/io/grid.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/occupancy_grid_t.hpp"
+#include "omni/odometry_t.hpp"
+#include "omni/pose2d_t.hpp"
+#include "omni/pose_graph_mapper/pose_graph_node.h"
+#include "omni/trajectory_t.hpp"
+
+namespace omni {
+namespace {
+
+constexpr size_t kScans = 150;
+const char* const kOutputs[] = {"trajectory.txt",     "map.pgm",   "map.yaml",  "map.png",
+                                "map_trajectory.png", "graph.g2o", "stats.json"};
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream f(path);
+  return std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+}
+
+TEST(PoseGraphMapperProcess, MapsAReplayedLog) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  OMNI_REQUIRE_DATASET(ref, "slam-noisy-odom/intel.reference.txt");
+  const std::string dir = ::testing::TempDir() + "/pg_replay";
+  std::filesystem::create_directories(dir);
+  const std::string log = dir + "/prefix.lcmlog";
+  testing::WriteCarmenPrefixLog(clf, log, kScans);
+  const auto r = testing::Run(testing::Bin("pose_graph_mapper") +
+                              " --config " OMNI_SOURCE_DIR
+                              "/config/pose_graph_mapper.yaml --url "
+                              "'file://" +
+                              log + "?speed=0' --out " + dir + "/out");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("150 scans (150 used"), std::string::npos) << r.output;
+  for (const char* f : kOutputs) EXPECT_TRUE(std::filesystem::exists(dir + "/out/" + f)) << f;
+  size_t matched = 0;
+  const double ate = testing::AteRmse(ref, dir + "/out/trajectory.txt", &matched);
+  EXPECT_GE(matched, kScans - 5);
+  EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
+  const std::string stats = ReadFile(dir + "/out/stats.json");
+  EXPECT_NE(stats.find("\"system\": \"pose_graph_mapper\""), std::string::npos) << stats;
+  EXPECT_NE(stats.find("\"scans_forced\": 0"), std::string::npos) << stats;
+  auto map = io::ReadMapServer(dir + "/out/map.yaml");
+  ASSERT_TRUE(map.ok());
+  EXPECT_GT(map->width, 100);
+}
+
+TEST(PoseGraphMapperProcess, RejectsBadConfigAndOptions) {
+  const std::string dir = ::testing::TempDir() + "/pg_badcfg";
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream f(dir + "/bad.yaml");
+    f << "node:\n  pose_chanel: POSE_X\n";  // misspelled
+  }
+  auto r = testing::Run(testing::Bin("pose_graph_mapper") + " --config " + dir +
+                        "/bad.yaml --url memq:// --out " + dir + "/out");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("node.pose_chanel"), std::string::npos) << r.output;
+  r = testing::Run(testing::Bin("pose_graph_mapper") + " --idle-exit soon");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--idle-exit"), std::string::npos) << r.output;
+  r = testing::Run(testing::Bin("pose_graph_mapper") + " --frobnicate");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  // The offline runner reads the same file, node section included.
+  r = testing::Run(testing::Bin("omni-posegraph-slam") + " /nonexistent.clf --out " + dir +
+                   "/o2 --config " + dir + "/bad.yaml");
+  EXPECT_NE(r.exit_code, 0);
+}
+
+// Two processes over real UDP multicast in a private network namespace: the prefix replayed flat
+// out (a burst far faster than the mapper) must reach pose_graph_mapper without a lost scan.
+TEST(PoseGraphMapperProcess, MapsABurstReplayedOverUdpInANetns) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  OMNI_REQUIRE_DATASET(ref, "slam-noisy-odom/intel.reference.txt");
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = ::testing::TempDir() + "/pg_burst";
+  std::filesystem::create_directories(dir);
+  const std::string log = dir + "/burst.lcmlog";
+  testing::WriteCarmenPrefixLog(clf, log, kScans);
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
+      << testing::Bin("pose_graph_mapper")
+      << " --config " OMNI_SOURCE_DIR "/config/pose_graph_mapper.yaml"
+      << " --out " << dir << "/out --idle-exit 2 & m=$!\nsleep 0.5\n"
+      << "timeout 60 " << testing::Bin("omni-replay") << " " << log << " --speed 0\n"
+      << "rc=$?\nwait $m\nexit $((rc + $?))\n";
+  }
+  const auto r = testing::Run("timeout 200 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("150 scans (150 used, 0 lost on the bus"), std::string::npos) << r.output;
+  size_t matched = 0;
+  const double ate = testing::AteRmse(ref, dir + "/out/trajectory.txt", &matched);
+  EXPECT_GE(matched, kScans - 5);
+  EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
+}
+
+TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  pgm::PoseGraphNodeOptions no;
+  no.grid_publish_interval_s = 1.0;
+  no.trajectory_publish_interval_s = 0.5;
+  ManualClock clock(1000000);
+  pgm::PoseGraphNode node(&b, no, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, &clock);
+  std::vector<omni::pose2d_t> poses;
+  omni::trajectory_t last_traj;
+  int trajs = 0, grids = 0, heartbeats = 0;
+  b.Subscribe<omni::pose2d_t>("POSE_PG",
+                              [&](const omni::pose2d_t& p, int64_t) { poses.push_back(p); });
+  b.Subscribe<omni::trajectory_t>("TRAJECTORY_PG", [&](const omni::trajectory_t& t, int64_t) {
+    last_traj = t;
+    ++trajs;
+  });
+  b.Subscribe<omni::occupancy_grid_t>("GRID_PG", [&](const omni::occupancy_grid_t& g, int64_t) {
+    EXPECT_GT(g.width, 0);
+    ++grids;
+  });
+  bool heartbeat_counts = false;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    EXPECT_EQ(h.process, "pose_graph_mapper");
+    for (const auto& n : h.counter_names) heartbeat_counts |= n == "loops_accepted";
+    ++heartbeats;
+  });
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok());
+  int64_t seq = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
+    auto scan = bus::ToLaserScan(r.laser, seq);
+    if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), NAN);  // unusable: counted
+    if (seq == 30) scan.seq += 3;  // the driver's counter jumps: 3 scans lost on the way
+    b.Publish("LIDAR_SCAN", scan);
+    b.PublishRaw("LIDAR_SCAN", "junk", 4);  // undecodable: counted, never handed over
+    while (b.HandleTimeout(0) > 0) {
+    }
+    clock.Advance(250000);
+    node.Tick();
+    if (++seq >= 60) break;
+  }
+  const std::string out = ::testing::TempDir() + "/pg_memq_out";
+  std::filesystem::create_directories(out);
+  const Status written = node.WriteOutputs(out, {});
+  ASSERT_TRUE(written.ok()) << written.message();
+  while (b.HandleTimeout(0) > 0) {
+  }
+  const auto& c = node.slam().counters();
+  EXPECT_EQ(c.scans_in, 60);
+  EXPECT_EQ(c.scans_too_few_beams, 1);
+  EXPECT_EQ(static_cast<int64_t>(poses.size()), c.scans_used);
+  EXPECT_EQ(c.scans_used, 59);
+  for (const auto& p : poses) {
+    EXPECT_EQ(p.source, "posegraph");
+    EXPECT_EQ(p.frame, "map");
+    EXPECT_TRUE(std::isfinite(p.x_m) && std::isfinite(p.y_m) && std::isfinite(p.yaw_rad));
+  }
+  EXPECT_GE(trajs, 10);
+  EXPECT_GE(grids, 5);
+  EXPECT_GE(heartbeats, 5);
+  EXPECT_TRUE(heartbeat_counts);
+  EXPECT_EQ(b.counters().decode_errors.load(), 60);
+  EXPECT_EQ(node.scans_lost(), 3);
+  // The last trajectory (published at exit) holds every accepted scan at its final estimate;
+  // its last pose is the final estimate of the newest scan.
+  ASSERT_EQ(last_traj.num_poses, 59);
+  ASSERT_EQ(last_traj.pose_utime.size(), 59u);
+  EXPECT_EQ(last_traj.pose_utime.back(), poses.back().utime);
+  const auto final_traj = node.slam().Trajectory();
+  EXPECT_DOUBLE_EQ(last_traj.x_m.back(), final_traj.back().pose.x);
+}
+
+omni::laser_scan_t RingScan(int64_t utime, int64_t seq) {
+  omni::laser_scan_t m{};
+  m.utime = utime;
+  m.seq = seq;
+  m.angle_min_rad = -1.5f;
+  m.angle_increment_rad = 0.01f;
+  m.range_min_m = 0.1f;
+  m.range_max_m = 30.f;
+  m.ranges_m.assign(300, 2.f);
+  m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+  return m;
+}
+
+omni::odometry_t Odom(int64_t utime, double x, int64_t seq) {
+  omni::odometry_t m{};
+  m.utime = utime;
+  m.seq = seq;
+  m.x_m = x;
+  return m;
+}
+
+struct MemqNode {
+  MemqNode() : clock(1000000) {
+    auto bus_or = bus::Bus::Create("memq://");
+    EXPECT_TRUE(bus_or.ok());
+    b = std::move(*bus_or);
+    node = std::make_unique<pgm::PoseGraphNode>(b.get(), pgm::PoseGraphNodeOptions{},
+                                                pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{},
+                                                &clock);
+    node->set_deferred(true);
+    b->Subscribe<omni::pose2d_t>("POSE_PG",
+                                 [this](const omni::pose2d_t& p, int64_t) { poses.push_back(p); });
+  }
+  void Pump() {
+    while (b->HandleTimeout(0) > 0) {
+    }
+  }
+  ManualClock clock;
+  std::unique_ptr<bus::Bus> b;
+  std::unique_ptr<pgm::PoseGraphNode> node;
+  std::vector<omni::pose2d_t> poses;
+};
+
+// The process defers the mapper and drains the socket first; a scan must still use the odometry
+// that had arrived when it was covered, not a later sample with the same stamp (Intel's log
+// repeats stamps).
+TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
+  MemqNode n;
+  n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));
+  n.b->Publish("LIDAR_SCAN", RingScan(1000000, 0));
+  n.b->Publish("WHEEL_ODOM", Odom(2000000, 0.1, 1));
+  n.b->Publish("LIDAR_SCAN", RingScan(2000000, 1));
+  n.b->Publish("WHEEL_ODOM", Odom(2000000, 5.0, 2));  // same stamp, after the scan was covered
+  n.Pump();
+  EXPECT_EQ(n.node->queued_scans(), 2u);
+  EXPECT_EQ(n.node->ProcessReady(10), 2);
+  n.Pump();
+  ASSERT_EQ(n.poses.size(), 2u);
+  EXPECT_NEAR(n.poses[1].x_m - n.poses[0].x_m, 0.1, 1e-6);
+}
+
+// A scan that arrives before its odometry waits for it (and is then posed between the samples
+// around it); a scan whose odometry never comes is handed over once it is max_odom_wait_s
+// behind the newest message, and the mapper rejects it (counted).
+TEST(PoseGraphMapperNode, ScansWaitForTheirOdometryThenGiveUp) {
+  MemqNode n;
+  n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));
+  n.b->Publish("LIDAR_SCAN", RingScan(1000000, 0));
+  n.b->Publish("LIDAR_SCAN", RingScan(1500000, 1));  // odometry at 2.0 s comes later
+  n.Pump();
+  EXPECT_EQ(n.node->ProcessReady(10), 1);  // the second scan waits
+  EXPECT_EQ(n.node->queued_scans(), 1u);
+  n.b->Publish("WHEEL_ODOM", Odom(2000000, 0.2, 1));
+  n.Pump();
+  EXPECT_EQ(n.node->ProcessReady(10), 1);
+  n.Pump();
+  ASSERT_EQ(n.poses.size(), 2u);
+  EXPECT_NEAR(n.poses[1].x_m - n.poses[0].x_m, 0.1, 1e-6);  // halfway between the samples
+  EXPECT_EQ(n.node->scans_forced(), 0);
+
+  // Odometry stops; a scan 3 s later waits until a message 0.5 s newer than it arrives.
+  n.b->Publish("LIDAR_SCAN", RingScan(5000000, 2));
+  n.Pump();
+  EXPECT_EQ(n.node->ProcessReady(10), 0);
+  n.b->Publish("LIDAR_SCAN", RingScan(5600000, 3));
+  n.Pump();
+  EXPECT_EQ(n.node->ProcessReady(10), 1);  // the first is forced, the second still waits
+  EXPECT_EQ(n.node->scans_forced(), 1);
+  EXPECT_EQ(n.node->slam().counters().scans_no_odom, 1);
+  n.node->Flush();
+  EXPECT_EQ(n.node->scans_forced(), 2);
+  EXPECT_EQ(n.node->slam().counters().scans_no_odom, 2);
+  EXPECT_EQ(n.node->queued_scans(), 0u);
+}
+
+}  // namespace
+}  // namespace omni
