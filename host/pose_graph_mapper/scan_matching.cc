@@ -26,6 +26,17 @@ void SlidingMax(float* in, int n_out, int k, int width, float* out) {
   for (size_t t = 0; t < n; ++t) out[t] = std::max(in[t], in[t + off]);
 }
 
+// Whether the first and last row and column of a w x h row-major grid are all 0.
+bool BorderIsZero(const std::vector<float>& g, int w, int h) {
+  for (int x = 0; x < w; ++x)
+    if (g[static_cast<size_t>(x)] != 0.f || g[static_cast<size_t>(h - 1) * w + x] != 0.f)
+      return false;
+  for (int y = 0; y < h; ++y)
+    if (g[static_cast<size_t>(y) * w] != 0.f || g[static_cast<size_t>(y) * w + w - 1] != 0.f)
+      return false;
+  return true;
+}
+
 }  // namespace
 
 LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
@@ -80,6 +91,7 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
   }
   pooled_.assign(static_cast<size_t>(pw) * ph, 0.f);
   SlidingMax(rows.data(), ph, k_, pw, pooled_.data());
+  zero_border_ = BorderIsZero(fine_, w_, h_) && BorderIsZero(pooled_, pw, ph);
 }
 
 Eigen::Vector2i LikelihoodField::Cell(const Eigen::Vector2d& p) const {
@@ -267,25 +279,46 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
         rc.pooled_out.push_back({px, py});
     }
   }
+  // Points that may leave the grid: a lookup clamped to the grid reads its zero border when
+  // there is one (branch-free), otherwise the lookup is checked.
+  const bool clamp = field.zero_border();
+  auto sum_out = [clamp](const float* grid, int w, int h, const std::vector<Eigen::Vector2i>& pts,
+                         int bx, int by) {
+    double s = 0;
+    if (clamp) {
+      double s1 = 0;
+      const size_t n = pts.size();
+      size_t i = 0;
+      for (; i + 1 < n; i += 2) {
+        const int x0 = std::clamp(pts[i].x() + bx, 0, w - 1);
+        const int y0 = std::clamp(pts[i].y() + by, 0, h - 1);
+        const int x1 = std::clamp(pts[i + 1].x() + bx, 0, w - 1);
+        const int y1 = std::clamp(pts[i + 1].y() + by, 0, h - 1);
+        s += grid[static_cast<size_t>(y0) * w + x0];
+        s1 += grid[static_cast<size_t>(y1) * w + x1];
+      }
+      if (i < n)
+        s += grid[static_cast<size_t>(std::clamp(pts[i].y() + by, 0, h - 1)) * w +
+                  std::clamp(pts[i].x() + bx, 0, w - 1)];
+      return s + s1;
+    }
+    for (const auto& c : pts) {
+      const int x = c.x() + bx, y = c.y() + by;
+      if (x >= 0 && x < w && y >= 0 && y < h) s += grid[static_cast<size_t>(y) * w + x];
+    }
+    return s;
+  };
   auto fine_score = [&](int a, int bx, int by) {
     const Rotation& rc = rots[static_cast<size_t>(a + na)];
     const float* base = fine + (static_cast<std::ptrdiff_t>(by) * fw + bx);
-    double s = SumAt(base, rc.fine_in);
-    for (const auto& c : rc.fine_out) {
-      const int x = c.x() + bx, y = c.y() + by;
-      if (x >= 0 && x < fw && y >= 0 && y < fh) s += fine[static_cast<size_t>(y) * fw + x];
-    }
+    const double s = SumAt(base, rc.fine_in) + sum_out(fine, fw, fh, rc.fine_out, bx, by);
     ++out.evaluated;
     return s * inv_n;
   };
   auto bound = [&](int a, int bx, int by) {
     const Rotation& rc = rots[static_cast<size_t>(a + na)];
     const float* base = pooled + (static_cast<std::ptrdiff_t>(by) * pw + bx);
-    double s = SumAt(base, rc.pooled_in);
-    for (const auto& c : rc.pooled_out) {
-      const int x = c.x() + bx, y = c.y() + by;
-      if (x >= 0 && x < pw && y >= 0 && y < ph) s += pooled[static_cast<size_t>(y) * pw + x];
-    }
+    const double s = SumAt(base, rc.pooled_in) + sum_out(pooled, pw, ph, rc.pooled_out, bx, by);
     return s * inv_n;
   };
 

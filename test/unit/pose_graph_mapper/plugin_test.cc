@@ -124,7 +124,12 @@ TEST(PoseGraphPlugins, PooledFieldIsTheBlockMaximum) {
         ++checked;
       }
     EXPECT_GT(checked, 1000);
+    // The 1 m margin leaves a zero border, which the matcher's clamped lookups rely on.
+    EXPECT_TRUE(field.zero_border());
   }
+  LikelihoodFieldOptions tight;
+  tight.margin_m = 0.05;  // the likelihood reaches the grid's edge
+  EXPECT_FALSE(LikelihoodField(Room(), tight).zero_border());
 }
 
 // The loop-closure plugin reuses a candidate's field only while its submap is exactly the same:

@@ -58,6 +58,9 @@ class LikelihoodField {
   int pooled_height() const { return h_ + k_; }
   const float* fine_data() const { return fine_.data(); }
   const float* pooled_data() const { return pooled_.data(); }
+  // True when the outermost rows and columns of both grids are 0 (the margin is wider than the
+  // likelihood's reach), so a lookup clamped to the grid gives the same 0 as one outside it.
+  bool zero_border() const { return zero_border_; }
 
  private:
   std::vector<Eigen::Vector2d> points_;
@@ -67,6 +70,7 @@ class LikelihoodField {
   int w_ = 0, h_ = 0;
   std::vector<float> fine_;    // w_ x h_
   std::vector<float> pooled_;  // (w_ + k_) x (h_ + k_), index offset by k_
+  bool zero_border_ = false;
 };
 
 struct SearchWindow {

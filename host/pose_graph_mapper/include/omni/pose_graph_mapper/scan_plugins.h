@@ -23,6 +23,12 @@ namespace omni::pgm {
 std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
                                          int last, int centre, double max_range_m);
 
+inline LikelihoodFieldOptions FieldWithMargin(double margin_m) {
+  LikelihoodFieldOptions o;
+  o.margin_m = margin_m;
+  return o;
+}
+
 struct KeyframeMatchOptions {
   int submap_keyframes = 3;   // previous keyframes in the local submap
   double max_range_m = 20.0;  // beams longer than this are ignored
@@ -56,7 +62,10 @@ struct LoopClosureOptions {
   double min_score = 0.73;
   double min_inlier_fraction = 0.78;
   double max_ambiguity_ratio = 0.9;  // second best elsewhere / best; <= 0 disables the check
-  LikelihoodFieldOptions field;
+  // The grid reaches 2.5 m beyond the submap (1 m for the keyframe matcher): wider than the
+  // +-2 m window, so query points over the submap stay on the grid for every translation and
+  // are scored without bounds checks (the scores are the same; only the zero border grows).
+  LikelihoodFieldOptions field = FieldWithMargin(2.5);
   SearchWindow window = MakeSearchWindow(2.0, 0.5);
   // Likelihood fields of the most recent candidates' submaps kept for reuse: consecutive
   // keyframes near one place try the same old keyframes, whose submap is unchanged until a
