@@ -1,9 +1,14 @@
 // JPEG decoding/encoding with libjpeg(-turbo). The only file that includes jpeglib.h.
+// Built without libjpeg (OMNI_HAVE_JPEG unset), both return an error saying so.
 //
 // libjpeg reports fatal errors through error_exit, which must not return: it longjmps back to
 // the call here. Corrupt-data warnings (e.g. "premature end of data segment") only print by
 // default and fill the rest with grey; here any warning fails the decode, so a truncated
 // frame is an error instead of a half-grey image.
+#include "omni/octomap_builder/color_image.h"
+
+#ifdef OMNI_HAVE_JPEG
+
 #include <csetjmp>
 #include <cstdio>
 #include <cstdlib>
@@ -11,8 +16,6 @@
 
 // jpeglib.h needs FILE and size_t declared first.
 #include <jpeglib.h>
-
-#include "omni/octomap_builder/color_image.h"
 
 namespace omni::octo {
 namespace {
@@ -37,6 +40,8 @@ void OnMessage(j_common_ptr info, int level) {
 constexpr int kMaxSide = 16384;
 
 }  // namespace
+
+bool JpegAvailable() { return true; }
 
 Status DecodeJpeg(const uint8_t* data, size_t size, int* width, int* height,
                   std::vector<uint8_t>* rgb) {
@@ -122,3 +127,23 @@ Result<std::vector<uint8_t>> EncodeJpeg(const std::vector<uint8_t>& rgb, int wid
 }
 
 }  // namespace omni::octo
+
+#else  // no libjpeg
+
+namespace omni::octo {
+
+bool JpegAvailable() { return false; }
+
+Status DecodeJpeg(const uint8_t*, size_t, int*, int*, std::vector<uint8_t>*) {
+  return MakeError(ErrorCode::kInvalidArgument,
+                   "jpeg: built without libjpeg (install libjpeg-dev and rebuild)");
+}
+
+Result<std::vector<uint8_t>> EncodeJpeg(const std::vector<uint8_t>&, int, int, int) {
+  return MakeError(ErrorCode::kInvalidArgument,
+                   "jpeg: built without libjpeg (install libjpeg-dev and rebuild)");
+}
+
+}  // namespace omni::octo
+
+#endif  // OMNI_HAVE_JPEG

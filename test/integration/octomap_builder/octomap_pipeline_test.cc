@@ -417,6 +417,7 @@ omni::color_image_t WallColor(int64_t utime, int64_t seq, bool jpeg) {
 }
 
 TEST(OctomapNode, ColoursTheMapFromRgbFramesOnMemq) {
+  if (!JpegAvailable()) GTEST_SKIP() << "built without libjpeg (libjpeg-dev not installed)";
   auto bus = bus::Bus::Create("memq://");
   ASSERT_TRUE(bus.ok()) << bus.error().message;
   auto opt = OctomapBuilderOptions::LoadFile(Config());

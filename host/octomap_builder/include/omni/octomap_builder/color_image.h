@@ -51,7 +51,9 @@ Status DecodeColorData(int8_t encoding, const uint8_t* data, size_t size, int wi
                        std::vector<uint8_t>* rgb);
 
 // JPEG codec (libjpeg; its headers stay inside jpeg_codec.cc). Decode fails on corrupt or
-// truncated data; the output is RGB.
+// truncated data; the output is RGB. Without libjpeg at build time JpegAvailable() is false
+// and both return an error saying so.
+bool JpegAvailable();
 Status DecodeJpeg(const uint8_t* data, size_t size, int* width, int* height,
                   std::vector<uint8_t>* rgb);
 // Encodes RGB bytes (3 * width * height) at `quality` 1..100.
