@@ -502,5 +502,53 @@ TEST(OctomapNode, ColoursTheMapFromRgbFramesOnMemq) {
   EXPECT_TRUE(fs::exists(opt->out_dir + "/view_color.png"));
 }
 
+TEST(OctomapCli, ColorBuildFromAnLcmLogPairsRgbFrames) {
+  if (!JpegAvailable()) GTEST_SKIP() << "built without libjpeg (libjpeg-dev not installed)";
+  const std::string dir = testing::TempDir() + "/octo_cli_log_color";
+  fs::create_directories(dir);
+  const std::string log = dir + "/in.lcmlog";
+  {
+    auto w = io::LcmLogWriter::Open(log);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const int64_t t0 = 1700000000000000;
+    for (int i = 0; i <= 10; ++i) {
+      const int64_t t = t0 + i * 100000;
+      auto p = Encode(Pose(t, 0.1 * i, i));
+      ASSERT_TRUE(w->Write(t, "POSE_RBPF", p.data(), p.size()).ok());
+      if (i % 2 == 0 && i < 10) {
+        const int64_t tf = t + 50000;
+        auto d = Encode(WallFrame(tf, 0.1 * i + 0.05, i + 1));
+        ASSERT_TRUE(w->Write(tf, "DEPTH", d.data(), d.size()).ok());
+        // Colour 3 ms later (JPEG), except for the frame at i = 4; a truncated one at i = 6.
+        if (i != 4) {
+          auto c = Encode(WallColor(tf + 3000, i + 1, true));
+          if (i == 6) c.resize(c.size() - 40);
+          ASSERT_TRUE(w->Write(tf + 3000, "RGB", c.data(), c.size()).ok());
+        }
+      }
+    }
+    ASSERT_TRUE(w->Close().ok());
+  }
+  const std::string out = dir + "/out";
+  auto r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out + " --config " +
+                      Config() + " --color");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  // Five depth frames: three coloured; one without colour; one whose colour was truncated.
+  EXPECT_NE(r.output.find("colour: 3 frames in, 3 depth frames coloured, 2 uncoloured, 1 colour "
+                          "errors"),
+            std::string::npos)
+      << r.output;
+  auto color = LoadColorTree(out + "/map_color.ot");
+  ASSERT_TRUE(color.ok()) << color.error().message;
+  size_t wall = 0;
+  for (auto it = (*color)->begin_leafs(); it != (*color)->end_leafs(); ++it) {
+    if (!(*color)->isNodeOccupied(*it)) continue;
+    ++wall;
+    ASSERT_TRUE(it->isColorSet());
+    EXPECT_NEAR(it->getColor().g, 180, 4);
+  }
+  EXPECT_GT(wall, 200u);
+}
+
 }  // namespace
 }  // namespace omni::octo
