@@ -36,6 +36,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("global_loss", &o.global_loss, Optional(), OneOf({"none", "huber", "cauchy"}));
   r.Get("global_loss_scale", &o.global_loss_scale, Optional(), Positive<double>());
   r.Get("global_max_iterations", &o.global_max_iterations, Optional(), InRange(1, 10000));
+  r.Get("global_function_tolerance", &o.global_function_tolerance, Optional(), Positive<double>());
   r.Get("global_min_keyframes_between", &o.global_min_keyframes_between, Optional(),
         InRange(0, 100000));
   r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
@@ -53,6 +54,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   l.Get("min_inlier_fraction", &o.loop.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   l.Get("max_ambiguity_ratio", &o.loop.max_ambiguity_ratio, Optional(), InRange(0.0, 1.0));
   l.Get("field_cache_size", &o.loop.field_cache_size, Optional(), InRange(0, 1000));
+  l.Get("num_threads", &o.loop.num_threads, Optional(), InRange(1, 64));
   return o;
 }
 
@@ -66,6 +68,8 @@ Status PoseGraphSlamOptions::Validate() const {
                      "the window)");
   if (min_beams < 1) return MakeError(ErrorCode::kOutOfRange, "min_beams must be >= 1");
   if (num_threads < 1) return MakeError(ErrorCode::kOutOfRange, "num_threads must be >= 1");
+  if (!(global_function_tolerance > 0))
+    return MakeError(ErrorCode::kOutOfRange, "global_function_tolerance must be > 0");
   return Status::Ok();
 }
 
@@ -280,6 +284,7 @@ void PoseGraphSlam::OptimizeGlobal() {
   b.loss = o_.global_loss;
   b.loss_scale = o_.global_loss_scale;
   b.max_iterations = o_.global_max_iterations;
+  b.function_tolerance = o_.global_function_tolerance;
   b.num_threads = o_.num_threads;
   auto r = OptimizeGraph(&g, b);
   ++c_.global_optimizations;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <memory>
+#include <thread>
 #include <utility>
 
 namespace omni::pgm {
@@ -76,10 +77,9 @@ std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
   return out;
 }
 
-std::shared_ptr<const LikelihoodField> LoopClosurePlugin::CandidateField(
-    const std::vector<Keyframe>& keyframes, int candidate) {
+LoopClosurePlugin::CachedField LoopClosurePlugin::FieldKey(const std::vector<Keyframe>& keyframes,
+                                                           int candidate) const {
   const int n = static_cast<int>(keyframes.size());
-  if (candidate < 0 || candidate >= n) return nullptr;
   const int first = std::max(candidate - o_.submap_half_width, 0);
   const int last = std::min(candidate + o_.submap_half_width, n - 1);
   CachedField entry;
@@ -90,6 +90,10 @@ std::shared_ptr<const LikelihoodField> LoopClosurePlugin::CandidateField(
     entry.key.push_back(static_cast<int64_t>(keyframes[i].points.size()));
     entry.poses.push_back(inv * keyframes[i].estimate);
   }
+  return entry;
+}
+
+std::shared_ptr<const LikelihoodField> LoopClosurePlugin::FindField(const CachedField& entry) {
   auto same = [&](const CachedField& c) {
     if (c.key != entry.key) return false;
     for (size_t i = 0; i < c.poses.size(); ++i)
@@ -104,26 +108,29 @@ std::shared_ptr<const LikelihoodField> LoopClosurePlugin::CandidateField(
       std::rotate(it, it + 1, cache_.end());  // now the most recently used
       return cache_.back().field;
     }
-  const auto submap = BuildSubmap(keyframes, first, last, candidate, o_.max_range_m);
-  if (submap.empty()) return nullptr;
-  entry.field = std::make_shared<const LikelihoodField>(submap, o_.field);
-  if (o_.field_cache_size <= 0) return entry.field;
-  if (static_cast<int>(cache_.size()) >= o_.field_cache_size) cache_.erase(cache_.begin());
-  cache_.push_back(std::move(entry));
-  return cache_.back().field;
+  return nullptr;
 }
 
-LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyframes, int candidate) {
+std::shared_ptr<const LikelihoodField> LoopClosurePlugin::BuildField(
+    const std::vector<Keyframe>& keyframes, int candidate) const {
+  const auto submap = BuildSubmap(keyframes, candidate - o_.submap_half_width,
+                                  candidate + o_.submap_half_width, candidate, o_.max_range_m);
+  if (submap.empty()) return nullptr;
+  return std::make_shared<const LikelihoodField>(submap, o_.field);
+}
+
+void LoopClosurePlugin::CacheField(CachedField entry) {
+  if (o_.field_cache_size <= 0 || !entry.field) return;
+  if (static_cast<int>(cache_.size()) >= o_.field_cache_size) cache_.erase(cache_.begin());
+  cache_.push_back(std::move(entry));
+}
+
+LoopAttempt LoopClosurePlugin::Verify(const std::vector<Keyframe>& keyframes, int candidate,
+                                      const LikelihoodField& field,
+                                      const std::vector<Eigen::Vector2d>& query) const {
   LoopAttempt at;
   at.candidate = candidate;
   const int cur = static_cast<int>(keyframes.size()) - 1;
-  const auto query = Clip(keyframes[cur].points, o_.max_range_m);
-  const auto field_ptr = query.empty() ? nullptr : CandidateField(keyframes, candidate);
-  if (query.empty() || !field_ptr) {
-    at.reason = "empty_scan";
-    return at;
-  }
-  const LikelihoodField& field = *field_ptr;
   const Pose2 guess = keyframes[candidate].estimate.Between(keyframes[cur].estimate);
   SearchWindow w = o_.window;
   w.min_score = o_.min_score;
@@ -142,6 +149,29 @@ LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyfram
   return at;
 }
 
+LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyframes, int candidate) {
+  LoopAttempt at;
+  at.candidate = candidate;
+  const int n = static_cast<int>(keyframes.size());
+  const auto query = Clip(keyframes[n - 1].points, o_.max_range_m);
+  if (query.empty() || candidate < 0 || candidate >= n) {
+    at.reason = "empty_scan";
+    return at;
+  }
+  CachedField entry = FieldKey(keyframes, candidate);
+  auto field = FindField(entry);
+  if (!field) {
+    field = BuildField(keyframes, candidate);
+    entry.field = field;
+    CacheField(std::move(entry));
+  }
+  if (!field) {
+    at.reason = "empty_scan";
+    return at;
+  }
+  return Verify(keyframes, candidate, *field, query);
+}
+
 std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
     const std::vector<Keyframe>& keyframes) {
   std::vector<RelativePoseFactor> out;
@@ -157,12 +187,56 @@ std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
   }
   std::sort(cands.begin(), cands.end());
   if (static_cast<int>(cands.size()) > o_.max_candidates) cands.resize(o_.max_candidates);
-  for (const auto& [d, i] : cands) {
+  if (cands.empty()) return out;
+
+  // Cached fields are looked up here; missing ones are built by the workers and cached after.
+  const auto query = Clip(keyframes[cur].points, o_.max_range_m);
+  struct Job {
+    CachedField entry;
+    bool built = false;
+    LoopAttempt at;
+  };
+  std::vector<Job> jobs(cands.size());
+  for (size_t j = 0; j < cands.size(); ++j) {
+    jobs[j].entry = FieldKey(keyframes, cands[j].second);
+    jobs[j].entry.field = FindField(jobs[j].entry);
+  }
+  auto run = [&](size_t first, size_t step) {
+    for (size_t j = first; j < jobs.size(); j += step) {
+      Job& job = jobs[j];
+      const int c = cands[j].second;
+      if (query.empty()) {
+        job.at.candidate = c;
+        job.at.reason = "empty_scan";
+        continue;
+      }
+      if (!job.entry.field) {
+        job.entry.field = BuildField(keyframes, c);
+        job.built = true;
+      }
+      if (!job.entry.field) {
+        job.at.candidate = c;
+        job.at.reason = "empty_scan";
+        continue;
+      }
+      job.at = Verify(keyframes, c, *job.entry.field, query);
+    }
+  };
+  const size_t threads = std::min(jobs.size(), static_cast<size_t>(std::max(1, o_.num_threads)));
+  std::vector<std::thread> workers;
+  for (size_t t = 1; t < threads; ++t) workers.emplace_back(run, t, threads);
+  run(0, threads);
+  for (auto& w : workers) w.join();
+
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    Job& job = jobs[j];
+    if (job.built) CacheField(job.entry);
     Count("attempts");
-    attempts_.push_back(TryCandidate(keyframes, i));
+    Count(job.at.reason);
+    attempts_.push_back(std::move(job.at));
     const LoopAttempt& at = attempts_.back();
-    Count(at.reason);
-    if (at.accepted) out.push_back(MakeFactor(keyframes[i], keyframes[cur], at.match, name()));
+    if (at.accepted)
+      out.push_back(MakeFactor(keyframes[cands[j].second], keyframes[cur], at.match, name()));
   }
   return out;
 }

@@ -404,6 +404,30 @@ TEST(PoseGraphPlugins, IntelLoopClosureFindsTrueLoop) {
   EXPECT_LT(worst_xy, 0.05);
   EXPECT_LT(worst_th, 1 * kDeg);
   EXPECT_EQ(lc.counters().at("accepted"), static_cast<int64_t>(factors.size()));
+
+  // The candidates matched on several threads give the same factors, in the same order; a second
+  // keyframe at the same place reuses the three cached fields.
+  for (int threads : {2, 3}) {
+    o.num_threads = threads;
+    LoopClosurePlugin par(o);
+    const auto pf = par.OnKeyframe(kfs);
+    ASSERT_EQ(pf.size(), factors.size()) << threads;
+    for (size_t i = 0; i < pf.size(); ++i) {
+      EXPECT_EQ(pf[i].from_utime, factors[i].from_utime);
+      EXPECT_EQ(pf[i].delta.x, factors[i].delta.x);
+      EXPECT_EQ(pf[i].delta.y, factors[i].delta.y);
+      EXPECT_EQ(pf[i].delta.theta, factors[i].delta.theta);
+      EXPECT_EQ(pf[i].covariance, factors[i].covariance);
+    }
+    ASSERT_EQ(par.last_attempts().size(), lc.last_attempts().size());
+    for (size_t i = 0; i < lc.last_attempts().size(); ++i) {
+      EXPECT_EQ(par.last_attempts()[i].candidate, lc.last_attempts()[i].candidate);
+      EXPECT_EQ(par.last_attempts()[i].reason, lc.last_attempts()[i].reason);
+    }
+    EXPECT_EQ(par.counters().count("field_cache_hits"), 0u);
+    (void)par.OnKeyframe(kfs);
+    EXPECT_EQ(par.counters().at("field_cache_hits"), 3);
+  }
 }
 
 TEST(PoseGraphPlugins, IntelLoopClosureVerifiesRevisits) {

@@ -73,6 +73,10 @@ struct LoopClosureOptions {
   // point counts, poses relative to the candidate) are exactly those it was built from, so the
   // result is the same as without the cache. 0 disables it; each field takes about 1-3 MB.
   int field_cache_size = 8;
+  // Candidates of one keyframe matched concurrently on this many threads (the calling thread
+  // and num_threads - 1 started per keyframe). Candidates are independent and their results are
+  // merged in candidate order, so the factors are the same for any number of threads.
+  int num_threads = 1;
 };
 
 struct LoopAttempt {
@@ -98,8 +102,16 @@ class LoopClosurePlugin final : public MeasurementPlugin {
     std::vector<Pose2> poses;  // submap keyframes relative to the candidate
     std::shared_ptr<const LikelihoodField> field;
   };
-  std::shared_ptr<const LikelihoodField> CandidateField(const std::vector<Keyframe>& keyframes,
-                                                        int candidate);
+  // What a candidate's field is built from; the cached field when there is one.
+  CachedField FieldKey(const std::vector<Keyframe>& keyframes, int candidate) const;
+  std::shared_ptr<const LikelihoodField> FindField(const CachedField& key);
+  // Builds the key's field (null for an empty submap); touches no member, so threads may call it.
+  std::shared_ptr<const LikelihoodField> BuildField(const std::vector<Keyframe>& keyframes,
+                                                    int candidate) const;
+  void CacheField(CachedField entry);
+  // Matches and verifies the query against a candidate's field; const, for the worker threads.
+  LoopAttempt Verify(const std::vector<Keyframe>& keyframes, int candidate,
+                     const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query) const;
 
   LoopClosureOptions o_;
   std::vector<LoopAttempt> attempts_;
