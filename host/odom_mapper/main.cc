@@ -1,10 +1,7 @@
 // odom_mapper process: LIDAR_SCAN + WHEEL_ODOM -> GRID_ODOM, and map files on exit.
-#include <poll.h>
 
-#include <csignal>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <filesystem>
 #include <string>
 
@@ -12,6 +9,7 @@
 #include "omni/bus/channels.h"
 #include "omni/bus/convert.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/bus/node_loop.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/trajectory_io.h"
@@ -20,9 +18,6 @@
 #include "omni/odometry_t.hpp"
 
 namespace {
-
-volatile std::sig_atomic_t g_stop = 0;
-void OnSignal(int) { g_stop = 1; }
 
 void Usage(std::FILE* f) {
   std::fprintf(f,
@@ -94,13 +89,10 @@ int main(int argc, char** argv) {
   auto& bus = **bus_or;
   omni::odom_mapper::OdomMapper mapper(opt);
   omni::SystemClock clock;
-  int64_t last_msg_us = 0;
   bus.Subscribe<omni::odometry_t>(opt.odom_channel, [&](const omni::odometry_t& m, int64_t) {
-    last_msg_us = omni::MonotonicMicros();
     if (!mapper.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad))) ++bus.counters().drops;
   });
   bus.Subscribe<omni::laser_scan_t>(opt.scan_channel, [&](const omni::laser_scan_t& m, int64_t) {
-    last_msg_us = omni::MonotonicMicros();
     omni::odom_mapper::Scan s;
     s.utime = m.utime;
     s.seq = m.seq;
@@ -122,29 +114,26 @@ int main(int argc, char** argv) {
   hb.AddCounter("odom_out_of_order", [&] { return c.odom_out_of_order; });
   hb.AddCounter("odom_invalid", [&] { return c.odom_invalid; });
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
-  std::signal(SIGINT, OnSignal);
-  std::signal(SIGTERM, OnSignal);
+  omni::bus::InstallStopSignals();
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << ")";
+  // The callbacks map as messages arrive; the loop only ticks and publishes.
   int64_t last_grid_us = omni::MonotonicMicros();
-  while (!g_stop) {
-    const int r = bus.HandleTimeout(100);
-    if (r < 0 && !g_stop) {
-      LOG_WARN << "bus ended or failed; writing the map";
-      break;
-    }
-    hb.Tick();
-    const int64_t now = omni::MonotonicMicros();
-    if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
-        c.scans_mapped > 0) {
-      bus.Publish(opt.grid_channel,
-                  omni::bus::ToGridMessage(mapper.Map(), clock.NowUtime(), "odom"));
-      last_grid_us = now;
-    }
-    if (idle_exit_s > 0 && last_msg_us > 0 &&
-        now - last_msg_us > static_cast<int64_t>(idle_exit_s * 1e6))
-      break;
-  }
+  omni::bus::NodeLoopOptions loop;
+  loop.idle_exit_s = idle_exit_s;
+  const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
+      bus, loop, [] { return 0; },
+      [&] {
+        hb.Tick();
+        const int64_t now = omni::MonotonicMicros();
+        if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
+            c.scans_mapped > 0) {
+          bus.Publish(opt.grid_channel,
+                      omni::bus::ToGridMessage(mapper.Map(), clock.NowUtime(), "odom"));
+          last_grid_us = now;
+        }
+      });
+  LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); writing the map";
   hb.SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   hb.Tick(true);
   const auto map = mapper.Map();
