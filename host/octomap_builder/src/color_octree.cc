@@ -15,6 +15,11 @@ inline uint64_t Mix(uint64_t k) {
   return k;
 }
 
+inline uint64_t Packed(const octomap::OcTreeKey& k) {
+  return static_cast<uint64_t>(k[0]) | (static_cast<uint64_t>(k[1]) << 16) |
+         (static_cast<uint64_t>(k[2]) << 32);
+}
+
 struct ColorSum {
   uint32_t r = 0, g = 0, b = 0, n = 0;
 };
@@ -30,7 +35,8 @@ ScanColors ComputeScanColors(const octomap::ColorOcTree& tree, const KeySets& se
   ScanColors out;
   out.of_update.assign(sets.updates.size(), 0);
   if (points.size() != colors.size()) return out;
-  // Open-addressing map: Morton code of an occupied key -> its index in sets.updates.
+  // Open-addressing map: occupied key (packed x | y << 16 | z << 32, cheaper per point than
+  // its Morton code) -> its index among the occupied updates.
   size_t n_occ = 0;
   for (uint64_t u : sets.updates) n_occ += u & 1;
   if (n_occ == 0) return out;
@@ -44,7 +50,7 @@ ScanColors ComputeScanColors(const octomap::ColorOcTree& tree, const KeySets& se
   update_of_occ.reserve(n_occ);
   for (size_t i = 0; i < sets.updates.size(); ++i) {
     if (!(sets.updates[i] & 1)) continue;
-    const uint64_t code = sets.updates[i] >> 1;
+    const uint64_t code = Packed(KeyFromMorton(sets.updates[i] >> 1));
     size_t j = Mix(code) & mask;
     while (slot_code[j] != kEmpty) j = (j + 1) & mask;
     slot_code[j] = code;
@@ -72,7 +78,7 @@ ScanColors ComputeScanColors(const octomap::ColorOcTree& tree, const KeySets& se
     if (max_range_m >= 0.0 && (p - o).norm() > max_range_m) continue;
     octomap::OcTreeKey key;
     if (!tree.coordToKeyChecked(p, key)) continue;
-    const uint64_t code = MortonCode(key);
+    const uint64_t code = Packed(key);
     if (code != last_code) {
       last_code = code;
       last_index = find(code);
