@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 
 #include <Eigen/LU>
+
+#include "omni/pose_graph_mapper/chi2.h"
 
 namespace omni::pgm {
 namespace {
@@ -39,6 +42,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("global_function_tolerance", &o.global_function_tolerance, Optional(), Positive<double>());
   r.Get("global_min_keyframes_between", &o.global_min_keyframes_between, Optional(),
         InRange(0, 100000));
+  r.Get("loop_chi2_gate", &o.loop_chi2_gate, Optional(), NonNegative<double>());
   r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
   r.Get("loop_cooldown_keyframes", &o.loop_cooldown_keyframes, Optional(), InRange(0, 100000));
   r.Get("num_threads", &o.num_threads, Optional(), InRange(1, 64));
@@ -68,6 +72,8 @@ Status PoseGraphSlamOptions::Validate() const {
                      "the window)");
   if (min_beams < 1) return MakeError(ErrorCode::kOutOfRange, "min_beams must be >= 1");
   if (num_threads < 1) return MakeError(ErrorCode::kOutOfRange, "num_threads must be >= 1");
+  if (!(loop_chi2_gate >= 0))
+    return MakeError(ErrorCode::kOutOfRange, "loop_chi2_gate must be >= 0 (0 disables it)");
   if (!(global_function_tolerance > 0))
     return MakeError(ErrorCode::kOutOfRange, "global_function_tolerance must be > 0");
   return Status::Ok();
@@ -237,6 +243,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   for (const auto& f : loops) {
     auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
     if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
+    pending_loops_.push_back(links_.size());
     links_.push_back({a->second, b->second, f.delta, f.Information()});
     ++c_.loops_accepted;
     loops_pending_ = true;
@@ -290,9 +297,35 @@ void PoseGraphSlam::OptimizeGlobal() {
   ++c_.global_optimizations;
   loops_pending_ = false;
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
+  std::vector<size_t> pending;
+  pending.swap(pending_loops_);
   if (!r.ok()) {
     ++c_.global_failures;
     return;
+  }
+  // The new loops' whitened residuals at the solution: an outlier is dropped and the graph
+  // solved again without it (the robust loss only bounds its pull).
+  std::vector<size_t> outliers;
+  for (size_t i : pending) {
+    const Link& l = links_[i];
+    const Eigen::Vector3d e = EdgeError2(l.z, g.vertices2[static_cast<size_t>(l.from)].pose,
+                                         g.vertices2[static_cast<size_t>(l.to)].pose);
+    const double chi2 = e.dot(l.information * e);
+    if (o_.loop_chi2_gate > 0 && chi2 > o_.loop_chi2_gate) outliers.push_back(i);
+  }
+  if (!outliers.empty()) {
+    std::sort(outliers.rbegin(), outliers.rend());
+    for (size_t i : outliers) links_.erase(links_.begin() + static_cast<std::ptrdiff_t>(i));
+    const auto n = static_cast<int64_t>(outliers.size());
+    c_.loops_inconsistent += n;
+    c_.loops_accepted -= n;
+    g = Graph();
+    r = OptimizeGraph(&g, b);
+    ++c_.global_optimizations;
+    if (!r.ok()) {
+      ++c_.global_failures;
+      return;
+    }
   }
   for (const auto& v : g.vertices2) keyframes_[static_cast<size_t>(v.id)].estimate = v.pose;
   ResetWindow();

@@ -55,7 +55,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"odom_invalid\": %lld, \"odom_out_of_order\": %lld, \"odom_jumps\": %lld, "
       "\"decode_errors\": %lld, \"keyframes\": %lld, \"scan_match_factors\": %lld, "
       "\"scan_match_failures\": %lld, \"loops_accepted\": %lld, \"loops_rejected\": %lld, "
-      "\"window_updates\": %lld, \"window_failures\": %lld, \"latency_p50_ms\": %.3f, "
+      "\"loops_inconsistent\": %lld, \"window_updates\": %lld, \"window_failures\": %lld, "
+      "\"latency_p50_ms\": %.3f, "
       "\"latency_p99_ms\": %.3f, \"latency_max_ms\": %.3f, \"global_optimizations\": %lld, "
       "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f",
       JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
@@ -63,8 +64,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ll(c.scans_too_few_beams), ll(c.scans_no_odom), ll(c.invalid_beams), ll(c.odom_invalid),
       ll(c.odom_out_of_order), ll(c.odom_jumps), ll(info.decode_errors), ll(c.keyframes),
       ll(c.scan_match_factors), ll(c.scan_match_failures), ll(c.loops_accepted),
-      ll(c.loops_rejected), ll(c.window_updates), ll(c.window_failures), Percentile(lat, 0.5),
-      Percentile(lat, 0.99), Percentile(lat, 1.0), ll(c.global_optimizations),
+      ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates), ll(c.window_failures),
+      Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0), ll(c.global_optimizations),
       ll(c.global_failures), Percentile(glat, 0.5), Percentile(glat, 1.0));
   for (const auto& [k, v] : info.extra)
     std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));

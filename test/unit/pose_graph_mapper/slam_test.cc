@@ -3,6 +3,7 @@
 // rejected and counted.
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -93,6 +94,50 @@ TEST(PoseGraphSlam, OptionsAreChecked) {
   EXPECT_TRUE(o.Validate().ok());
   o.loop.min_index_gap = 10;  // inside the window
   EXPECT_FALSE(o.Validate().ok());
+  o = PoseGraphSlamOptions();
+  o.loop_chi2_gate = -1;
+  EXPECT_FALSE(o.Validate().ok());
+  o = PoseGraphSlamOptions();
+  o.global_function_tolerance = 0;
+  EXPECT_FALSE(o.Validate().ok());
+}
+
+// Back and forth three times along the box room: loops close on the second and third pass. A
+// chi^2 gate no residual can pass removes every loop from the graph and counts it; without the
+// gate none is removed.
+TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
+  auto run = [](double gate) {
+    PoseGraphSlamOptions o;
+    o.window_size = 5;
+    o.loop.min_index_gap = 10;
+    o.loop.max_ambiguity_ratio = 0;  // the bare room looks alike along its length
+    o.loop_every_keyframes = 1;
+    o.loop_cooldown_keyframes = 0;
+    o.global_min_keyframes_between = 0;
+    o.loop_chi2_gate = gate;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    int i = 0;
+    for (int pass = 0; pass < 3; ++pass)
+      for (int s = 0; s <= 60; ++s, ++i) {
+        const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
+        const Pose2 p(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
+        const int64_t t = 1000000 + 100000 * i;
+        slam->AddOdometry(t, p);
+        slam->AddScan(i, BoxScan(t, p));
+      }
+    slam->Finish();
+    return slam;
+  };
+  const auto open = run(0);
+  EXPECT_GT(open->counters().loops_accepted, 0);
+  EXPECT_EQ(open->counters().loops_inconsistent, 0);
+  const auto gated = run(1e-12);
+  const SlamCounters& c = gated->counters();
+  EXPECT_GT(c.loops_inconsistent, 0);
+  EXPECT_EQ(c.loops_accepted, 0);
+  // Only the odometry and scan-match links between consecutive keyframes remain.
+  EXPECT_LE(gated->Graph().edges2.size(), static_cast<size_t>(2 * (c.keyframes - 1)));
+  EXPECT_GT(open->Graph().edges2.size(), static_cast<size_t>(2 * (open->counters().keyframes - 1)));
 }
 
 }  // namespace

@@ -56,8 +56,12 @@ struct PoseGraphSlamOptions {
   // (intel-raw 0.8 s) but moves the noisy logs' ATE by up to 0.01 m (docs/posegraph.md).
   double global_function_tolerance = 1e-10;
   int global_min_keyframes_between = 10;  // at most one global optimisation per this many
-  int loop_every_keyframes = 2;           // loop closure tried on every k-th keyframe
-  int loop_cooldown_keyframes = 5;        // no loop attempts for this many after an accepted one
+  // Consistency gate: after a global optimisation, a loop closure added since the previous one
+  // whose whitened residual e^T Omega e exceeds this is an outlier the robust loss gave up on:
+  // it is removed (counted in loops_inconsistent) and the graph optimised again. 0 disables.
+  double loop_chi2_gate = 0;
+  int loop_every_keyframes = 2;     // loop closure tried on every k-th keyframe
+  int loop_cooldown_keyframes = 5;  // no loop attempts for this many after an accepted one
   int num_threads = 2;
   KeyframeMatchOptions match;
   // Loop-closure candidates are matched on 2 threads here (the plugin's default is 1).
@@ -85,7 +89,8 @@ struct SlamCounters {
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
   int64_t keyframes = 0;
   int64_t scan_match_factors = 0, scan_match_failures = 0;
-  int64_t loops_accepted = 0, loops_rejected = 0;
+  int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
+  int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
   int64_t window_updates = 0, window_failures = 0;
   int64_t global_optimizations = 0, global_failures = 0;
 };
@@ -167,6 +172,7 @@ class PoseGraphSlam {
   KeyframeMatchPlugin match_;
   LoopClosurePlugin loop_;
   bool loops_pending_ = false;
+  std::vector<size_t> pending_loops_;  // links_ indices of loops since the last global
   int last_global_keyframe_ = -1000000;
   std::vector<double> window_ms_, global_ms_;
   SlamCounters c_;
