@@ -1,0 +1,268 @@
+#include "omni/sim/simulator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "omni/depth_image_t.hpp"
+#include "omni/imu_t.hpp"
+#include "omni/kinect/depth_codec.h"
+#include "omni/laser_scan_t.hpp"
+#include "omni/odometry_t.hpp"
+
+namespace omni::sim {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+template <class Msg>
+SimEvent Encode(const std::string& channel, int64_t utime, const Msg& msg) {
+  SimEvent e;
+  e.channel = channel;
+  e.utime = utime;
+  e.payload.resize(static_cast<size_t>(msg.getEncodedSize()));
+  msg.encode(e.payload.data(), 0, static_cast<int>(e.payload.size()));
+  return e;
+}
+
+// Integrates a body twist over dt at the midpoint heading.
+Pose2 Integrate(const Pose2& p, const kinematics::BodyTwist<double>& t, double dt) {
+  const double mid = p.theta + 0.5 * t.omega_rad_s * dt;
+  const double c = std::cos(mid), s = std::sin(mid);
+  return Pose2(p.x + (c * t.vx_m_s - s * t.vy_m_s) * dt, p.y + (s * t.vx_m_s + c * t.vy_m_s) * dt,
+               WrapAngle(p.theta + t.omega_rad_s * dt));
+}
+
+}  // namespace
+
+Simulator::Simulator(World world, SimOptions options)
+    : world_(std::move(world)), o_(options), tour_(BuiltInTour()), rng_(options.seed) {}
+
+std::vector<Pose2> Simulator::BuiltInTour() {
+  const double e = 0, n = kPi / 2, w = kPi, s = -kPi / 2;
+  return {
+      // The corridor loop, counter-clockwise; along the east side the base strafes (it keeps
+      // facing east while it drives north), which only an omnidirectional base can do.
+      {2.5, 3.0, e},
+      {17.5, 3.0, e},
+      {17.5, 11.0, e},
+      {2.5, 11.0, w},
+      {2.5, 3.0, s},
+      // Through the inner room: in by the south doorway, out by the north one, then the east
+      // and south corridors again (loops close on ground already mapped).
+      {9.7, 3.0, e},
+      {9.7, 6.0, n},
+      {11.7, 8.0, n},
+      {11.7, 11.0, n},
+      {17.5, 11.0, e},
+      {17.5, 3.0, s},
+      {2.5, 3.0, w},
+  };
+}
+
+std::vector<float> Simulator::ScanRanges(const Pose2& base) {
+  const Pose2 sensor = base * Pose2(o_.lidar_x_m, o_.lidar_y_m, o_.lidar_yaw_rad);
+  std::normal_distribution<double> noise(0.0, o_.range_noise_m);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  std::vector<float> ranges(static_cast<size_t>(o_.lidar_beams));
+  const double inc = 2 * kPi / o_.lidar_beams;
+  const Vec3 origin{sensor.x, sensor.y, o_.lidar_height_m};
+  for (int i = 0; i < o_.lidar_beams; ++i) {
+    const double a = sensor.theta - kPi + i * inc;
+    const double t = world_.Cast(origin, {std::cos(a), std::sin(a), 0.0}, o_.range_max_m);
+    const double n = noise(rng_);
+    const bool dropout = u01(rng_) < o_.dropout_probability;
+    double r = std::numeric_limits<double>::quiet_NaN();
+    if (t >= o_.range_min_m && !dropout) r = std::max(o_.range_min_m, t + n);
+    if (r >= o_.range_max_m) r = std::numeric_limits<double>::quiet_NaN();
+    ranges[static_cast<size_t>(i)] = static_cast<float>(r);
+  }
+  return ranges;
+}
+
+std::vector<uint16_t> Simulator::DepthImage(const Pose2& base) {
+  const Pose2 cam = base * Pose2(o_.cam_x_m, o_.cam_y_m, o_.cam_yaw_rad);
+  const double cy = std::cos(cam.theta), sy = std::sin(cam.theta);
+  const double ct = std::cos(o_.cam_tilt_rad), st = std::sin(o_.cam_tilt_rad);
+  const double cxp = (o_.depth_width - 1) / 2.0, cyp = (o_.depth_height - 1) / 2.0;
+  const Vec3 origin{cam.x, cam.y, o_.cam_height_m};
+  std::normal_distribution<double> n01(0.0, 1.0);
+  std::vector<uint16_t> img(static_cast<size_t>(o_.depth_width) * o_.depth_height, 0);
+  for (int v = 0; v < o_.depth_height; ++v) {
+    for (int u = 0; u < o_.depth_width; ++u) {
+      // Optical ray (x right, y down, z = 1) in the camera body frame, tilted, then yawed.
+      const double xo = (u - cxp) / o_.depth_fx, yo = (v - cyp) / o_.depth_fy;
+      const double fwd = 1.0, left = -xo, up = -yo;
+      const double fwd_t = fwd * ct + up * st, up_t = up * ct - fwd * st;
+      const Vec3 d{fwd_t * cy - left * sy, fwd_t * sy + left * cy, up_t};
+      // |d| = |(xo, yo, 1)|, so the cast's parameter is the depth along the optical axis.
+      const double z = world_.Cast(origin, d, o_.depth_max_m * 1.5);
+      if (z < o_.depth_min_m) continue;
+      const double noisy = z + o_.depth_noise_per_m2 * z * z * n01(rng_);
+      if (noisy < o_.depth_min_m || noisy > o_.depth_max_m) continue;
+      img[static_cast<size_t>(v) * o_.depth_width + u] =
+          static_cast<uint16_t>(std::lround(noisy * 1000.0));
+    }
+  }
+  return img;
+}
+
+SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
+                        const std::function<void(int64_t, int64_t, const Pose2&)>& truth) {
+  SimStats st;
+  const auto geom = kinematics::SymmetricGeometry(o_.center_to_wheel_m, o_.wheel_radius_m);
+  const double dt = 1.0 / o_.physics_hz;
+  std::normal_distribution<double> n01(0.0, 1.0);
+  std::vector<Pose2> route;
+  for (int lap = 0; lap < std::max(1, o_.laps); ++lap)
+    route.insert(route.end(), tour_.begin() + (lap == 0 ? 0 : 1), tour_.end());
+  if (route.empty()) return st;
+  Pose2 pose = route.front(), odom = pose, start = pose;
+  double imu_yaw = pose.theta;
+  double vx_w = 0, vy_w = 0;  // commanded world velocity
+  size_t target = 1;
+  int64_t seq_scan = 0, seq_odom = 0, seq_imu = 0, seq_depth = 0;
+  double next_scan = 0, next_odom = 0, next_imu = 0, next_depth = 0;
+  kinematics::BodyTwist<double> measured{};
+  for (int64_t step = 0;; ++step) {
+    const double t = static_cast<double>(step) * dt;
+    const int64_t utime = o_.start_utime + static_cast<int64_t>(std::llround(t * 1e6));
+    if (o_.max_duration_s > 0 && t > o_.max_duration_s) break;
+    if (target >= route.size()) {
+      st.tour_finished = true;
+      break;
+    }
+    // Sensors at this instant (true pose `pose`, odometry `odom`).
+    if (t >= next_scan) {
+      omni::laser_scan_t m{};
+      m.utime = utime;
+      m.seq = seq_scan;
+      m.frame = "laser";
+      m.sensor_x_m = o_.lidar_x_m;
+      m.sensor_y_m = o_.lidar_y_m;
+      m.sensor_yaw_rad = o_.lidar_yaw_rad;
+      m.angle_min_rad = static_cast<float>(-kPi);
+      m.angle_increment_rad = static_cast<float>(2 * kPi / o_.lidar_beams);
+      m.scan_time_s = static_cast<float>(1.0 / o_.lidar_hz);
+      m.range_min_m = static_cast<float>(o_.range_min_m);
+      m.range_max_m = static_cast<float>(o_.range_max_m);
+      m.ranges_m = ScanRanges(pose);
+      m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+      m.num_intensities = 0;
+      sink(Encode("LIDAR_SCAN", utime, m));
+      if (truth) truth(seq_scan, utime, pose);
+      ++seq_scan;
+      ++st.scans;
+      next_scan += 1.0 / o_.lidar_hz;
+    }
+    if (t >= next_odom) {
+      omni::odometry_t m{};
+      m.utime = utime;
+      m.seq = seq_odom++;
+      m.frame = "odom";
+      m.child_frame = "base";
+      m.x_m = odom.x;
+      m.y_m = odom.y;
+      m.yaw_rad = odom.theta;
+      m.vx_m_s = measured.vx_m_s;
+      m.vy_m_s = measured.vy_m_s;
+      m.omega_rad_s = measured.omega_rad_s;
+      const double d = st.distance_m;
+      m.pose_covariance[0] = m.pose_covariance[4] = 1e-4 * d;
+      m.pose_covariance[8] = 1e-3 * d;
+      m.twist_covariance[0] = m.twist_covariance[4] = o_.wheel_noise_m_s * o_.wheel_noise_m_s;
+      m.twist_covariance[8] = m.twist_covariance[0] / (o_.center_to_wheel_m * o_.center_to_wheel_m);
+      sink(Encode("WHEEL_ODOM", utime, m));
+      ++st.odometry;
+      next_odom += 1.0 / o_.odom_hz;
+    }
+    if (t >= next_imu) {
+      omni::imu_t m{};
+      m.utime = utime;
+      m.seq = seq_imu++;
+      m.frame = "imu";
+      m.orientation_wxyz[0] = std::cos(imu_yaw / 2);
+      m.orientation_wxyz[3] = std::sin(imu_yaw / 2);
+      m.orientation_covariance[8] = 1e-2;
+      m.orientation_covariance[0] = m.orientation_covariance[4] = 1e-3;
+      m.angular_velocity_rad_s[2] = measured_gyro_;
+      for (int i = 0; i < 3; ++i) {
+        m.angular_velocity_covariance[4 * i] = o_.gyro_noise_rad_s * o_.gyro_noise_rad_s;
+        m.linear_acceleration_covariance[4 * i] = o_.accel_noise_m_s2 * o_.accel_noise_m_s2;
+        m.linear_acceleration_m_s2[i] = (i == 2 ? 9.80665 : 0.0) + o_.accel_noise_m_s2 * n01(rng_);
+        m.magnetic_field_t[i] = std::numeric_limits<double>::quiet_NaN();
+      }
+      m.temperature_c = std::numeric_limits<float>::quiet_NaN();
+      sink(Encode("IMU", utime, m));
+      ++st.imu;
+      next_imu += 1.0 / o_.imu_hz;
+    }
+    if (o_.depth && t >= next_depth) {
+      const std::vector<uint16_t> img = DepthImage(pose);
+      omni::depth_image_t m{};
+      m.utime = utime;
+      m.seq = seq_depth++;
+      m.frame = "depth_optical";
+      m.width = o_.depth_width;
+      m.height = o_.depth_height;
+      m.fx = o_.depth_fx;
+      m.fy = o_.depth_fy;
+      m.cx = (o_.depth_width - 1) / 2.0;
+      m.cy = (o_.depth_height - 1) / 2.0;
+      m.depth_scale = 1000.0;
+      m.registered_to_color = false;
+      m.encoding = static_cast<int8_t>(kinect::DepthEncoding::kDeltaZlib);
+      m.uncompressed_size = static_cast<int32_t>(img.size() * 2);
+      if (kinect::EncodeDepth(kinect::DepthEncoding::kDeltaZlib, img.data(), o_.depth_width,
+                              o_.depth_height, {}, &m.data)
+              .ok()) {
+        m.size = static_cast<int32_t>(m.data.size());
+        sink(Encode("DEPTH", utime, m));
+        ++st.depth_frames;
+      }
+      next_depth += 1.0 / o_.depth_hz;
+    }
+
+    // Waypoint follower: holonomic, slowing into each waypoint, acceleration-limited.
+    const Pose2& goal = route[target];
+    const double ex = goal.x - pose.x, ey = goal.y - pose.y;
+    const double dist = std::hypot(ex, ey);
+    const double heading_err = WrapAngle(goal.theta - pose.theta);
+    if (dist < o_.waypoint_tolerance_m && std::abs(heading_err) < 0.1) {
+      ++target;
+      continue;
+    }
+    const double speed = dist > 1e-9 ? std::min(o_.max_speed_m_s, 0.6 * dist + 0.05) : 0.0;
+    const double want_x = dist > 1e-9 ? speed * ex / dist : 0.0;
+    const double want_y = dist > 1e-9 ? speed * ey / dist : 0.0;
+    const double dvx = want_x - vx_w, dvy = want_y - vy_w, dv = std::hypot(dvx, dvy);
+    const double dv_max = o_.max_accel_m_s2 * dt;
+    const double k = dv > dv_max ? dv_max / dv : 1.0;
+    vx_w += k * dvx;
+    vy_w += k * dvy;
+    const double omega =
+        std::clamp(2.0 * heading_err, -o_.max_yaw_rate_rad_s, o_.max_yaw_rate_rad_s);
+    const auto cmd =
+        kinematics::WorldToBody(pose.theta, kinematics::WorldVelocity<double>{vx_w, vy_w, omega});
+    // The wheels turn at eq. (1)'s rim speeds; the encoders see them with scale errors and
+    // noise; the odometry integrates what the encoders saw.
+    const auto wheels = kinematics::BodyToWheels(geom, cmd);
+    kinematics::WheelSpeeds<double> seen;
+    for (int i = 0; i < 3; ++i)
+      seen.v_m_s[i] =
+          wheels.v_m_s[i] * (1.0 + o_.wheel_scale_error[i]) + o_.wheel_noise_m_s * n01(rng_);
+    if (!kinematics::WheelsToBody(geom, seen, &measured)) measured = {};
+    measured_gyro_ = cmd.omega_rad_s + o_.gyro_bias_rad_s + o_.gyro_noise_rad_s * n01(rng_);
+    imu_yaw = WrapAngle(imu_yaw + measured_gyro_ * dt);
+    const Pose2 next = Integrate(pose, cmd, dt);
+    st.distance_m += std::hypot(next.x - pose.x, next.y - pose.y);
+    st.rotation_rad += std::abs(cmd.omega_rad_s) * dt;
+    pose = next;
+    odom = Integrate(odom, measured, dt);
+    st.duration_s = t;
+  }
+  (void)start;
+  return st;
+}
+
+}  // namespace omni::sim
