@@ -11,7 +11,7 @@ PACKAGES=(
   # bus: LCM (C/C++ library, lcm-gen and tools, Java for lcm-spy)
   liblcm-dev liblcm-bin liblcm-java libjchart2d-java libglib2.0-dev default-jdk-headless
   # mapping back ends
-  libceres-dev liboctomap-dev libpng-dev libbz2-dev
+  libceres-dev liboctomap-dev libpng-dev libbz2-dev libjpeg-dev
   # peers the benchmarks run beside ours (MRPT graph-slam, rbpf-slam)
   mrpt-apps mrpt-common
   # hardware
