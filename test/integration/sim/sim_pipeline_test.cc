@@ -1,0 +1,94 @@
+// The stack on the built-in simulator, process by process: omni-sim writes a log and the truth;
+// the odometry, RBPF and pose-graph mappers read the log (file://) and are scored against the
+// truth; then, over UDP in a private network namespace, rbpf_mapper publishes the poses that
+// octomap_builder needs to place the depth frames, and the 3D map must hold the low box that
+// the lidar's plane passes over.
+#include <octomap/octomap.h>
+
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "../tools/mapper_replay.h"
+#include "../tools/run.h"
+
+namespace omni {
+namespace {
+
+std::string Simulate(const std::string& dir, const std::string& args) {
+  std::filesystem::create_directories(dir);
+  const auto r = testing::Run(testing::Bin("omni-sim") + " --out " + dir + " " + args);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  return r.output;
+}
+
+TEST(SimPipeline, MappersBeatTheDriftingOdometryOnTheSimulatedTour) {
+  const std::string dir = ::testing::TempDir() + "/sim_2d";
+  const std::string out = Simulate(dir, "--duration 80 --no-depth");
+  EXPECT_NE(out.find("801 scans"), std::string::npos) << out;
+  const std::string url = " --url 'file://" + dir + "/sim.lcmlog?speed=0'";
+  const std::string cfg = " --config " OMNI_SOURCE_DIR "/config/";
+  auto r = testing::Run(testing::Bin("odom_mapper") + cfg + "odom_mapper.yaml --out " + dir + url);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::Run(testing::Bin("rbpf_mapper") + cfg + "rbpf_mapper.yaml --out " + dir + "/rbpf" +
+                   url);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = testing::Run(testing::Bin("pose_graph_mapper") + cfg + "pose_graph_mapper.yaml --out " + dir +
+                   "/pg" + url);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  size_t n_odom = 0, n_rbpf = 0, n_pg = 0;
+  const std::string truth = dir + "/truth.txt";
+  const double odom = testing::AteRmse(truth, dir + "/odom_trajectory.txt", &n_odom);
+  const double rbpf = testing::AteRmse(truth, dir + "/rbpf/trajectory.txt", &n_rbpf);
+  const double pg = testing::AteRmse(truth, dir + "/pg/trajectory.txt", &n_pg);
+  EXPECT_GE(n_rbpf, 790u);
+  EXPECT_GE(n_pg, 790u);
+  // 80 s of the tour: the encoders' scale errors have bent the odometry by decimetres; both
+  // SLAM processes stay within centimetres of the truth.
+  EXPECT_GT(odom, 0.1) << "odometry ATE " << odom;
+  EXPECT_LT(rbpf, 0.05) << "RBPF ATE " << rbpf;
+  EXPECT_LT(pg, 0.05) << "pose-graph ATE " << pg;
+}
+
+TEST(SimPipeline, OctomapPosedByTheLiveRbpfHoldsTheLowBox) {
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = ::testing::TempDir() + "/sim_3d";
+  Simulate(dir, "--duration 20 --depth-hz 2");
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
+      << testing::Bin("rbpf_mapper") << " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml"
+      << " --out " << dir << "/rbpf --idle-exit 2 & r=$!\n"
+      << testing::Bin("octomap_builder")
+      << " --config " OMNI_SOURCE_DIR "/config/octomap_builder.yaml --out " << dir
+      << "/octomap --idle-exit 3 & o=$!\nsleep 0.5\n"
+      << "timeout 120 " << testing::Bin("omni-replay") << " " << dir
+      << "/sim.lcmlog --speed 2\nrc=$?\nwait $r\nrr=$?\nwait $o\nexit $((rc + rr + $?))\n";
+  }
+  const auto r = testing::Run("timeout 250 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  ASSERT_TRUE(std::filesystem::exists(dir + "/octomap/map.bt")) << r.output;
+  octomap::OcTree tree(0.05);
+  ASSERT_TRUE(tree.readBinary(dir + "/octomap/map.bt"));
+  EXPECT_GT(tree.getNumLeafNodes(), 1000u);
+  // The low box of the built-in world at x 7.8..8.4, y 1.7..2.2, 0.12 m tall, in the map frame
+  // of the SLAM (its origin is the first pose, (2.5, 3.0) facing +x): x 5.3..5.9, y -1.3..-0.8.
+  auto occupied_in = [&](double x0, double y0, double x1, double y1, double z0, double z1) {
+    int n = 0;
+    for (auto it = tree.begin_leafs_bbx(octomap::point3d(x0, y0, z0), octomap::point3d(x1, y1, z1));
+         it != tree.end_leafs_bbx(); ++it)
+      n += tree.isNodeOccupied(*it);
+    return n;
+  };
+  EXPECT_GE(occupied_in(5.3, -1.3, 5.9, -0.8, 0.03, 0.15), 4);
+  // Above it (0.2..1.0 m) there is nothing but air.
+  EXPECT_EQ(occupied_in(5.3, -1.3, 5.9, -0.8, 0.25, 1.0), 0);
+}
+
+}  // namespace
+}  // namespace omni
