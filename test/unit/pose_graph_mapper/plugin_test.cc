@@ -147,6 +147,7 @@ TEST(PoseGraphPlugins, LoopFieldCacheReusesOnlyUnchangedSubmaps) {
   LoopClosureOptions o;
   o.min_score = 0.5;
   o.min_inlier_fraction = 0.5;
+  o.field_cache_size = 8;
   LoopClosurePlugin cached(o);
   o.field_cache_size = 0;
   LoopClosurePlugin uncached(o);
@@ -409,6 +410,7 @@ TEST(PoseGraphPlugins, IntelLoopClosureFindsTrueLoop) {
   // keyframe at the same place reuses the three cached fields.
   for (int threads : {2, 3}) {
     o.num_threads = threads;
+    o.field_cache_size = 8;
     LoopClosurePlugin par(o);
     const auto pf = par.OnKeyframe(kfs);
     ASSERT_EQ(pf.size(), factors.size()) << threads;
