@@ -74,16 +74,11 @@ TEST(RbpfMapperProcess, MapsABurstReplayedOverUdpInANetns) {
   const std::string dir = testing::TempDir();
   const std::string log = dir + "/burst.lcmlog";
   WritePrefixLog(clf, log);
-  {
-    std::ofstream s(dir + "/run.sh");
-    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
-      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
-      << testing::Bin("rbpf_mapper") << " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml"
-      << " --out " << dir << "/out --idle-exit 2 & m=$!\nsleep 0.5\n"
-      << "timeout 60 " << testing::Bin("omni-replay") << " " << log << " --speed 0\n"
-      << "rc=$?\nwait $m\nexit $((rc + $?))\n";
-  }
-  const auto r = testing::Run("timeout 200 unshare -n bash " + dir + "/run.sh");
+  const auto r = testing::RunReplayInNetns(
+      dir,
+      {testing::Bin("rbpf_mapper") + " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml" +
+       " --out " + dir + "/out --idle-exit 2"},
+      log, "0");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("150 scans"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("0 lost on the bus"), std::string::npos) << r.output;

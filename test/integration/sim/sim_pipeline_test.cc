@@ -58,19 +58,15 @@ TEST(SimPipeline, OctomapPosedByTheLiveRbpfHoldsTheLowBox) {
     GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
   const std::string dir = ::testing::TempDir() + "/sim_3d";
   Simulate(dir, "--duration 20 --depth-hz 2");
-  {
-    std::ofstream s(dir + "/run.sh");
-    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
-      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
-      << testing::Bin("rbpf_mapper") << " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml"
-      << " --out " << dir << "/rbpf --idle-exit 2 & r=$!\n"
-      << testing::Bin("octomap_builder")
-      << " --config " OMNI_SOURCE_DIR "/config/octomap_builder.yaml --out " << dir
-      << "/octomap --idle-exit 3 & o=$!\nsleep 0.5\n"
-      << "timeout 120 " << testing::Bin("omni-replay") << " " << dir
-      << "/sim.lcmlog --speed 2\nrc=$?\nwait $r\nrr=$?\nwait $o\nexit $((rc + rr + $?))\n";
-  }
-  const auto r = testing::Run("timeout 250 unshare -n bash " + dir + "/run.sh");
+  const auto r = testing::RunReplayInNetns(
+      dir,
+      {testing::Bin("rbpf_mapper") +
+           " --config " OMNI_SOURCE_DIR "/config/rbpf_mapper.yaml --out " + dir +
+           "/rbpf --idle-exit 2",
+       testing::Bin("octomap_builder") +
+           " --config " OMNI_SOURCE_DIR "/config/octomap_builder.yaml --out " + dir +
+           "/octomap --idle-exit 3"},
+      dir + "/sim.lcmlog", "2");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   ASSERT_TRUE(std::filesystem::exists(dir + "/octomap/map.bt")) << r.output;
   octomap::OcTree tree(0.05);

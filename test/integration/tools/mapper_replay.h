@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -15,6 +16,7 @@
 #include "omni/io/carmen.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
+#include "run.h"
 
 namespace omni::testing {
 
@@ -57,6 +59,24 @@ inline double AteRmse(const std::string& ref_path, const std::string& est_path, 
   if (!ate.ok()) return 1e9;
   *matched = ate->matched;
   return ate->rmse_m;
+}
+
+// Runs `processes` (command lines, each started in the background) and then `omni-replay LOG
+// --speed SPEED` in a private network namespace with loopback multicast (nothing leaves the
+// machine), waits for every process and returns the combined output; the exit code is non-zero
+// when any of them failed. The script goes to DIR/run.sh.
+inline RunResult RunReplayInNetns(const std::string& dir, const std::vector<std::string>& processes,
+                                  const std::string& log, const std::string& speed) {
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
+      << "pids=\"\"\n";
+    for (const auto& p : processes) s << p << " & pids=\"$pids $!\"\n";
+    s << "sleep 0.5\ntimeout 120 " << Bin("omni-replay") << " " << log << " --speed " << speed
+      << "\nrc=$?\nfor p in $pids; do wait $p || rc=$((rc + 1)); done\nexit $rc\n";
+  }
+  return Run("timeout 250 unshare -n bash " + dir + "/run.sh");
 }
 
 }  // namespace omni::testing
