@@ -61,6 +61,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scan_match_failures", [&c] { return c.scan_match_failures; });
   heartbeat_.AddCounter("loops_accepted", [&c] { return c.loops_accepted; });
   heartbeat_.AddCounter("loops_rejected", [&c] { return c.loops_rejected; });
+  heartbeat_.AddCounter("loops_inconsistent", [&c] { return c.loops_inconsistent; });
   heartbeat_.AddCounter("window_failures", [&c] { return c.window_failures; });
   heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
   heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
