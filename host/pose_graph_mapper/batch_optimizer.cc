@@ -76,7 +76,8 @@ Status BatchOptions::Validate() const {
   return Status::Ok();
 }
 
-Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o) {
+Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
+                                  const std::vector<VertexPrior2>* priors) {
   if (Status s = o.Validate(); !s.ok()) return s.error();
   const bool is3d = g->is_3d();
   if ((is3d ? g->vertices3.size() : g->vertices2.size()) == 0)
@@ -134,6 +135,15 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o) {
       problem.AddResidualBlock(RelativePose2Cost::Create(e.measurement, e.information), MakeLoss(o),
                                block.at(e.from), block.at(e.to));
     }
+    if (priors)
+      for (const auto& pr : *priors) {
+        auto it = block.find(pr.id);
+        if (it == block.end())
+          return MakeError(ErrorCode::kInvalidArgument,
+                           "prior on vertex " + std::to_string(pr.id) + " which does not exist");
+        problem.AddResidualBlock(PosePrior2Cost::Create(pr.z, pr.information), MakeLoss(o),
+                                 it->second);
+      }
   }
   for (auto& [id, p] : block) {
     if (!problem.HasParameterBlock(p)) continue;  // a vertex without edges stays as it is

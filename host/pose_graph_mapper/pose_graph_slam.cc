@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <iterator>
 
+#include <Eigen/Cholesky>
 #include <Eigen/LU>
 
 #include "omni/pose_graph_mapper/chi2.h"
@@ -195,6 +197,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
 void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
                                 std::vector<Eigen::Vector2d> points) {
   const int k = static_cast<int>(keyframes_.size());
+  const int id = static_cast<int>(nodes_.size());
   Keyframe kf;
   kf.utime = utime;
   kf.estimate = k == 0 ? Pose2() : keyframes_.back().estimate * motion.delta;
@@ -202,27 +205,36 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   keyframes_.push_back(std::move(kf));
   kf_scans_.push_back({scan});
   kf_by_utime_[utime] = k;
+  nodes_.push_back({utime, k, Pose2()});
+  node_of_kf_.push_back(id);
+  node_by_utime_[utime] = id;
   ++c_.keyframes;
-  (void)window_->AddPose(k, keyframes_.back().estimate);
+  (void)window_->AddPose(id, keyframes_.back().estimate);
   if (k == 0) {
     // The gauge: without it the first marginalisation would leave a singular prior.
-    (void)window_->AddAbsolute(0, Pose2(), AnchorInformation());
+    (void)window_->AddAbsolute(id, Pose2(), AnchorInformation());
+    DrainAbsoluteQueue();
     return;
   }
 
+  // The newest node before this one is always the previous keyframe: pose nodes are only
+  // created inside linked intervals.
+  const int prev = node_of_kf_[static_cast<size_t>(k - 1)];
   Eigen::Matrix3d cov = motion.covariance + 1e-9 * Eigen::Matrix3d::Identity();
   const Eigen::Matrix3d info = cov.inverse();
-  links_.push_back({k - 1, k, motion.delta, info});
-  (void)window_->AddRelative(k - 1, k, motion.delta, info);
+  links_.push_back({prev, id, motion.delta, info, LinkKind::kOdometry});
+  (void)window_->AddRelative(prev, id, motion.delta, info);
 
   const auto factors = match_.OnKeyframe(keyframes_);
   int used = 0;
   for (const auto& f : factors) {
     auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
     if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
+    const int na = node_of_kf_[static_cast<size_t>(a->second)];
+    const int nb = node_of_kf_[static_cast<size_t>(b->second)];
     const Eigen::Matrix3d fi = o_.scan_match_information_scale * f.Information();
-    if (!window_->AddRelative(a->second, b->second, f.delta, fi).ok()) continue;
-    links_.push_back({a->second, b->second, f.delta, fi});
+    if (!window_->AddRelative(na, nb, f.delta, fi).ok()) continue;
+    links_.push_back({na, nb, f.delta, fi, LinkKind::kScanMatch});
     ++used;
   }
   if (used > 0)
@@ -230,6 +242,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   else
     ++c_.scan_match_failures;
 
+  DrainAbsoluteQueue();
   OptimizeWindow();
 
   if (k % o_.loop_every_keyframes != 0 || k - last_loop_keyframe_ < o_.loop_cooldown_keyframes) {
@@ -244,7 +257,9 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
     auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
     if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
     pending_loops_.push_back(links_.size());
-    links_.push_back({a->second, b->second, f.delta, f.Information()});
+    links_.push_back({node_of_kf_[static_cast<size_t>(a->second)],
+                      node_of_kf_[static_cast<size_t>(b->second)], f.delta, f.Information(),
+                      LinkKind::kLoop});
     ++c_.loops_accepted;
     loops_pending_ = true;
     last_loop_keyframe_ = k;
@@ -263,14 +278,107 @@ void PoseGraphSlam::OptimizeWindow() {
     return;
   }
   for (int id : window_->WindowIds())
-    if (auto e = window_->Estimate(id)) keyframes_[static_cast<size_t>(id)].estimate = *e;
+    if (auto e = window_->Estimate(id)) SetEstimate(id, *e);
+}
+
+Pose2 PoseGraphSlam::EstimateOf(int node) const {
+  const Node& n = nodes_[static_cast<size_t>(node)];
+  return n.keyframe >= 0 ? keyframes_[static_cast<size_t>(n.keyframe)].estimate : n.estimate;
+}
+
+void PoseGraphSlam::SetEstimate(int node, const Pose2& pose) {
+  Node& n = nodes_[static_cast<size_t>(node)];
+  if (n.keyframe >= 0)
+    keyframes_[static_cast<size_t>(n.keyframe)].estimate = pose;
+  else
+    n.estimate = pose;
+}
+
+AbsoluteOutcome PoseGraphSlam::AddAbsolutePose(int64_t utime, const Pose2& z,
+                                               const Eigen::Matrix3d& info) {
+  ++c_.absolute_in;
+  const bool finite =
+      std::isfinite(z.x) && std::isfinite(z.y) && std::isfinite(z.theta) && info.allFinite();
+  if (!finite || (info - info.transpose()).norm() > 1e-9 * info.norm() ||
+      Eigen::LLT<Eigen::Matrix3d>(info).info() != Eigen::Success) {
+    ++c_.absolute_invalid;
+    return AbsoluteOutcome::kInvalid;
+  }
+  if (keyframes_.empty() || utime > keyframes_.back().utime) {
+    // No pose at or after this time yet: wait for the keyframe that covers it.
+    if (absolute_queue_.size() >= kMaxQueuedAbsolute) {
+      ++c_.absolute_rejected;
+      return AbsoluteOutcome::kRejected;
+    }
+    absolute_queue_.emplace(utime, QueuedAbsolute{z, info});
+    ++c_.absolute_queued;
+    return AbsoluteOutcome::kQueued;
+  }
+  return ApplyAbsolute(utime, z, info, true);
+}
+
+void PoseGraphSlam::DrainAbsoluteQueue() {
+  const int64_t newest = keyframes_.back().utime;
+  while (!absolute_queue_.empty() && absolute_queue_.begin()->first <= newest) {
+    auto node = absolute_queue_.extract(absolute_queue_.begin());
+    (void)ApplyAbsolute(node.key(), node.mapped().z, node.mapped().information, false);
+  }
+}
+
+AbsoluteOutcome PoseGraphSlam::ApplyAbsolute(int64_t utime, const Pose2& z,
+                                             const Eigen::Matrix3d& info, bool optimize) {
+  auto reject = [this] {
+    ++c_.absolute_rejected;
+    return AbsoluteOutcome::kRejected;
+  };
+  if (auto at = node_by_utime_.find(utime); at != node_by_utime_.end()) {
+    // At a node's time: a prior factor on it, if it is still optimised.
+    if (!window_->AddAbsolute(at->second, z, info).ok()) return reject();
+    priors_.push_back({at->second, z, info});
+    ++c_.absolute_attached;
+    if (optimize) OptimizeWindow();
+    return AbsoluteOutcome::kAttached;
+  }
+  const auto next = node_by_utime_.upper_bound(utime);
+  if (next == node_by_utime_.begin() || next == node_by_utime_.end()) return reject();
+  const auto prev = std::prev(next);
+  const int a = prev->second, b = next->second;
+  if (!window_->InWindow(a) || !window_->InWindow(b)) return reject();
+  // The continuous-source factor of [a, b]: consecutive nodes have exactly one.
+  auto link = std::find_if(links_.begin(), links_.end(), [&](const Link& l) {
+    return l.kind == LinkKind::kOdometry && l.from == a && l.to == b;
+  });
+  if (link == links_.end()) return reject();
+  const auto before = odom_.Between(prev->first, utime);
+  const auto after = odom_.Between(utime, next->first);
+  if (!before || !after) return reject();
+  if (!window_->RemoveRelative(a, b, link->z)) return reject();
+  const int id = static_cast<int>(nodes_.size());
+  const Pose2 estimate = EstimateOf(a) * before->delta;
+  nodes_.push_back({utime, -1, estimate});
+  node_by_utime_[utime] = id;
+  auto information = [](const RelativeMotion& m) {
+    return Eigen::Matrix3d((m.covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse());
+  };
+  const Eigen::Matrix3d info_before = information(*before), info_after = information(*after);
+  // The old link becomes the first half in place (indices of pending loops stay valid).
+  *link = {a, id, before->delta, info_before, LinkKind::kOdometry};
+  links_.push_back({id, b, after->delta, info_after, LinkKind::kOdometry});
+  (void)window_->AddPose(id, estimate);
+  (void)window_->AddRelative(a, id, before->delta, info_before);
+  (void)window_->AddRelative(id, b, after->delta, info_after);
+  (void)window_->AddAbsolute(id, z, info);
+  priors_.push_back({id, z, info});
+  ++c_.absolute_spliced;
+  if (optimize) OptimizeWindow();
+  return AbsoluteOutcome::kSpliced;
 }
 
 io::PoseGraph PoseGraphSlam::Graph() const {
   io::PoseGraph g;
-  g.vertices2.reserve(keyframes_.size());
-  for (size_t i = 0; i < keyframes_.size(); ++i)
-    g.vertices2.push_back({static_cast<int>(i), keyframes_[i].estimate});
+  g.vertices2.reserve(nodes_.size());
+  for (size_t i = 0; i < nodes_.size(); ++i)
+    g.vertices2.push_back({static_cast<int>(i), EstimateOf(static_cast<int>(i))});
   g.edges2.reserve(links_.size());
   for (const auto& l : links_) {
     io::Edge2 e;
@@ -293,7 +401,8 @@ void PoseGraphSlam::OptimizeGlobal() {
   b.max_iterations = o_.global_max_iterations;
   b.function_tolerance = o_.global_function_tolerance;
   b.num_threads = o_.num_threads;
-  auto r = OptimizeGraph(&g, b);
+  const std::vector<VertexPrior2>* priors = priors_.empty() ? nullptr : &priors_;
+  auto r = OptimizeGraph(&g, b, priors);
   ++c_.global_optimizations;
   loops_pending_ = false;
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
@@ -320,14 +429,14 @@ void PoseGraphSlam::OptimizeGlobal() {
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
-    r = OptimizeGraph(&g, b);
+    r = OptimizeGraph(&g, b, priors);
     ++c_.global_optimizations;
     if (!r.ok()) {
       ++c_.global_failures;
       return;
     }
   }
-  for (const auto& v : g.vertices2) keyframes_[static_cast<size_t>(v.id)].estimate = v.pose;
+  for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
   ResetWindow();
   if (clock_) global_ms_.push_back(NowMs() - t0);
 }
@@ -338,17 +447,24 @@ void PoseGraphSlam::ResetWindow() {
   w.max_iterations = o_.window_max_iterations;
   w.num_threads = 1;
   window_ = std::make_unique<SlidingWindowOptimizer>(w);
-  const int k = static_cast<int>(keyframes_.size());
-  const int first = std::max(0, k - o_.window_size);
-  for (int i = first; i < k; ++i)
-    (void)window_->AddPose(i, keyframes_[static_cast<size_t>(i)].estimate);
-  if (k > 0)
-    (void)window_->AddAbsolute(first, keyframes_[static_cast<size_t>(first)].estimate,
-                               AnchorInformation());
+  // The newest window_size nodes in time order (the newest keyframes when nothing was spliced).
+  std::vector<int> ids;
+  for (auto it = node_by_utime_.rbegin();
+       it != node_by_utime_.rend() && static_cast<int>(ids.size()) < o_.window_size; ++it)
+    ids.push_back(it->second);
+  std::reverse(ids.begin(), ids.end());
+  std::vector<char> in(nodes_.size(), 0);
+  for (int id : ids) {
+    in[static_cast<size_t>(id)] = 1;
+    (void)window_->AddPose(id, EstimateOf(id));
+  }
+  if (!ids.empty()) (void)window_->AddAbsolute(ids[0], EstimateOf(ids[0]), AnchorInformation());
   // Only links inside the window are kept; the others are in the global solution.
   for (const auto& l : links_)
-    if (l.from >= first && l.to >= first)
+    if (in[static_cast<size_t>(l.from)] && in[static_cast<size_t>(l.to)])
       (void)window_->AddRelative(l.from, l.to, l.z, l.information);
+  for (const auto& p : priors_)
+    if (in[static_cast<size_t>(p.id)]) (void)window_->AddAbsolute(p.id, p.z, p.information);
 }
 
 void PoseGraphSlam::Finish() {

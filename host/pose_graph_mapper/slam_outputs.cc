@@ -67,6 +67,11 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates), ll(c.window_failures),
       Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0), ll(c.global_optimizations),
       ll(c.global_failures), Percentile(glat, 0.5), Percentile(glat, 1.0));
+  std::fprintf(f,
+               ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "
+               "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld",
+               ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced),
+               ll(c.absolute_queued), ll(c.absolute_rejected), ll(c.absolute_invalid));
   for (const auto& [k, v] : info.extra)
     std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));
   std::fprintf(f, "}\n");

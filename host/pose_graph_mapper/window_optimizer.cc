@@ -83,6 +83,16 @@ Status SlidingWindowOptimizer::AddAbsolute(int id, const Pose2& z, const Eigen::
   return Status::Ok();
 }
 
+bool SlidingWindowOptimizer::RemoveRelative(int from, int to, const Pose2& z) {
+  for (auto it = factors_.begin(); it != factors_.end(); ++it)
+    if (it->a == from && it->b == to && it->z.x == z.x && it->z.y == z.y &&
+        it->z.theta == z.theta) {
+      factors_.erase(it);
+      return true;
+    }
+  return false;
+}
+
 std::optional<Pose2> SlidingWindowOptimizer::Estimate(int id) const {
   if (auto it = x_.find(id); it != x_.end())
     return Pose2(it->second[0], it->second[1], WrapAngle(it->second[2]));

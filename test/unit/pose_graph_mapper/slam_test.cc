@@ -1,12 +1,17 @@
 // PoseGraphSlam on synthetic scans of a box room: keyframe gating on the odometry motion, a pose
 // for every accepted scan (keyframe estimate composed with the odometry since it), and bad input
-// rejected and counted.
+// rejected and counted. Absolute poses: attached at a node's time, spliced in between two
+// keyframes without changing the odometry's information, queued when newer than the newest
+// pose, rejected when older than the window.
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <Eigen/LU>
 
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 
@@ -138,6 +143,210 @@ TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
   // Only the odometry and scan-match links between consecutive keyframes remain.
   EXPECT_LE(gated->Graph().edges2.size(), static_cast<size_t>(2 * (c.keyframes - 1)));
   EXPECT_GT(open->Graph().edges2.size(), static_cast<size_t>(2 * (open->counters().keyframes - 1)));
+}
+
+// The straight drive of KeyframeGatingAndPosePerScan: scan i at 1 s + 0.1 s * i.
+Pose2 DriveTruth(int i) { return Pose2(2 + 0.1 * i, 3 + 0.02 * std::sin(0.3 * i), 0.01 * i); }
+int64_t DriveTime(int i) { return 1000000 + 100000 * int64_t{i}; }
+
+void Drive(PoseGraphSlam* slam, int from, int to) {
+  for (int i = from; i <= to; ++i) {
+    slam->AddOdometry(DriveTime(i), DriveTruth(i));
+    slam->AddScan(i, BoxScan(DriveTime(i), DriveTruth(i)));
+  }
+}
+
+// The index of a scan strictly between the first two keyframes after the first.
+int ScanBetweenKeyframes(const PoseGraphSlam& slam) {
+  const auto& kf = slam.keyframes();
+  for (int i = 0;; ++i)
+    if (DriveTime(i) > kf.at(1).utime && DriveTime(i) < kf.at(2).utime) return i;
+}
+
+double Distance(const Pose2& a, const Pose2& b) { return std::hypot(a.x - b.x, a.y - b.y); }
+
+// (a) + (d): an absolute pose between two keyframes creates one pose node; the odometry factor
+// of that interval becomes two whose composition has the old relative pose and information;
+// the scan-match factors stay; the node is pulled toward the measurement; the g2o export has
+// the node and both halves.
+TEST(PoseGraphSlam, AbsolutePoseBetweenKeyframesIsSplicedWithoutDoubleCounting) {
+  PoseGraphSlam plain(PoseGraphSlamOptions{}, BatchOptions{}, nullptr);
+  PoseGraphSlam spliced(PoseGraphSlamOptions{}, BatchOptions{}, nullptr);
+  Drive(&plain, 0, 40);
+  Drive(&spliced, 0, 40);
+  const int i = ScanBetweenKeyframes(spliced);
+  const io::PoseGraph before = plain.Graph();
+  // Where the mapper puts the robot at that time now: the scan's pose.
+  Pose2 guess;
+  for (const auto& sp : spliced.Trajectory())
+    if (sp.scan_index == i) guess = sp.pose;
+  // The truth in the map frame (the first pose's), moved sideways by 0.3 m.
+  const Pose2 truth = DriveTruth(0).Between(DriveTruth(i));
+  const Pose2 z(truth.x, truth.y + 0.3, truth.theta);
+  const Eigen::Matrix3d info = 1e4 * Eigen::Matrix3d::Identity();
+  EXPECT_EQ(spliced.AddAbsolutePose(DriveTime(i), z, info), AbsoluteOutcome::kSpliced);
+
+  const SlamCounters& c = spliced.counters();
+  EXPECT_EQ(c.absolute_in, 1);
+  EXPECT_EQ(c.absolute_spliced, 1);
+  EXPECT_EQ(c.absolute_attached + c.absolute_queued + c.absolute_rejected, 0);
+  EXPECT_EQ(spliced.num_pose_nodes(), 1u);
+  EXPECT_EQ(spliced.keyframes().size(), plain.keyframes().size());
+  EXPECT_EQ(spliced.Trajectory().size(), 41u);  // still one pose per scan
+  ASSERT_EQ(spliced.absolute_priors().size(), 1u);
+
+  const io::PoseGraph after = spliced.Graph();
+  const int node = static_cast<int>(spliced.num_nodes()) - 1;
+  ASSERT_EQ(after.vertices2.size(), before.vertices2.size() + 1);
+  EXPECT_EQ(after.vertices2.back().id, node);
+  EXPECT_EQ(spliced.absolute_priors()[0].id, node);
+  ASSERT_EQ(after.edges2.size(), before.edges2.size() + 1);
+  // Keyframes 1 and 2 are nodes 1 and 2. The first half took the old odometry edge's place,
+  // the second half is the newest edge; every other edge is unchanged.
+  size_t half = before.edges2.size();
+  for (size_t e = 0; e < before.edges2.size(); ++e)
+    if (after.edges2[e].from == 1 && after.edges2[e].to == node) half = e;
+  ASSERT_LT(half, before.edges2.size());
+  const io::Edge2& old_link = before.edges2[half];
+  EXPECT_EQ(old_link.from, 1);
+  EXPECT_EQ(old_link.to, 2);
+  const io::Edge2& first = after.edges2[half];
+  const io::Edge2& second = after.edges2.back();
+  EXPECT_EQ(second.from, node);
+  EXPECT_EQ(second.to, 2);
+  int scan_edges_1_2 = 0;
+  for (size_t e = 0; e < before.edges2.size(); ++e) {
+    if (e == half) continue;
+    EXPECT_EQ(after.edges2[e].from, before.edges2[e].from);
+    EXPECT_EQ(after.edges2[e].to, before.edges2[e].to);
+    if (after.edges2[e].from == 1 && after.edges2[e].to == 2) ++scan_edges_1_2;
+  }
+  EXPECT_EQ(scan_edges_1_2, 1);  // the scan match between the keyframes stays
+  const Pose2 composed = first.measurement * second.measurement;
+  EXPECT_NEAR(composed.x, old_link.measurement.x, 1e-9);
+  EXPECT_NEAR(composed.y, old_link.measurement.y, 1e-9);
+  EXPECT_NEAR(WrapAngle(composed.theta - old_link.measurement.theta), 0, 1e-9);
+  Eigen::Matrix3d ja, jb;
+  ComposeJacobians(first.measurement, second.measurement, &ja, &jb);
+  const Eigen::Matrix3d cov = ja * first.information.inverse() * ja.transpose() +
+                              jb * second.information.inverse() * jb.transpose();
+  EXPECT_LT((cov.inverse() - old_link.information).norm(), 1e-4 * old_link.information.norm())
+      << "old:\n"
+      << old_link.information << "\nspliced:\n"
+      << cov.inverse();
+
+  const Pose2 estimate = after.vertices2.back().pose;
+  std::printf("measurement %.3f m from the scan's pose, %.3f m from the spliced node\n",
+              Distance(guess, z), Distance(estimate, z));
+  EXPECT_LT(Distance(estimate, z), 0.5 * Distance(guess, z))
+      << "guess (" << guess.x << ", " << guess.y << ") estimate (" << estimate.x << ", "
+      << estimate.y << ")";
+}
+
+// (b) Odometry that overstates every step by 10 %, with the scan matches made negligible: a
+// few absolute poses pull the trajectory back to the truth.
+TEST(PoseGraphSlam, AbsolutePosesCorrectBiasedOdometry) {
+  auto run = [](bool with_absolute) {
+    PoseGraphSlamOptions o;
+    o.scan_match_information_scale = 1e-6;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    Eigen::Matrix3d info = Eigen::Matrix3d::Identity();
+    info.diagonal() << 400, 400, 400;  // 5 cm, 0.05 rad
+    for (int i = 0; i <= 60; ++i) {
+      const Pose2 t = DriveTruth(i);
+      slam.AddOdometry(DriveTime(i), Pose2(2 + 1.1 * (t.x - 2), 3 + 1.1 * (t.y - 3), t.theta));
+      slam.AddScan(i, BoxScan(DriveTime(i), t));
+      // Every 10th scan, a fix for a time 0.35 s back (between scans, usually between keyframes).
+      if (with_absolute && i > 0 && i % 10 == 0) {
+        const int64_t when = DriveTime(i) - 350000;
+        const Pose2 a =
+            DriveTruth(0).Between(Interpolate(DriveTruth(i - 4), DriveTruth(i - 3), 0.5));
+        slam.AddAbsolutePose(when, a, info);
+      }
+    }
+    double sum = 0;
+    const auto traj = slam.Trajectory();
+    for (const auto& sp : traj) {
+      const Pose2 truth = DriveTruth(0).Between(DriveTruth(static_cast<int>(sp.scan_index)));
+      sum += std::pow(Distance(sp.pose, truth), 2);
+    }
+    EXPECT_EQ(traj.size(), 61u);
+    if (with_absolute) {
+      EXPECT_EQ(slam.counters().absolute_in, 6);
+      EXPECT_EQ(slam.counters().absolute_rejected + slam.counters().absolute_invalid, 0);
+      EXPECT_EQ(slam.counters().absolute_spliced + slam.counters().absolute_attached, 6);
+    }
+    return std::sqrt(sum / static_cast<double>(traj.size()));
+  };
+  const double without = run(false), with = run(true);
+  std::printf("trajectory RMS error: %.3f m without absolute poses, %.3f m with\n", without, with);
+  EXPECT_GT(without, 0.15);  // the bias is real: 10 % of up to 6 m
+  EXPECT_LT(with, 0.5 * without) << "without " << without << " m, with " << with << " m";
+}
+
+// (c) Each way an absolute pose can go is counted once: at a keyframe's time (attached), newer
+// than the newest pose (queued, then spliced when the next keyframe covers it), older than the
+// window (rejected), a bad information matrix (invalid).
+TEST(PoseGraphSlam, AbsolutePoseOutcomesAreCounted) {
+  PoseGraphSlamOptions o;
+  o.window_size = 3;
+  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  Drive(&slam, 0, 30);
+  const Eigen::Matrix3d info = 100 * Eigen::Matrix3d::Identity();
+  const int64_t newest = slam.keyframes().back().utime;
+  auto truth_at = [](int64_t utime) {
+    const double f = static_cast<double>(utime - 1000000) / 100000.0;
+    const int i = static_cast<int>(std::floor(f));
+    return DriveTruth(0).Between(Interpolate(DriveTruth(i), DriveTruth(i + 1), f - i));
+  };
+  EXPECT_EQ(slam.AddAbsolutePose(newest, truth_at(newest), info), AbsoluteOutcome::kAttached);
+  const int64_t future = DriveTime(33) + 50000;
+  EXPECT_EQ(slam.AddAbsolutePose(future, truth_at(future), info), AbsoluteOutcome::kQueued);
+  EXPECT_EQ(slam.absolute_pending(), 1u);
+  EXPECT_EQ(slam.AddAbsolutePose(DriveTime(2) + 50000, truth_at(DriveTime(2) + 50000), info),
+            AbsoluteOutcome::kRejected);  // its keyframes left the window of 3
+  EXPECT_EQ(slam.AddAbsolutePose(500000, Pose2(), info),
+            AbsoluteOutcome::kRejected);  // before the first pose: not queued either
+  Eigen::Matrix3d bad = info;
+  bad(2, 2) = -1;
+  EXPECT_EQ(slam.AddAbsolutePose(DriveTime(20), Pose2(), bad), AbsoluteOutcome::kInvalid);
+  const SlamCounters& c = slam.counters();
+  EXPECT_EQ(c.absolute_in, 5);
+  EXPECT_EQ(c.absolute_attached, 1);
+  EXPECT_EQ(c.absolute_queued, 1);
+  EXPECT_EQ(c.absolute_rejected, 2);
+  EXPECT_EQ(c.absolute_invalid, 1);
+  EXPECT_EQ(c.absolute_spliced, 0);
+  EXPECT_EQ(slam.num_pose_nodes(), 0u);
+  Drive(&slam, 31, 45);  // the next keyframes cover the queued one
+  EXPECT_EQ(slam.absolute_pending(), 0u);
+  EXPECT_EQ(c.absolute_spliced, 1);
+  EXPECT_EQ(c.absolute_rejected, 2);
+  EXPECT_EQ(slam.num_pose_nodes(), 1u);
+  EXPECT_EQ(slam.absolute_priors().size(), 2u);
+  EXPECT_EQ(slam.Trajectory().size(), 46u);
+  EXPECT_EQ(c.window_failures, 0);
+}
+
+// The global optimisation sees the pose nodes and the absolute factors: a prior on the last
+// vertex of a chain moves it (OptimizeGraph with priors).
+TEST(PoseGraphSlam, BatchOptimizerTakesAbsolutePriors) {
+  io::PoseGraph g;
+  for (int i = 0; i < 3; ++i) g.vertices2.push_back({i, Pose2(i, 0, 0)});
+  for (int i = 0; i < 2; ++i) {
+    io::Edge2 e;
+    e.from = i;
+    e.to = i + 1;
+    e.measurement = Pose2(1, 0, 0);
+    g.edges2.push_back(e);
+  }
+  std::vector<VertexPrior2> priors{{2, Pose2(2, 1, 0), 100 * Eigen::Matrix3d::Identity()}};
+  BatchOptions b;
+  b.initialization = Initialization::kNone;
+  ASSERT_TRUE(OptimizeGraph(&g, b, &priors).ok());
+  EXPECT_GT(g.vertices2[2].pose.y, 0.5);
+  priors[0].id = 7;
+  EXPECT_FALSE(OptimizeGraph(&g, b, &priors).ok());
 }
 
 }  // namespace

@@ -5,8 +5,12 @@
 #pragma once
 
 #include <string>
+#include <vector>
+
+#include <Eigen/Core>
 
 #include "omni/common/config.h"
+#include "omni/common/geometry.h"
 #include "omni/common/result.h"
 #include "omni/io/g2o.h"
 #include "omni/pose_graph_mapper/initialization.h"
@@ -49,9 +53,20 @@ struct BatchResult {
   std::string ceres_report;  // Ceres' FullReport (per-stage times), for --verbose
 };
 
-// Optimises `graph` in place (vertex poses). Errors: invalid options, a graph without
-// vertices or edges, an edge to a missing vertex, a disconnected graph with an initialisation
-// that needs a spanning tree.
-Result<BatchResult> OptimizeGraph(io::PoseGraph* graph, const BatchOptions& options);
+// Absolute (GPS-like) factor on a 2D vertex: the vertex's pose in the graph's frame with an
+// information matrix over (x_m, y_m, theta_rad) (PosePrior2Cost). g2o files have no such edge,
+// so these are passed beside the graph.
+struct VertexPrior2 {
+  int id = 0;
+  Pose2 z;
+  Eigen::Matrix3d information = Eigen::Matrix3d::Identity();
+};
+
+// Optimises `graph` in place (vertex poses), with the absolute factors `priors` (2D only, may
+// be null; they get the same loss as the edges and do not enter the reported chi^2). Errors:
+// invalid options, a graph without vertices or edges, an edge or prior to a missing vertex, a
+// disconnected graph with an initialisation that needs a spanning tree.
+Result<BatchResult> OptimizeGraph(io::PoseGraph* graph, const BatchOptions& options,
+                                  const std::vector<VertexPrior2>* priors = nullptr);
 
 }  // namespace omni::pgm

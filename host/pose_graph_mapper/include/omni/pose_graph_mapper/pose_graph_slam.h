@@ -9,6 +9,26 @@
 // the loop-closure plugin runs on the new keyframe, and accepted loops trigger a batch
 // optimisation of the whole graph with a robust loss, after which the window is rebuilt from
 // the result. Bad input is rejected and counted (SlamCounters), never fatal.
+//
+// Absolute poses and pose splicing (AddAbsolutePose). The graph's vertices are "nodes": every
+// keyframe is a node, and an absolute (GPS-like) measurement whose time falls strictly inside
+// the interval between two time-consecutive nodes a < b creates a *pose node* there. Pose nodes
+// carry no scan: the scan matcher and the loop closure keep seeing keyframes only (keyframes(),
+// their indices, kf_by_utime_), so nothing that counts keyframes changes meaning. Node ids are
+// given in creation order; without absolute poses node id == keyframe index, which keeps every
+// existing output (graph.g2o, the window, the global solve) exactly as before. Splicing replaces
+// the odometry factor a -> b by the odometry source's factors a -> new and new -> b (the
+// propagated covariances compose to the old one: no information is counted twice or lost);
+// scan-match and loop factors between a and b stay where they are. In the sliding window the
+// old factor is removed, the node and its two factors and prior are added (the node joins the
+// window at its newest end; the marginalisation is exact in any order). A splice needs a and b
+// both still in the window: the factor a -> b of an older interval has already been folded into
+// the marginal prior, so such a measurement (and one older than the first node, or at the time
+// of a marginalised node) is rejected and counted (absolute_rejected), not re-linearised. A
+// measurement at exactly a node's time is attached to it as a prior factor; one newer than the
+// newest node waits in a queue until a keyframe at or after its time exists, then is attached or
+// spliced. The global optimisation includes pose nodes, both halves and every prior. Every
+// accepted scan still gets its pose from its keyframe (Trajectory()).
 #pragma once
 
 #include <cstdint>
@@ -93,7 +113,15 @@ struct SlamCounters {
   int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
   int64_t window_updates = 0, window_failures = 0;
   int64_t global_optimizations = 0, global_failures = 0;
+  // Absolute poses (AddAbsolutePose): received, attached at a node's exact time, spliced in as
+  // a new pose node, queued for a future pose (each is later attached, spliced or rejected
+  // too), rejected (older than the window / first pose, odometry no longer covering it, queue
+  // full), invalid (non-finite pose, information not symmetric positive definite).
+  int64_t absolute_in = 0, absolute_attached = 0, absolute_spliced = 0, absolute_queued = 0;
+  int64_t absolute_rejected = 0, absolute_invalid = 0;
 };
+
+enum class AbsoluteOutcome { kAttached, kSpliced, kQueued, kRejected, kInvalid };
 
 struct ScanPose {
   int64_t scan_index = 0;
@@ -111,6 +139,12 @@ class PoseGraphSlam {
   // Returns true when the scan was accepted (it then has a pose in Trajectory()).
   bool AddScan(int64_t scan_index, const LaserScan2& scan);
 
+  // Absolute pose of the robot base at `utime` in the map frame (the frame of the first
+  // keyframe) with its information over (x_m, y_m, theta_rad); see the file comment. A
+  // measurement that lands in the graph triggers a window update.
+  AbsoluteOutcome AddAbsolutePose(int64_t utime, const Pose2& pose,
+                                  const Eigen::Matrix3d& information);
+
   // Final estimate of every accepted scan: its keyframe's estimate composed with the odometry
   // motion since that keyframe.
   std::vector<ScanPose> Trajectory() const;
@@ -118,8 +152,15 @@ class PoseGraphSlam {
   // no scan has been accepted yet. O(1), for publishing the pose at scan rate.
   bool LastScanPose(ScanPose* out) const;
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
-  // The keyframe graph (vertex ids = keyframe indices) at the current estimates.
+  // The graph at the current estimates: vertex ids = node ids (keyframes and pose nodes, in
+  // creation order; = keyframe indices when nothing was spliced), edges = odometry, scan-match
+  // and loop factors. The absolute factors are not g2o edges: absolute_priors().
   io::PoseGraph Graph() const;
+  const std::vector<VertexPrior2>& absolute_priors() const { return priors_; }
+  size_t num_nodes() const { return nodes_.size(); }
+  size_t num_pose_nodes() const { return nodes_.size() - keyframes_.size(); }
+  size_t absolute_pending() const { return absolute_queue_.size(); }
+  static constexpr size_t kMaxQueuedAbsolute = 1000;
   // Occupancy grid of the keyframe scans at their current estimates.
   io::GridMap RenderMap(const io::LogOddsOptions& options) const;
   // Runs a last global optimisation if loops are pending.
@@ -134,8 +175,21 @@ class PoseGraphSlam {
   struct KeyframeScan {
     LaserScan2 scan;  // kept for the map
   };
+  // A graph vertex: a keyframe (keyframe >= 0; its estimate lives in keyframes_) or a pose
+  // node created by splicing (keyframe == -1).
+  struct Node {
+    int64_t utime;
+    int keyframe;
+    Pose2 estimate;  // pose nodes only
+  };
+  enum class LinkKind { kOdometry, kScanMatch, kLoop };
   struct Link {
-    int from, to;
+    int from, to;  // node ids
+    Pose2 z;
+    Eigen::Matrix3d information;
+    LinkKind kind;
+  };
+  struct QueuedAbsolute {
     Pose2 z;
     Eigen::Matrix3d information;
   };
@@ -146,6 +200,13 @@ class PoseGraphSlam {
   };
   void NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
                    std::vector<Eigen::Vector2d> points);
+  // Attaches or splices a measurement at or before the newest node; `optimize`: update the
+  // window now (false when the caller is about to).
+  AbsoluteOutcome ApplyAbsolute(int64_t utime, const Pose2& z, const Eigen::Matrix3d& info,
+                                bool optimize);
+  void DrainAbsoluteQueue();
+  Pose2 EstimateOf(int node) const;
+  void SetEstimate(int node, const Pose2& pose);
   void OptimizeWindow();
   void OptimizeGlobal();
   void ResetWindow();
@@ -165,7 +226,12 @@ class PoseGraphSlam {
   int64_t last_scan_utime_ = INT64_MIN;
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;
-  std::map<int64_t, int> kf_by_utime_;
+  std::map<int64_t, int> kf_by_utime_;  // keyframe index by time
+  std::vector<Node> nodes_;             // by node id
+  std::vector<int> node_of_kf_;         // keyframe index -> node id
+  std::map<int64_t, int> node_by_utime_;
+  std::vector<VertexPrior2> priors_;  // absolute factors on nodes
+  std::multimap<int64_t, QueuedAbsolute> absolute_queue_;
   std::vector<Link> links_;
   std::vector<ScanRef> scans_;
   std::unique_ptr<SlidingWindowOptimizer> window_;

@@ -51,6 +51,12 @@ class SlidingWindowOptimizer {
   Status AddRelative(int from, int to, const Pose2& z, const Eigen::Matrix3d& information);
   // Absolute factor (GPS-like) on a window pose.
   Status AddAbsolute(int id, const Pose2& z, const Eigen::Matrix3d& information);
+  // Removes the first relative factor from -> to whose measurement equals z exactly (pose
+  // splicing replaces a continuous-source factor by two); false when there is none, e.g.
+  // because it was folded into the marginal prior.
+  bool RemoveRelative(int from, int to, const Pose2& z);
+  // True while the pose is optimised (added and not marginalised).
+  bool InWindow(int id) const { return x_.count(id) > 0; }
 
   // Marginalises poses beyond the window size (oldest first), then optimises the window.
   Result<WindowUpdate> Update();
