@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <climits>
+#include <cmath>
+
+#include <Eigen/Cholesky>
 
 #include "omni/bus/convert.h"
 #include "omni/heartbeat_t.hpp"
@@ -27,7 +30,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
           last_seq_ = m.seq;
         }
         Item it;
-        it.is_scan = true;
+        it.kind = Kind::kScan;
         it.utime = m.utime;
         it.scan.utime = m.utime;
         it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
@@ -44,6 +47,29 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
     it.odom = Pose2(m.x_m, m.y_m, m.yaw_rad);
     OnMessage(std::move(it));
   });
+  if (!o_.absolute_channel.empty())
+    bus_->Subscribe<omni::pose2d_t>(o_.absolute_channel, [this](const omni::pose2d_t& m, int64_t) {
+      if (!m.frame.empty() && m.frame != o_.map_frame) {
+        ++absolute_wrong_frame_;
+        return;
+      }
+      const Eigen::Matrix3d cov =
+          Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(m.covariance);
+      const Eigen::LLT<Eigen::Matrix3d> llt(cov);
+      if (!cov.allFinite() || (cov - cov.transpose()).norm() > 1e-9 * cov.norm() ||
+          llt.info() != Eigen::Success || !std::isfinite(m.x_m) || !std::isfinite(m.y_m) ||
+          !std::isfinite(m.yaw_rad)) {
+        ++absolute_bad_covariance_;
+        return;
+      }
+      Item it;
+      it.kind = Kind::kAbsolute;
+      it.utime = m.utime;
+      it.odom = Pose2(m.x_m, m.y_m, m.yaw_rad);
+      it.information = llt.solve(Eigen::Matrix3d::Identity());
+      it.information = 0.5 * (it.information + it.information.transpose()).eval();
+      OnMessage(std::move(it));
+    });
 
   const SlamCounters& c = slam_.counters();
   heartbeat_.AddCounter("scans_in", [&c] { return c.scans_in; });
@@ -65,6 +91,14 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("window_failures", [&c] { return c.window_failures; });
   heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
   heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
+  heartbeat_.AddCounter("absolute_in", [&c] { return c.absolute_in; });
+  heartbeat_.AddCounter("absolute_attached", [&c] { return c.absolute_attached; });
+  heartbeat_.AddCounter("absolute_spliced", [&c] { return c.absolute_spliced; });
+  heartbeat_.AddCounter("absolute_queued", [&c] { return c.absolute_queued; });
+  heartbeat_.AddCounter("absolute_rejected", [&c] { return c.absolute_rejected; });
+  heartbeat_.AddCounter("absolute_invalid", [&c] { return c.absolute_invalid; });
+  heartbeat_.AddCounter("absolute_bad_covariance", [this] { return absolute_bad_covariance_; });
+  heartbeat_.AddCounter("absolute_wrong_frame", [this] { return absolute_wrong_frame_; });
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
   heartbeat_.AddCounter("scans_forced", [this] { return scans_forced_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
@@ -74,8 +108,9 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
 }
 
 void PoseGraphNode::OnMessage(Item item) {
-  newest_msg_utime_ = std::max(newest_msg_utime_, item.utime);
-  if (item.is_scan) {
+  // Absolute poses may come late by design: they do not advance the time scans wait against.
+  if (item.kind != Kind::kAbsolute) newest_msg_utime_ = std::max(newest_msg_utime_, item.utime);
+  if (item.kind == Kind::kScan) {
     ++queued_scans_;
     max_queued_scans_ = std::max(max_queued_scans_, static_cast<int64_t>(queued_scans_));
   }
@@ -96,8 +131,14 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
   const int64_t wait = static_cast<int64_t>(o_.max_odom_wait_s * 1e6);
   int done = 0;
   while (!queue_.empty() && done < max_scans) {
-    if (!queue_.front().is_scan) {
+    if (queue_.front().kind == Kind::kOdometry) {
       HandOdometry(queue_.front());
+      queue_.pop_front();
+      continue;
+    }
+    if (queue_.front().kind == Kind::kAbsolute) {
+      const Item& a = queue_.front();
+      (void)slam_.AddAbsolutePose(a.utime, a.odom, a.information);
       queue_.pop_front();
       continue;
     }
@@ -107,11 +148,13 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
     bool covered = handed_odom_utime_ >= t;
     if (!covered) {
       size_t reach = 1;
-      while (reach < queue_.size() && (queue_[reach].is_scan || queue_[reach].utime < t)) ++reach;
+      while (reach < queue_.size() &&
+             (queue_[reach].kind != Kind::kOdometry || queue_[reach].utime < t))
+        ++reach;
       if (reach < queue_.size()) {
         std::deque<Item> rest;
         for (size_t i = 1; i < queue_.size(); ++i) {
-          if (i <= reach && !queue_[i].is_scan)
+          if (i <= reach && queue_[i].kind == Kind::kOdometry)
             HandOdometry(queue_[i]);
           else
             rest.push_back(std::move(queue_[i]));

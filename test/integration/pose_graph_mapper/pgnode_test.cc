@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -285,6 +286,84 @@ TEST(PoseGraphMapperNode, ScansWaitForTheirOdometryThenGiveUp) {
   EXPECT_EQ(n.node->scans_forced(), 2);
   EXPECT_EQ(n.node->slam().counters().scans_no_odom, 2);
   EXPECT_EQ(n.node->queued_scans(), 0u);
+}
+
+omni::pose2d_t Fix(int64_t utime, double x, double var, const std::string& frame) {
+  omni::pose2d_t m{};
+  m.utime = utime;
+  m.frame = frame;
+  m.x_m = x;
+  m.covariance[0] = m.covariance[4] = m.covariance[8] = var;
+  return m;
+}
+
+// With node.absolute_channel set, absolute poses reach the mapper in arrival order: one between
+// two keyframes is spliced, one newer than the newest pose waits for it; a covariance that is not
+// positive definite and a fix in another frame are dropped and counted. The heartbeat carries
+// the counts.
+TEST(PoseGraphMapperNode, AbsolutePosesAreSplicedAndBadOnesCounted) {
+  pgm::PoseGraphNodeOptions no;
+  no.absolute_channel = "GPS_FIX";
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok());
+  auto& b = **bus_or;
+  ManualClock clock(1000000);
+  pgm::PoseGraphNode node(&b, no, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, &clock);
+  std::map<std::string, int64_t> counts;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    for (size_t i = 0; i < h.counter_names.size(); ++i)
+      counts[h.counter_names[i]] = h.counter_values[i];
+  });
+  auto pump = [&b] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  // 0.1 m per scan: keyframes every 5th scan (0.5 m).
+  for (int i = 0; i <= 12; ++i) {
+    b.Publish("WHEEL_ODOM", Odom(1000000 + 100000 * i, 0.1 * i, i));
+    b.Publish("LIDAR_SCAN", RingScan(1000000 + 100000 * i, i));
+  }
+  pump();
+  ASSERT_EQ(node.slam().counters().keyframes, 3);
+  b.Publish("GPS_FIX", Fix(1250000, 0.25, 0.01, "map"));   // between keyframes 0 and 1
+  b.Publish("GPS_FIX", Fix(1250000, 0.25, -0.01, "map"));  // not positive definite
+  b.Publish("GPS_FIX", Fix(1250000, 0.25, 0.01, "odom"));  // another frame
+  b.Publish("GPS_FIX", Fix(2150000, 1.15, 0.01, ""));      // after the newest pose (2.0 s)
+  pump();
+  const auto& c = node.slam().counters();
+  EXPECT_EQ(c.absolute_in, 2);
+  EXPECT_EQ(c.absolute_spliced, 1);
+  EXPECT_EQ(c.absolute_queued, 1);
+  EXPECT_EQ(node.absolute_bad_covariance(), 1);
+  EXPECT_EQ(node.absolute_wrong_frame(), 1);
+  for (int i = 13; i <= 16; ++i) {
+    b.Publish("WHEEL_ODOM", Odom(1000000 + 100000 * i, 0.1 * i, i));
+    b.Publish("LIDAR_SCAN", RingScan(1000000 + 100000 * i, i));
+  }
+  pump();
+  EXPECT_EQ(c.absolute_spliced, 2);  // the keyframe at 2.5 s covers the queued one
+  EXPECT_EQ(node.slam().num_pose_nodes(), 2u);
+  node.heartbeat().Tick(true);
+  pump();
+  EXPECT_EQ(counts["absolute_in"], 2);
+  EXPECT_EQ(counts["absolute_spliced"], 2);
+  EXPECT_EQ(counts["absolute_queued"], 1);
+  EXPECT_EQ(counts["absolute_bad_covariance"], 1);
+  EXPECT_EQ(counts["absolute_wrong_frame"], 1);
+  EXPECT_EQ(counts.count("absolute_rejected"), 1u);
+}
+
+// The shipped config leaves the absolute input off.
+TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
+  pgm::PoseGraphSlamOptions slam;
+  pgm::BatchOptions batch;
+  pgm::PoseGraphNodeOptions node;
+  node.absolute_channel = "unset";
+  ASSERT_TRUE(
+      pgm::LoadSlamConfigFile(std::string(OMNI_SOURCE_DIR) + "/config/pose_graph_mapper.yaml",
+                              &slam, &batch, &node)
+          .ok());
+  EXPECT_EQ(node.absolute_channel, "");
 }
 
 }  // namespace

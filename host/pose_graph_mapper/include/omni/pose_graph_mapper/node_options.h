@@ -17,6 +17,9 @@ struct PoseGraphNodeOptions {
   std::string grid_channel = "GRID_PG";
   std::string trajectory_channel = "TRAJECTORY_PG";
   std::string map_frame = "map";
+  // pose2d_t in: absolute (GPS-like) poses of the base in map_frame with their covariance,
+  // attached or spliced into the graph (PoseGraphSlam::AddAbsolutePose). Empty: not subscribed.
+  std::string absolute_channel;
   // Scans wait for odometry at or after their time; a scan this far behind the newest message
   // without it is handed to the mapper anyway (which then rejects it if no odometry is near).
   double max_odom_wait_s = 0.5;

@@ -3,6 +3,11 @@
 // accepted scan when it is accepted), TRAJECTORY_PG (trajectory_t, every accepted scan at the
 // current optimised estimate: poses move when a loop closes), GRID_PG (occupancy_grid_t rendered
 // from the optimised keyframes) and HEARTBEAT with the mapper's and the plugins' counters.
+// With node.absolute_channel set it also subscribes absolute poses (pose2d_t in map_frame, the
+// covariance's inverse as information); a covariance that is not finite, symmetric and positive
+// definite, or another frame, is dropped and counted (absolute_bad_covariance,
+// absolute_wrong_frame); the rest go to PoseGraphSlam::AddAbsolutePose in arrival order
+// (queued with the scans and odometry, never reordered).
 //
 // Input order: messages are queued in arrival order. Odometry is handed to the mapper in that
 // order; a scan waits until odometry at or after its time has arrived (then the odometry that
@@ -58,15 +63,19 @@ class PoseGraphNode {
   int64_t grids_published() const { return grids_published_; }
   int64_t trajectories_published() const { return trajectories_published_; }
   int64_t scans_forced() const { return scans_forced_; }
+  int64_t absolute_bad_covariance() const { return absolute_bad_covariance_; }
+  int64_t absolute_wrong_frame() const { return absolute_wrong_frame_; }
 
   static constexpr size_t kMaxQueued = 3000;  // scans
 
  private:
+  enum class Kind { kOdometry, kScan, kAbsolute };
   struct Item {
-    bool is_scan = false;
+    Kind kind = Kind::kOdometry;
     int64_t utime = 0;
-    Pose2 odom;       // odometry item
-    LaserScan2 scan;  // scan item
+    Pose2 odom;  // odometry item; the pose of an absolute item
+    Eigen::Matrix3d information = Eigen::Matrix3d::Zero();  // absolute item
+    LaserScan2 scan;                                        // scan item
   };
   void OnMessage(Item item);
   int Drain(bool all, int max_scans);
@@ -90,6 +99,7 @@ class PoseGraphNode {
   int64_t scans_lost_ = 0, scans_forced_ = 0;
   int64_t poses_published_ = 0, grids_published_ = 0, trajectories_published_ = 0;
   int64_t pose_seq_ = 0;
+  int64_t absolute_bad_covariance_ = 0, absolute_wrong_frame_ = 0;
   int64_t last_grid_wall_ = 0, last_traj_wall_ = 0;
   int64_t used_at_last_grid_ = 0, used_at_last_traj_ = 0;
   bool deferred_ = false;
