@@ -328,6 +328,60 @@ TEST(PoseGraphSlam, AbsolutePoseOutcomesAreCounted) {
   EXPECT_EQ(c.window_failures, 0);
 }
 
+// Back and forth along the room with loops closing (global optimisations, the window rebuilt
+// from their result) while fixes keep being spliced in: nothing fails, the spliced nodes stay in
+// the graph through the rebuilds, and the result stays on the truth.
+TEST(PoseGraphSlam, SplicedPosesSurviveGlobalOptimisationsAndWindowRebuilds) {
+  PoseGraphSlamOptions o;
+  o.window_size = 5;
+  o.loop.min_index_gap = 10;
+  o.loop.max_ambiguity_ratio = 0;
+  o.loop_every_keyframes = 1;
+  o.loop_cooldown_keyframes = 0;
+  o.global_min_keyframes_between = 0;
+  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  auto truth = [](int i) {
+    const int s = i % 61, pass = i / 61;
+    const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
+    return Pose2(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
+  };
+  const Eigen::Matrix3d info = 400 * Eigen::Matrix3d::Identity();
+  for (int i = 0; i < 3 * 61; ++i) {
+    const int64_t t = 1000000 + 100000 * int64_t{i};
+    slam.AddOdometry(t, truth(i));
+    slam.AddScan(i, BoxScan(t, truth(i)));
+    if (i >= 4 && i % 7 == 0)  // a fix halfway between scans i - 4 and i - 3
+      slam.AddAbsolutePose(t - 350000,
+                           truth(0).Between(Interpolate(truth(i - 4), truth(i - 3), 0.5)), info);
+  }
+  slam.Finish();
+  const SlamCounters& c = slam.counters();
+  EXPECT_GT(c.loops_accepted, 0);
+  EXPECT_GT(c.global_optimizations, 0);
+  EXPECT_EQ(c.global_failures, 0);
+  EXPECT_EQ(c.window_failures, 0);
+  EXPECT_GT(c.absolute_spliced, 10);
+  EXPECT_EQ(c.absolute_in, c.absolute_spliced + c.absolute_attached + c.absolute_rejected);
+  EXPECT_EQ(slam.num_nodes(), static_cast<size_t>(c.keyframes) + slam.num_pose_nodes());
+  EXPECT_EQ(slam.num_pose_nodes(), static_cast<size_t>(c.absolute_spliced));
+  EXPECT_EQ(slam.Graph().vertices2.size(), slam.num_nodes());
+  const auto traj = slam.Trajectory();
+  ASSERT_EQ(traj.size(), 183u);
+  double worst = 0;
+  for (const auto& sp : traj) {
+    const Pose2 want = truth(0).Between(truth(static_cast<int>(sp.scan_index)));
+    EXPECT_LT(Distance(sp.pose, want), 0.05) << sp.scan_index;
+    worst = std::max(worst, Distance(sp.pose, want));
+  }
+  std::printf(
+      "%lld fixes: %lld spliced, %lld attached, %lld rejected; %lld loops, %lld global "
+      "solves; worst scan error %.3f m\n",
+      static_cast<long long>(c.absolute_in), static_cast<long long>(c.absolute_spliced),
+      static_cast<long long>(c.absolute_attached), static_cast<long long>(c.absolute_rejected),
+      static_cast<long long>(c.loops_accepted), static_cast<long long>(c.global_optimizations),
+      worst);
+}
+
 // The global optimisation sees the pose nodes and the absolute factors: a prior on the last
 // vertex of a chain moves it (OptimizeGraph with priors).
 TEST(PoseGraphSlam, BatchOptimizerTakesAbsolutePriors) {
