@@ -13,7 +13,7 @@ TEST(OctomapBuilderConfig, ShippedFileLoads) {
   EXPECT_DOUBLE_EQ(o->resolution_m, 0.05);
   EXPECT_FALSE(o->discretize);
   EXPECT_EQ(o->subvoxel, 2);
-  EXPECT_EQ(o->poser.max_latency_us, 500000);
+  EXPECT_EQ(o->poser.max_latency_us, 2000000);
   EXPECT_GT(o->mount.height_m, 0.0);
   EXPECT_LT(o->grid.min_z_m, o->grid.max_z_m);
 }

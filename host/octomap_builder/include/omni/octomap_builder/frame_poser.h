@@ -38,9 +38,9 @@ Eigen::Isometry3d MountToIsometry(const CameraMount& mount);
 Eigen::Isometry3d CameraInMap(const Pose2& robot_in_map, const CameraMount& mount);
 
 struct FramePoserOptions {
-  int64_t max_latency_us = 500000;    // how long a frame may wait for a newer pose
+  int64_t max_latency_us = 2000000;   // how long a frame may wait for a newer pose
   int64_t max_pose_gap_us = 2000000;  // bracketing poses further apart than this: no pose
-  size_t max_queued_frames = 30;      // older frames are dropped beyond this
+  size_t max_queued_frames = 90;      // older frames are dropped beyond this
   size_t pose_capacity = 2000;        // poses kept for interpolation
 };
 
