@@ -133,6 +133,28 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       break;
     }
     // Sensors at this instant (true pose `pose`, odometry `odom`).
+    // Odometry first: a consumer then has odometry at every scan's time.
+    if (t >= next_odom) {
+      omni::odometry_t m{};
+      m.utime = utime;
+      m.seq = seq_odom++;
+      m.frame = "odom";
+      m.child_frame = "base";
+      m.x_m = odom.x;
+      m.y_m = odom.y;
+      m.yaw_rad = odom.theta;
+      m.vx_m_s = measured.vx_m_s;
+      m.vy_m_s = measured.vy_m_s;
+      m.omega_rad_s = measured.omega_rad_s;
+      const double d = st.distance_m;
+      m.pose_covariance[0] = m.pose_covariance[4] = 1e-4 * d;
+      m.pose_covariance[8] = 1e-3 * d;
+      m.twist_covariance[0] = m.twist_covariance[4] = o_.wheel_noise_m_s * o_.wheel_noise_m_s;
+      m.twist_covariance[8] = m.twist_covariance[0] / (o_.center_to_wheel_m * o_.center_to_wheel_m);
+      sink(Encode("WHEEL_ODOM", utime, m));
+      ++st.odometry;
+      next_odom += 1.0 / o_.odom_hz;
+    }
     if (t >= next_scan) {
       omni::laser_scan_t m{};
       m.utime = utime;
@@ -154,27 +176,6 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       ++seq_scan;
       ++st.scans;
       next_scan += 1.0 / o_.lidar_hz;
-    }
-    if (t >= next_odom) {
-      omni::odometry_t m{};
-      m.utime = utime;
-      m.seq = seq_odom++;
-      m.frame = "odom";
-      m.child_frame = "base";
-      m.x_m = odom.x;
-      m.y_m = odom.y;
-      m.yaw_rad = odom.theta;
-      m.vx_m_s = measured.vx_m_s;
-      m.vy_m_s = measured.vy_m_s;
-      m.omega_rad_s = measured.omega_rad_s;
-      const double d = st.distance_m;
-      m.pose_covariance[0] = m.pose_covariance[4] = 1e-4 * d;
-      m.pose_covariance[8] = 1e-3 * d;
-      m.twist_covariance[0] = m.twist_covariance[4] = o_.wheel_noise_m_s * o_.wheel_noise_m_s;
-      m.twist_covariance[8] = m.twist_covariance[0] / (o_.center_to_wheel_m * o_.center_to_wheel_m);
-      sink(Encode("WHEEL_ODOM", utime, m));
-      ++st.odometry;
-      next_odom += 1.0 / o_.odom_hz;
     }
     if (t >= next_imu) {
       omni::imu_t m{};
