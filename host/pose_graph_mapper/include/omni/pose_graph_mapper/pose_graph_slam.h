@@ -80,7 +80,7 @@ struct PoseGraphSlamOptions {
   // whose whitened residual e^T Omega e exceeds this is an outlier the robust loss gave up on:
   // it is removed (counted in loops_inconsistent) and the graph optimised again. 0 disables.
   double loop_chi2_gate = 0;
-  int loop_every_keyframes = 2;     // loop closure tried on every k-th keyframe
+  int loop_every_keyframes = 1;     // loop closure tried on every k-th keyframe
   int loop_cooldown_keyframes = 5;  // no loop attempts for this many after an accepted one
   int num_threads = 2;
   KeyframeMatchOptions match;
