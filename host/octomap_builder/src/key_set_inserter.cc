@@ -7,6 +7,8 @@
 #include <limits>
 #include <thread>
 
+#include <sys/mman.h>
+
 namespace omni::octo {
 namespace {
 
@@ -199,6 +201,106 @@ void RunOnThreads(int n, F&& f) {
   for (auto& th : threads) th.join();
 }
 
+// Zero-filled anonymous memory reserved without being committed: pages become resident when
+// first written, so a large bounding box costs only what the rays touch. Unmapped on scope exit.
+class ReservedZeroMemory {
+ public:
+  explicit ReservedZeroMemory(size_t bytes) : bytes_(bytes) {
+    void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE,
+                     MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    data_ = p == MAP_FAILED ? nullptr : p;
+  }
+  ~ReservedZeroMemory() {
+    if (data_ != nullptr) ::munmap(data_, bytes_);
+  }
+  ReservedZeroMemory(const ReservedZeroMemory&) = delete;
+  ReservedZeroMemory& operator=(const ReservedZeroMemory&) = delete;
+  void* data() const { return data_; }
+
+ private:
+  size_t bytes_;
+  void* data_ = nullptr;
+};
+
+// Position of a voxel inside its 8×8×8 brick: the Morton code of its low three key bits per
+// axis (x in bits 0, 3, 6; y in 1, 4, 7; z in 2, 5, 8), so the brick's 512 bits are in the
+// octree's child order.
+constexpr uint32_t Spread3(uint32_t v) { return (v & 1u) | ((v & 2u) << 2) | ((v & 4u) << 4); }
+
+// One 8×8×8 brick per 128 bytes: 8 words of free bits, then 8 words of occupied bits.
+constexpr size_t kBrickWords = 16;
+constexpr size_t kOccupiedWords = 8;
+
+// The bitmap over a box of keys whose low corner is a multiple of 8 on every axis, so bricks
+// are aligned with the octree's nodes at depth 13 and Morton(brick position) << 9 | position in
+// the brick is the key's Morton code.
+struct BrickBox {
+  uint32_t lo[3] = {0, 0, 0};  // lowest key of the box (multiples of 8)
+  uint32_t bricks[3] = {0, 0, 0};
+  uint64_t* bits = nullptr;    // kBrickWords words per brick
+  uint8_t* touched = nullptr;  // one flag per brick: some bit of it was set
+
+  size_t Count() const { return size_t{bricks[0]} * bricks[1] * bricks[2]; }
+  uint64_t BrickMorton(size_t b) const {
+    const uint64_t bx = lo[0] / 8 + b % bricks[0];
+    const uint64_t by = lo[1] / 8 + (b / bricks[0]) % bricks[1];
+    const uint64_t bz = lo[2] / 8 + b / (size_t{bricks[0]} * bricks[1]);
+    return MortonOfPacked(bx | (by << 16) | (bz << 32));
+  }
+  size_t BrickOfMorton(uint64_t code) const {
+    const size_t bx = Compact16(code) - lo[0] / 8, by = Compact16(code >> 1) - lo[1] / 8,
+                 bz = Compact16(code >> 2) - lo[2] / 8;
+    return (bz * bricks[1] + by) * bricks[0] + bx;
+  }
+};
+
+// Marks keys of one scan in a BrickBox; one per thread. `kShared`: other threads write the same
+// box at the same time (bits are set with atomic OR; a bit already set costs one plain load).
+template <bool kShared>
+class BrickMarker {
+ public:
+  explicit BrickMarker(const BrickBox& box) : box_(box) {
+    for (int i = 0; i < 3; ++i) extent_[i] = box.bricks[i] * 8;
+  }
+  // `word0`: 0 for the free bits, kOccupiedWords for the occupied ones.
+  void Mark(uint64_t packed, size_t word0) {
+    const uint32_t rx = static_cast<uint32_t>(packed & 0xffff) - box_.lo[0];
+    const uint32_t ry = static_cast<uint32_t>((packed >> 16) & 0xffff) - box_.lo[1];
+    const uint32_t rz = static_cast<uint32_t>(packed >> 32) - box_.lo[2];
+    if (rx >= extent_[0] || ry >= extent_[1] || rz >= extent_[2]) {
+      // A ray step outside the box of its end points (only a rounding corner case of the DDA
+      // could do this; the box has a one-voxel margin): kept aside, never lost.
+      outside.push_back(packed);
+      return;
+    }
+    const size_t b = (size_t{rz >> 3} * box_.bricks[1] + (ry >> 3)) * box_.bricks[0] + (rx >> 3);
+    const uint32_t m = Spread3(rx & 7) | (Spread3(ry & 7) << 1) | (Spread3(rz & 7) << 2);
+    uint64_t* w = box_.bits + b * kBrickWords + word0 + (m >> 6);
+    const uint64_t bit = uint64_t{1} << (m & 63);
+    if constexpr (kShared) {
+      if (__atomic_load_n(w, __ATOMIC_RELAXED) & bit) return;
+      __atomic_fetch_or(w, bit, __ATOMIC_RELAXED);
+      if (__atomic_load_n(&box_.touched[b], __ATOMIC_RELAXED) == 0 &&
+          __atomic_exchange_n(&box_.touched[b], uint8_t{1}, __ATOMIC_RELAXED) == 0)
+        touched.push_back(static_cast<uint32_t>(b));
+    } else {
+      if (*w & bit) return;
+      *w |= bit;
+      if (box_.touched[b] == 0) {
+        box_.touched[b] = 1;
+        touched.push_back(static_cast<uint32_t>(b));
+      }
+    }
+  }
+
+  std::vector<uint32_t> touched;  // bricks this marker was first to write
+  std::vector<uint64_t> outside;  // packed keys outside the box (free keys only)
+
+ private:
+  const BrickBox& box_;
+  uint32_t extent_[3];
+};
+
 }  // namespace
 
 uint64_t MortonCode(const octomap::OcTreeKey& key) { return MortonOfPacked(PackKey(key)); }
@@ -325,7 +427,185 @@ KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f
   else if (options_.subvoxel > 1)
     discrete = SubvoxelCentroids(input);
   const std::vector<Eigen::Vector3f>& points = reduce ? discrete : input;
+  const int64_t t_reduced = NowMicros();
 
+  KeySets out;
+  if (stats) {
+    stats->points = input.size();
+    stats->rays = points.size();
+  }
+  const bool done = options_.max_bitmap_bytes > 0 && BitmapKeySets(points, origin_in, &out, stats);
+  if (!done) HashKeySets(points, origin_in, &out, stats);
+  if (stats) {
+    stats->rays_us += t_reduced - t0;  // the reduction is counted with the rays
+    stats->keys_us = NowMicros() - t0;
+  }
+  return out;
+}
+
+bool ParallelKeySetInserter::BitmapKeySets(const std::vector<Eigen::Vector3f>& points,
+                                           const Eigen::Vector3f& origin_in, KeySets* result,
+                                           InsertStats* stats) const {
+  const int64_t t0 = NowMicros();
+  const octomap::point3d origin(origin_in.x(), origin_in.y(), origin_in.z());
+  const double maxrange = options_.max_range_m;
+  octomap::OcTreeKey origin_key;
+  if (!keyer_.coordToKeyChecked(origin, origin_key)) return false;  // no ray; rare: hash path
+
+  // The box of the rays' end keys and the origin (same expressions as the casting below).
+  uint32_t lo[3], hi[3];
+  for (int i = 0; i < 3; ++i) lo[i] = hi[i] = origin_key[static_cast<unsigned>(i)];
+  for (const auto& q : points) {
+    const octomap::point3d p(q.x(), q.y(), q.z());
+    octomap::OcTreeKey key;
+    bool ok;
+    if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
+      ok = keyer_.coordToKeyChecked(p, key);
+    } else {
+      const octomap::point3d direction = (p - origin).normalized();
+      ok = keyer_.coordToKeyChecked(origin + direction * static_cast<float>(maxrange), key);
+    }
+    if (!ok) continue;
+    for (unsigned i = 0; i < 3; ++i) {
+      lo[i] = std::min<uint32_t>(lo[i], key[i]);
+      hi[i] = std::max<uint32_t>(hi[i], key[i]);
+    }
+  }
+  BrickBox box;
+  for (int i = 0; i < 3; ++i) {
+    box.lo[i] = (lo[i] > 0 ? lo[i] - 1 : 0) & ~7u;  // one voxel of margin, aligned down to 8
+    const uint32_t top = std::min<uint32_t>(hi[i] + 1, 0xffff);
+    box.bricks[i] = (top - box.lo[i]) / 8 + 1;
+  }
+  const size_t count = box.Count();
+  if (count >= (size_t{1} << 32) || count > options_.max_bitmap_bytes / (kBrickWords * 8 + 1))
+    return false;
+  ReservedZeroMemory bits(count * kBrickWords * 8), touched(count);
+  if (bits.data() == nullptr || touched.data() == nullptr) return false;
+  box.bits = static_cast<uint64_t*>(bits.data());
+  box.touched = static_cast<uint8_t*>(touched.data());
+
+  // Phase 1: rays, in chunks handed out dynamically (ray lengths vary a lot).
+  const int nt = options_.num_threads;
+  std::vector<std::vector<uint32_t>> touched_lists(static_cast<size_t>(nt));
+  std::vector<std::vector<uint64_t>> outside_lists(static_cast<size_t>(nt));
+  constexpr size_t kChunk = 512;
+  std::atomic<size_t> next{0};
+  auto cast_all = [&](auto& marker) {
+    auto emit = [&marker](uint64_t packed) { marker.Mark(packed, 0); };
+    for (;;) {
+      const size_t begin = next.fetch_add(kChunk);
+      if (begin >= points.size()) break;
+      const size_t end = std::min(points.size(), begin + kChunk);
+      for (size_t i = begin; i < end; ++i) {
+        const octomap::point3d p(points[i].x(), points[i].y(), points[i].z());
+        // Same expressions as OccupancyOcTreeBase::computeUpdate, so the same keys.
+        if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
+          CastRay(keyer_, origin, p, emit);
+          octomap::OcTreeKey key;
+          if (keyer_.coordToKeyChecked(p, key)) marker.Mark(PackKey(key), kOccupiedWords);
+        } else {
+          const octomap::point3d direction = (p - origin).normalized();
+          CastRay(keyer_, origin, origin + direction * static_cast<float>(maxrange), emit);
+        }
+      }
+    }
+  };
+  RunOnThreads(nt, [&](int t) {
+    const auto ti = static_cast<size_t>(t);
+    if (nt == 1) {
+      BrickMarker<false> marker(box);
+      cast_all(marker);
+      touched_lists[ti].swap(marker.touched);
+      outside_lists[ti].swap(marker.outside);
+    } else {
+      BrickMarker<true> marker(box);
+      cast_all(marker);
+      touched_lists[ti].swap(marker.touched);
+      outside_lists[ti].swap(marker.outside);
+    }
+  });
+  const int64_t t_rays = NowMicros();
+
+  // Phase 2: the touched bricks in Morton order of their position; in each, the bits in order.
+  std::vector<uint64_t> order;
+  for (const auto& list : touched_lists)
+    for (uint32_t b : list) order.push_back(box.BrickMorton(b));
+  {
+    std::vector<uint64_t> tmp;
+    RadixSort49(&order, &tmp);  // brick Morton codes have at most 39 bits
+  }
+  // Thread t writes the updates of bricks [first[t], first[t+1]) at offset[t]: counted first.
+  std::vector<size_t> first(static_cast<size_t>(nt) + 1), offset(static_cast<size_t>(nt) + 1, 0);
+  std::vector<size_t> n_free(static_cast<size_t>(nt), 0), n_occ(static_cast<size_t>(nt), 0);
+  for (int t = 0; t <= nt; ++t)
+    first[static_cast<size_t>(t)] = order.size() * static_cast<size_t>(t) / static_cast<size_t>(nt);
+  RunOnThreads(nt, [&](int t) {
+    const auto ti = static_cast<size_t>(t);
+    for (size_t k = first[ti]; k < first[ti + 1]; ++k) {
+      const uint64_t* w = box.bits + box.BrickOfMorton(order[k]) * kBrickWords;
+      for (size_t i = 0; i < 8; ++i) {
+        const uint64_t occ = w[kOccupiedWords + i];
+        n_occ[ti] += static_cast<size_t>(__builtin_popcountll(occ));
+        n_free[ti] += static_cast<size_t>(__builtin_popcountll(w[i] & ~occ));
+      }
+    }
+  });
+  for (size_t t = 0; t < static_cast<size_t>(nt); ++t)
+    offset[t + 1] = offset[t] + n_free[t] + n_occ[t];
+  std::vector<uint64_t>& updates = result->updates;
+  updates.resize(offset.back());
+  RunOnThreads(nt, [&](int t) {
+    const auto ti = static_cast<size_t>(t);
+    uint64_t* out = updates.data() + offset[ti];
+    for (size_t k = first[ti]; k < first[ti + 1]; ++k) {
+      const uint64_t* w = box.bits + box.BrickOfMorton(order[k]) * kBrickWords;
+      const uint64_t high = order[k] << 9;
+      for (size_t i = 0; i < 8; ++i) {
+        const uint64_t occ = w[kOccupiedWords + i];
+        uint64_t any = occ | w[i];
+        while (any != 0) {
+          const unsigned bit = static_cast<unsigned>(__builtin_ctzll(any));
+          *out++ = (high | (i << 6) | bit) << 1 | ((occ >> bit) & 1);
+          any &= any - 1;
+        }
+      }
+    }
+  });
+  const int64_t t_emit = NowMicros();
+
+  // Free keys a ray stepped to outside the box (none in practice): sorted and merged in.
+  std::vector<uint64_t> outside;
+  for (const auto& list : outside_lists)
+    for (uint64_t k : list) outside.push_back(MortonOfPacked(k) << 1);
+  size_t n_outside = 0;
+  if (!outside.empty()) {
+    std::sort(outside.begin(), outside.end());
+    outside.erase(std::unique(outside.begin(), outside.end()), outside.end());
+    n_outside = outside.size();
+    std::vector<uint64_t> merged(updates.size() + outside.size());
+    std::merge(updates.begin(), updates.end(), outside.begin(), outside.end(), merged.begin());
+    updates.swap(merged);
+  }
+  if (stats) {
+    stats->bitmap = true;
+    stats->free_keys = n_outside;
+    stats->occupied_keys = 0;
+    for (size_t t = 0; t < static_cast<size_t>(nt); ++t) {
+      stats->free_keys += n_free[t];
+      stats->occupied_keys += n_occ[t];
+    }
+    stats->rays_us = t_rays - t0;
+    stats->merge_us = t_emit - t_rays;
+    stats->sort_us = NowMicros() - t_emit;
+  }
+  return true;
+}
+
+void ParallelKeySetInserter::HashKeySets(const std::vector<Eigen::Vector3f>& points,
+                                         const Eigen::Vector3f& origin_in, KeySets* result,
+                                         InsertStats* stats) const {
+  const int64_t t0 = NowMicros();
   const int nt = options_.num_threads;
   const octomap::point3d origin(origin_in.x(), origin_in.y(), origin_in.z());
   const double maxrange = options_.max_range_m;
@@ -405,7 +685,7 @@ KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f
 
   const int64_t t_merge = NowMicros();
   // Merge the sorted shards (pairwise; nt is small).
-  KeySets out;
+  KeySets& out = *result;
   out.updates = std::move(shard_out[0]);
   for (size_t i = 1; i < shard_out.size(); ++i) {
     std::vector<uint64_t> merged(out.updates.size() + shard_out[i].size());
@@ -419,17 +699,13 @@ KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f
     n_occ += shard_occ[i];
   }
   if (stats) {
-    stats->points = input.size();
-    stats->rays = points.size();
+    stats->bitmap = false;
     stats->free_keys = n_free;
     stats->occupied_keys = n_occ;
-    const int64_t t_end = NowMicros();
-    stats->keys_us = t_end - t0;
     stats->rays_us = t_rays - t0;
     stats->merge_us = t_merge - t_rays;
-    stats->sort_us = t_end - t_merge;
+    stats->sort_us = NowMicros() - t_merge;
   }
-  return out;
 }
 
 }  // namespace omni::octo

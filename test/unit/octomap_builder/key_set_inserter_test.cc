@@ -58,29 +58,52 @@ TEST(KeySets, EqualOctomapComputeUpdate) {
   const double res = 0.1;
   const auto pts = BoxScan(3000, 1, {0.3f, -0.2f, 0.1f});
   const Eigen::Vector3f origin(0.05f, 0.02f, 0.3f);
+  // Both ways of computing them: the brick bitmap (default) and the hash sets it falls back to
+  // when the scan's box is too large (forced with max_bitmap_bytes = 0). The box of this scan
+  // straddles the keys' 2^15 boundary, where every Morton bit above a brick changes.
   for (double maxrange : {-1.0, 4.0}) {
     for (int threads : {1, 3}) {
-      KeySetOptions o;
-      o.num_threads = threads;
-      o.max_range_m = maxrange;
-      ParallelKeySetInserter ins(res, o);
-      InsertStats st;
-      const KeySets ours = ins.ComputeKeySets(pts, origin, &st);
-      octomap::OcTree ref(res);
-      octomap::KeySet free_ref, occ_ref;
-      ref.computeUpdate(ToCloud(pts), octomap::point3d(origin.x(), origin.y(), origin.z()),
-                        free_ref, occ_ref, maxrange);
-      EXPECT_EQ(ToSet(ours.Free()), ToSet(free_ref))
-          << "maxrange " << maxrange << " threads " << threads;
-      EXPECT_EQ(ToSet(ours.Occupied()), ToSet(occ_ref)) << "maxrange " << maxrange;
-      EXPECT_EQ(st.free_keys, free_ref.size());
-      EXPECT_EQ(st.occupied_keys, occ_ref.size());
-      EXPECT_TRUE(std::is_sorted(ours.updates.begin(), ours.updates.end()));
-      if (maxrange > 0) {
-        EXPECT_LT(occ_ref.size(), 3000u);  // far points add no occupied key
+      for (bool bitmap : {true, false}) {
+        KeySetOptions o;
+        o.num_threads = threads;
+        o.max_range_m = maxrange;
+        if (!bitmap) o.max_bitmap_bytes = 0;
+        ParallelKeySetInserter ins(res, o);
+        InsertStats st;
+        const KeySets ours = ins.ComputeKeySets(pts, origin, &st);
+        EXPECT_EQ(st.bitmap, bitmap);
+        octomap::OcTree ref(res);
+        octomap::KeySet free_ref, occ_ref;
+        ref.computeUpdate(ToCloud(pts), octomap::point3d(origin.x(), origin.y(), origin.z()),
+                          free_ref, occ_ref, maxrange);
+        EXPECT_EQ(ToSet(ours.Free()), ToSet(free_ref))
+            << "maxrange " << maxrange << " threads " << threads;
+        EXPECT_EQ(ToSet(ours.Occupied()), ToSet(occ_ref)) << "maxrange " << maxrange;
+        EXPECT_EQ(st.free_keys, free_ref.size());
+        EXPECT_EQ(st.occupied_keys, occ_ref.size());
+        EXPECT_TRUE(std::is_sorted(ours.updates.begin(), ours.updates.end()));
+        if (maxrange > 0) {
+          EXPECT_LT(occ_ref.size(), 3000u);  // far points add no occupied key
+        }
       }
     }
   }
+}
+
+TEST(KeySets, BitmapTooLargeFallsBackToHashSets) {
+  // A scan whose box needs more bitmap than allowed is computed with the hash sets: same keys.
+  const double res = 0.05;
+  const auto pts = BoxScan(500, 5, {0.f, 0.f, 0.f});
+  KeySetOptions small;
+  small.max_bitmap_bytes = 4096;  // a 6 m box at 5 cm needs megabytes
+  KeySetOptions big;
+  InsertStats st_small, st_big;
+  const KeySets a = ParallelKeySetInserter(res, small).ComputeKeySets(pts, {0, 0, 0}, &st_small);
+  const KeySets b = ParallelKeySetInserter(res, big).ComputeKeySets(pts, {0, 0, 0}, &st_big);
+  EXPECT_FALSE(st_small.bitmap);
+  EXPECT_TRUE(st_big.bitmap);
+  EXPECT_EQ(a.updates, b.updates);
+  EXPECT_GT(a.updates.size(), 10000u);
 }
 
 TEST(KeySets, TreeEqualsInsertPointCloudOverSeveralScans) {

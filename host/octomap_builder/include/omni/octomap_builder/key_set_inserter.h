@@ -14,8 +14,12 @@
 // builds from the same points (same leaves, same inner values, same pruning).
 //
 // Why it is faster:
-//  - rays are cast on `num_threads` threads, each de-duplicating into its own open-addressing
-//    hash set of packed keys; the sets are merged in parallel by hash shard;
+//  - rays are cast on `num_threads` threads into one bitmap over the scan's box of keys, laid
+//    out in 8×8×8 bricks of one cache line with the bits of a brick in Morton order, so a ray
+//    stays in one cache line for several steps and a repeated key costs one load; reading the
+//    touched bricks in Morton order of their position gives the sorted updates with no hash set
+//    and no sort of the keys. (A box too large for `max_bitmap_bytes` falls back to per-thread
+//    open-addressing hash sets merged by shard and radix-sorted.)
 //  - the update visits the keys in Morton (octree child) order in one depth-first walk, so each
 //    tree node on the union of the paths is visited, expanded, pruned and re-valued once per
 //    scan instead of once per key (insertPointCloud descends from the root for every key, twice
@@ -35,6 +39,11 @@ struct KeySetOptions {
   double max_range_m = -1;  // rays longer than this are cut here and add no occupied key; < 0: none
   bool discretize = false;  // one ray per voxel of the tree (octomap's `discretize`)
   int subvoxel = 0;         // > 1: one ray per (resolution / subvoxel) cell, to its centroid
+  // The key sets are marked in a bitmap over the scan's bounding box of keys (8×8×8-voxel
+  // bricks, one cache line each, reserved as virtual memory; only the pages rays touch become
+  // resident). A box needing more than this many bytes of address space uses per-thread hash
+  // sets instead (same keys, slower). 0: always the hash sets.
+  size_t max_bitmap_bytes = size_t{1} << 30;
 };
 
 // Morton code of a key: bit 3*i is bit i of x, 3*i+1 of y, 3*i+2 of z. The child index of a
@@ -58,6 +67,7 @@ struct InsertStats {
   int64_t rays_us = 0;       //   casting the rays into per-thread sets,
   int64_t merge_us = 0;      //   merging them by shard and sorting each shard (Morton order),
   int64_t sort_us = 0;       //   merging the sorted shards
+  bool bitmap = false;       // the key sets were marked in the brick bitmap (else hash sets)
   int64_t update_us = 0;     // time to update the tree
 };
 
@@ -118,6 +128,11 @@ class ParallelKeySetInserter {
                           const uint64_t* begin, const uint64_t* end, Hook& hook);
   std::vector<Eigen::Vector3f> Discretize(const std::vector<Eigen::Vector3f>& points) const;
   std::vector<Eigen::Vector3f> SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points) const;
+  // The two ways of computing the key sets of `points` (already reduced).
+  bool BitmapKeySets(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& origin,
+                     KeySets* out, InsertStats* stats) const;
+  void HashKeySets(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& origin,
+                   KeySets* out, InsertStats* stats) const;
 
   KeySetOptions options_;
   octomap::OcTree keyer_;  // empty tree: only its key arithmetic (computeRayKeys) is used
