@@ -110,7 +110,7 @@ bool LoadScanDat(const std::string& path, Dataset* out, std::string* err) {
 void Usage() {
   std::cout << "usage: omni-bench-octomap [--datasets DIR] [--out FILE] [--threads N]\n"
                "         [--resolutions 0.01,0.05] [--max-range M] [--only NAME]\n"
-               "         [--subvoxel N]\n"
+               "         [--subvoxel N] [--max-bitmap-bytes B]\n"
                "Times OctoMap's OcTree::insertPointCloud (discretize off and on) and omni's\n"
                "parallel key-set insertion (subvoxel N=2: the builder's default; discretize;\n"
                "exact) on\n"
@@ -129,6 +129,7 @@ int main(int argc, char** argv) {
   std::string only;
   int threads = 2;
   int subvoxel = 2;
+  size_t max_bitmap_bytes = omni::octo::KeySetOptions().max_bitmap_bytes;
   double max_range = 5.0;
   std::vector<double> resolutions{0.01, 0.05};
   for (int i = 1; i < argc; ++i) {
@@ -153,6 +154,8 @@ int main(int argc, char** argv) {
       max_range = std::stod(next());
     } else if (a == "--subvoxel") {
       subvoxel = std::stoi(next());
+    } else if (a == "--max-bitmap-bytes") {  // 0: the hash-set key sets (for comparison)
+      max_bitmap_bytes = std::stoull(next());
     } else if (a == "--only") {
       only = next();
     } else if (a == "--resolutions") {
@@ -242,6 +245,7 @@ int main(int argc, char** argv) {
         ko.max_range_m = max_range;
         ko.discretize = mode == Mode::kDiscretize;
         ko.subvoxel = mode == Mode::kSubvoxel ? subvoxel : 0;
+        ko.max_bitmap_bytes = max_bitmap_bytes;
         omni::octo::ParallelKeySetInserter inserter(res, ko);
         const int64_t t0 = NowUs();
         for (const auto& f : d.frames) {

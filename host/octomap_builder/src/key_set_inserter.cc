@@ -256,38 +256,51 @@ struct BrickBox {
 
 // Marks keys of one scan in a BrickBox; one per thread. `kShared`: other threads write the same
 // box at the same time (bits are set with atomic OR; a bit already set costs one plain load).
+// A key's bit address is the sum of one table entry per axis (the brick's offset along that axis
+// plus the axis' bits of the Morton position in the brick), so a ray step costs three loads
+// from small, cache-resident tables.
 template <bool kShared>
 class BrickMarker {
  public:
-  explicit BrickMarker(const BrickBox& box) : box_(box) {
-    for (int i = 0; i < 3; ++i) extent_[i] = box.bricks[i] * 8;
+  explicit BrickMarker(const BrickBox& box) : bits_(box.bits), touched_(box.touched) {
+    const uint64_t brick_bits = kBrickWords * 64;
+    const uint64_t stride[3] = {brick_bits, brick_bits * box.bricks[0],
+                                brick_bits * box.bricks[0] * box.bricks[1]};
+    for (unsigned i = 0; i < 3; ++i) {
+      lo_[i] = box.lo[i];
+      extent_[i] = box.bricks[i] * 8;
+      table_[i].resize(extent_[i]);
+      for (uint32_t r = 0; r < extent_[i]; ++r)
+        table_[i][r] = (r >> 3) * stride[i] + (uint64_t{Spread3(r & 7)} << i);
+    }
+    tx_ = table_[0].data();
+    ty_ = table_[1].data();
+    tz_ = table_[2].data();
   }
-  // `word0`: 0 for the free bits, kOccupiedWords for the occupied ones.
-  void Mark(uint64_t packed, size_t word0) {
-    const uint32_t rx = static_cast<uint32_t>(packed & 0xffff) - box_.lo[0];
-    const uint32_t ry = static_cast<uint32_t>((packed >> 16) & 0xffff) - box_.lo[1];
-    const uint32_t rz = static_cast<uint32_t>(packed >> 32) - box_.lo[2];
-    if (rx >= extent_[0] || ry >= extent_[1] || rz >= extent_[2]) {
-      // A ray step outside the box of its end points (only a rounding corner case of the DDA
-      // could do this; the box has a one-voxel margin): kept aside, never lost.
-      outside.push_back(packed);
+  // `bit0`: 0 for the free bits, kOccupiedWords * 64 for the occupied ones.
+  inline __attribute__((always_inline)) void Mark(uint64_t packed, uint64_t bit0) {
+    const uint32_t rx = static_cast<uint32_t>(packed & 0xffff) - lo_[0];
+    const uint32_t ry = static_cast<uint32_t>((packed >> 16) & 0xffff) - lo_[1];
+    const uint32_t rz = static_cast<uint32_t>(packed >> 32) - lo_[2];
+    if (__builtin_expect(rx >= extent_[0] || ry >= extent_[1] || rz >= extent_[2], 0)) {
+      Outside(packed);
       return;
     }
-    const size_t b = (size_t{rz >> 3} * box_.bricks[1] + (ry >> 3)) * box_.bricks[0] + (rx >> 3);
-    const uint32_t m = Spread3(rx & 7) | (Spread3(ry & 7) << 1) | (Spread3(rz & 7) << 2);
-    uint64_t* w = box_.bits + b * kBrickWords + word0 + (m >> 6);
-    const uint64_t bit = uint64_t{1} << (m & 63);
+    const uint64_t a = tx_[rx] + ty_[ry] + tz_[rz] + bit0;
+    uint64_t* w = bits_ + (a >> 6);
+    const uint64_t bit = uint64_t{1} << (a & 63);
+    const size_t b = a / (kBrickWords * 64);
     if constexpr (kShared) {
       if (__atomic_load_n(w, __ATOMIC_RELAXED) & bit) return;
       __atomic_fetch_or(w, bit, __ATOMIC_RELAXED);
-      if (__atomic_load_n(&box_.touched[b], __ATOMIC_RELAXED) == 0 &&
-          __atomic_exchange_n(&box_.touched[b], uint8_t{1}, __ATOMIC_RELAXED) == 0)
+      if (__atomic_load_n(&touched_[b], __ATOMIC_RELAXED) == 0 &&
+          __atomic_exchange_n(&touched_[b], uint8_t{1}, __ATOMIC_RELAXED) == 0)
         touched.push_back(static_cast<uint32_t>(b));
     } else {
       if (*w & bit) return;
       *w |= bit;
-      if (box_.touched[b] == 0) {
-        box_.touched[b] = 1;
+      if (touched_[b] == 0) {
+        touched_[b] = 1;
         touched.push_back(static_cast<uint32_t>(b));
       }
     }
@@ -297,8 +310,18 @@ class BrickMarker {
   std::vector<uint64_t> outside;  // packed keys outside the box (free keys only)
 
  private:
-  const BrickBox& box_;
+  // A ray step outside the box of its end points (only a rounding corner case of the DDA could
+  // do this; the box has a one-voxel margin): kept aside, never lost.
+  __attribute__((noinline)) void Outside(uint64_t packed) { outside.push_back(packed); }
+
+  uint64_t* bits_;
+  uint8_t* touched_;
+  uint32_t lo_[3];
   uint32_t extent_[3];
+  std::vector<uint64_t> table_[3];
+  const uint64_t* tx_;
+  const uint64_t* ty_;
+  const uint64_t* tz_;
 };
 
 }  // namespace
@@ -503,7 +526,7 @@ bool ParallelKeySetInserter::BitmapKeySets(const std::vector<Eigen::Vector3f>& p
         if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
           CastRay(keyer_, origin, p, emit);
           octomap::OcTreeKey key;
-          if (keyer_.coordToKeyChecked(p, key)) marker.Mark(PackKey(key), kOccupiedWords);
+          if (keyer_.coordToKeyChecked(p, key)) marker.Mark(PackKey(key), kOccupiedWords * 64);
         } else {
           const octomap::point3d direction = (p - origin).normalized();
           CastRay(keyer_, origin, origin + direction * static_cast<float>(maxrange), emit);
