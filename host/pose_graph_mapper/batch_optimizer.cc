@@ -126,8 +126,8 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
   if (is3d) {
     for (const auto& e : g->edges3) {
       if (e.from == e.to) continue;
-      problem.AddResidualBlock(RelativePose3Functor::Create(e.measurement, e.information),
-                               MakeLoss(o), block.at(e.from), block.at(e.to));
+      problem.AddResidualBlock(RelativePose3Cost::Create(e.measurement, e.information), MakeLoss(o),
+                               block.at(e.from), block.at(e.to));
     }
   } else {
     for (const auto& e : g->edges2) {

@@ -52,4 +52,37 @@ Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q_in) {
   return angle * q.vec() / n;
 }
 
+// Below this squared angle the coefficients come from their Taylor series (the closed forms
+// lose digits to cancellation there); the series' first omitted terms are < 1e-12.
+constexpr double kSeriesBelow = 1e-4;
+
+Eigen::Vector3d SE3V(const Eigen::Vector3d& w, const Eigen::Vector3d& v) {
+  const double a2 = w.squaredNorm();
+  double b, c;  // (1 - cos a)/a^2 and (a - sin a)/a^3
+  if (a2 < kSeriesBelow) {
+    b = 0.5 - a2 / 24.0 + a2 * a2 / 720.0;
+    c = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0;
+  } else {
+    const double a = std::sqrt(a2), s = std::sin(0.5 * a);
+    b = 2.0 * s * s / a2;
+    c = (a - std::sin(a)) / (a2 * a);
+  }
+  const Eigen::Vector3d wv = w.cross(v);
+  return v + b * wv + c * w.cross(wv);
+}
+
+Eigen::Vector3d SE3VInverse(const Eigen::Vector3d& w, const Eigen::Vector3d& u) {
+  // V^-1 = I - [w]x / 2 + d [w]x^2 with d = (1 - (a/2) cot(a/2)) / a^2.
+  const double a2 = w.squaredNorm();
+  double d;
+  if (a2 < kSeriesBelow) {
+    d = 1.0 / 12.0 + a2 / 720.0 + a2 * a2 / 30240.0;
+  } else {
+    const double h = 0.5 * std::sqrt(a2);
+    d = (1.0 - h * std::cos(h) / std::sin(h)) / a2;
+  }
+  const Eigen::Vector3d wu = w.cross(u);
+  return u - 0.5 * wu + d * w.cross(wu);
+}
+
 }  // namespace omni::pgm

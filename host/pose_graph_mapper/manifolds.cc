@@ -50,42 +50,49 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
 }  // namespace
 
 bool SE3Manifold::Plus(const double* x, const double* delta, double* out) const {
-  for (int i = 0; i < 3; ++i) out[i] = x[i] + delta[i];
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  const Eigen::Map<const Eigen::Vector3d> t(x), v(delta), w(delta + 3);
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(x + 3).normalized();
+  Eigen::Map<Eigen::Vector3d> t_out(out);
+  t_out = t + q * SE3V(w, v);
   Eigen::Map<Eigen::Quaterniond> q_out(out + 3);
-  q_out = (q * ExpSO3(Eigen::Vector3d(delta[3], delta[4], delta[5]))).normalized();
+  q_out = (q * ExpSO3(w)).normalized();
   return true;
 }
 
 bool SE3Manifold::PlusJacobian(const double* x, double* jacobian) const {
+  // At delta = 0: d t / d v = R; d t / d w = 0 (V(w) v is second order);
   // d(q * [1, w/2]) / dw = 1/2 [[qw I + [qv]x], [-qv^T]] in (x, y, z, w) order.
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(x + 3).normalized();
+  const Eigen::Map<const Eigen::Quaterniond> q_raw(x + 3);
   Eigen::Map<Eigen::Matrix<double, 7, 6, Eigen::RowMajor>> j(jacobian);
   j.setZero();
-  j.block<3, 3>(0, 0).setIdentity();
-  j.block<3, 3>(3, 3) = 0.5 * (q.w() * Eigen::Matrix3d::Identity() + Skew(q.vec()));
-  j.block<1, 3>(6, 3) = -0.5 * q.vec().transpose();
+  j.block<3, 3>(0, 0) = q.toRotationMatrix();
+  j.block<3, 3>(3, 3) = 0.5 * (q_raw.w() * Eigen::Matrix3d::Identity() + Skew(q_raw.vec()));
+  j.block<1, 3>(6, 3) = -0.5 * q_raw.vec().transpose();
   return true;
 }
 
 bool SE3Manifold::Minus(const double* y, const double* x, double* out) const {
-  for (int i = 0; i < 3; ++i) out[i] = y[i] - x[i];
-  const Eigen::Map<const Eigen::Quaterniond> qx(x + 3), qy(y + 3);
+  const Eigen::Map<const Eigen::Vector3d> tx(x), ty(y);
+  const Eigen::Quaterniond qx = Eigen::Map<const Eigen::Quaterniond>(x + 3).normalized();
+  const Eigen::Map<const Eigen::Quaterniond> qy(y + 3);
   const Eigen::Vector3d w = LogSO3(qx.conjugate() * qy);
-  out[3] = w.x();
-  out[4] = w.y();
-  out[5] = w.z();
+  Eigen::Map<Eigen::Vector3d> v_out(out), w_out(out + 3);
+  v_out = SE3VInverse(w, qx.conjugate() * (ty - tx));
+  w_out = w;
   return true;
 }
 
 bool SE3Manifold::MinusJacobian(const double* x, double* jacobian) const {
-  // Log(q_x^* q_y) ~ 2 vec(q_x^* q_y) near y = x: d/dq_y = 2 [qw I - [qv]x, -qv].
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  // At y = x: d v / d t_y = R^T (the translation of x^-1 y is zero there, so v does not move
+  // with q_y to first order); Log(q_x^* q_y) ~ 2 vec(q_x^* q_y): d/dq_y = 2 [qw I - [qv]x, -qv].
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(x + 3).normalized();
+  const Eigen::Map<const Eigen::Quaterniond> q_raw(x + 3);
   Eigen::Map<Eigen::Matrix<double, 6, 7, Eigen::RowMajor>> j(jacobian);
   j.setZero();
-  j.block<3, 3>(0, 0).setIdentity();
-  j.block<3, 3>(3, 3) = 2.0 * (q.w() * Eigen::Matrix3d::Identity() - Skew(q.vec()));
-  j.block<3, 1>(3, 6) = -2.0 * q.vec();
+  j.block<3, 3>(0, 0) = q.toRotationMatrix().transpose();
+  j.block<3, 3>(3, 3) = 2.0 * (q_raw.w() * Eigen::Matrix3d::Identity() - Skew(q_raw.vec()));
+  j.block<3, 1>(3, 6) = -2.0 * q_raw.vec();
   return true;
 }
 

@@ -102,7 +102,9 @@ TEST(PoseGraphCostFunctions, RelativePose3PassesGradientChecker) {
   SE3Manifold se3;
   for (int trial = 0; trial < 20; ++trial) {
     const Eigen::Isometry3d z = RandomIso(rng);
-    std::unique_ptr<ceres::CostFunction> cost(RelativePose3Functor::Create(z, RandomInfo6(rng)));
+    const Eigen::Matrix<double, 6, 6> info = RandomInfo6(rng);
+    std::unique_ptr<ceres::CostFunction> analytic(RelativePose3Cost::Create(z, info));
+    std::unique_ptr<ceres::CostFunction> autodiff(RelativePose3Functor::Create(z, info));
     double a[7], b[7];
     const Eigen::Isometry3d xa = RandomIso(rng);
     // b near a * z (rotation error well below pi, where the w >= 0 flip happens).
@@ -111,7 +113,23 @@ TEST(PoseGraphCostFunctions, RelativePose3PassesGradientChecker) {
     xb.translation() += Eigen::Vector3d(0.2, 0.1, -0.3);
     ToParams(xa, a);
     ToParams(xb, b);
-    ExpectGradientsCorrect(*cost, {a, b}, {&se3, &se3});
+    // Half of the trials off the unit sphere: the ambient Jacobians must hold there too.
+    if (trial % 2) {
+      for (int i = 3; i < 7; ++i) a[i] *= 1.3, b[i] *= 0.8;
+    }
+    ExpectGradientsCorrect(*analytic, {a, b}, {&se3, &se3});
+    ExpectGradientsCorrect(*autodiff, {a, b}, {&se3, &se3});
+    // The analytic cost is the automatic-differentiation one, values and Jacobians.
+    const double* params[2] = {a, b};
+    Eigen::Matrix<double, 6, 1> r1, r2;
+    Eigen::Matrix<double, 6, 7, Eigen::RowMajor> ja1, jb1, ja2, jb2;
+    double* j1[2] = {ja1.data(), jb1.data()};
+    double* j2[2] = {ja2.data(), jb2.data()};
+    ASSERT_TRUE(analytic->Evaluate(params, r1.data(), j1));
+    ASSERT_TRUE(autodiff->Evaluate(params, r2.data(), j2));
+    EXPECT_LT((r1 - r2).norm(), 1e-9 * (1 + r2.norm()));
+    EXPECT_LT((ja1 - ja2).norm(), 1e-9 * (1 + ja2.norm()));
+    EXPECT_LT((jb1 - jb2).norm(), 1e-9 * (1 + jb2.norm()));
   }
 }
 
@@ -132,7 +150,7 @@ TEST(PoseGraphCostFunctions, CeresCostEqualsHalfOurChi2) {
   for (int trial = 0; trial < 50; ++trial) {
     const Eigen::Isometry3d z = RandomIso(rng), a = RandomIso(rng), b = RandomIso(rng);
     const Eigen::Matrix<double, 6, 6> info = RandomInfo6(rng);
-    std::unique_ptr<ceres::CostFunction> cost(RelativePose3Functor::Create(z, info));
+    std::unique_ptr<ceres::CostFunction> cost(RelativePose3Cost::Create(z, info));
     double pa[7], pb[7];
     ToParams(a, pa);
     ToParams(b, pb);
@@ -193,6 +211,44 @@ TEST(PoseGraphManifolds, SE3InvariantsHold) {
     constexpr double kTolerance = 1e-9;
     EXPECT_THAT_MANIFOLD_INVARIANTS_HOLD(m, x, delta, y, kTolerance);
   }
+  // Small rotations (the Taylor branches of V and V^-1).
+  Eigen::Matrix<double, 7, 1> x, y;
+  ToParams(RandomIso(rng), x.data());
+  Eigen::Isometry3d yy = FromParams(x.data());
+  yy.linear() = yy.linear() * ExpSO3(Eigen::Vector3d(2e-3, -1e-3, 4e-3)).toRotationMatrix();
+  yy.translation() += Eigen::Vector3d(0.3, -0.2, 0.1);
+  ToParams(yy, y.data());
+  const Eigen::Quaterniond qx(x[6], x[3], x[4], x[5]), qy(y[6], y[3], y[4], y[5]);
+  if ((qx.conjugate() * qy).w() < 0) y.tail<4>() = -y.tail<4>();
+  Eigen::Matrix<double, 6, 1> delta;
+  delta << 0.4, -0.3, 0.2, 1e-3, 3e-3, -2e-3;
+  constexpr double kTolerance = 1e-9;
+  EXPECT_THAT_MANIFOLD_INVARIANTS_HOLD(m, x, delta, y, kTolerance);
+}
+
+// SE(3)'s V(w) and its inverse: inverse of each other, the Taylor branch continuous with the
+// closed form at the switch, and Plus a rigid group product x * Exp(d).
+TEST(PoseGraphLie, SE3VInverseAndSeriesBranch) {
+  const Eigen::Vector3d v(0.7, -1.3, 2.1), axis = Eigen::Vector3d(0.3, -0.5, 0.8).normalized();
+  for (double a : {0.0, 1e-9, 1e-4, 9.99e-3, 1.001e-2, 0.3, 2.0, 3.1}) {
+    const Eigen::Vector3d w = a * axis;
+    EXPECT_LT((SE3VInverse(w, SE3V(w, v)) - v).norm(), 1e-12) << a;
+  }
+  // Across the series switch (|w|^2 = 1e-4) the two formulas agree.
+  const Eigen::Vector3d below = SE3V(0.00999999 * axis, v), above = SE3V(0.01000001 * axis, v);
+  EXPECT_LT((below - above).norm(), 1e-9);
+  // V(w) v against the translation of exp of the 4x4 twist matrix by its power series.
+  const Eigen::Vector3d w(0.4, -0.7, 0.9);
+  Eigen::Matrix4d xi = Eigen::Matrix4d::Zero();
+  xi.topLeftCorner<3, 3>() << 0, -w.z(), w.y(), w.z(), 0, -w.x(), -w.y(), w.x(), 0;
+  xi.topRightCorner<3, 1>() = v;
+  Eigen::Matrix4d term = Eigen::Matrix4d::Identity(), sum = Eigen::Matrix4d::Identity();
+  for (int k = 1; k < 30; ++k) {
+    term = term * xi / k;
+    sum += term;
+  }
+  EXPECT_LT((sum.topRightCorner<3, 1>() - SE3V(w, v)).norm(), 1e-12);
+  EXPECT_LT((sum.topLeftCorner<3, 3>() - ExpSO3(w).toRotationMatrix()).norm(), 1e-12);
 }
 
 TEST(PoseGraphLie, ExpLogRoundTrip) {

@@ -61,7 +61,35 @@ class PosePrior2Cost final : public ceres::SizedCostFunction<3, 3> {
 // Relative SE(3) factor between pose blocks a and b = (tx, ty, tz, qx, qy, qz, qw), measurement Z
 // = the pose of b in the frame of a (g2o EDGE_SE3:QUAT):
 //   D = Z^-1 A^-1 B,  e = (t_D, vec(q_D))  with q_D taken with w >= 0 (g2o's toVectorMQT).
-// Automatic differentiation.
+// Analytic Jacobians with respect to all 7 ambient parameters, exact also for quaternions that
+// are not of unit length (so Ceres' GradientChecker agrees with and without the manifold):
+//   t_D = R_z^T (g(q_a, p_b - p_a) - p_z),  g(q, d) = q^* d q for unit q, evaluated for any q as
+//         d - 2 w (u x d) + 2 u x (u x d)  with q = (u, w);
+//   q_D = q_z^* (x) q_a^* (x) q_b  (Hamilton products, linear in q_a and in q_b).
+// RelativePose3Functor below is the same residual by automatic differentiation (kept as the
+// reference the tests compare against).
+class RelativePose3Cost final : public ceres::SizedCostFunction<6, 7, 7> {
+ public:
+  RelativePose3Cost(const Eigen::Isometry3d& measurement,
+                    const Eigen::Matrix<double, 6, 6>& information);
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override;
+  static ceres::CostFunction* Create(const Eigen::Isometry3d& measurement,
+                                     const Eigen::Matrix<double, 6, 6>& information) {
+    return new RelativePose3Cost(measurement, information);
+  }
+
+ private:
+  Eigen::Vector3d p_z_;
+  Eigen::Quaterniond q_z_inv_;               // q_z^*, q_z normalised
+  Eigen::Matrix<double, 6, 3> s_rz_t_;       // S.leftCols<3>() R_z^T
+  Eigen::Matrix<double, 6, 3> s_rot_;        // S.rightCols<3>()
+  Eigen::Matrix<double, 3, 4> l_z_inv_top_;  // top 3 rows of the left-product matrix of q_z^*
+
+ public:
+  EIGEN_MAKE_ALIGNED_OPERATOR_NEW
+};
+
 struct RelativePose3Functor {
   RelativePose3Functor(const Eigen::Isometry3d& measurement,
                        const Eigen::Matrix<double, 6, 6>& information)

