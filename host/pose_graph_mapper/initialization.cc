@@ -195,6 +195,68 @@ Status Chordal2(io::PoseGraph* g, const Topology& t, int root) {
   return Status::Ok();
 }
 
+// Least squares over 3-vectors x_v (one per vertex, the root's given) with K right-hand sides
+// at once: min sum_f ||J_a x_a + J_b x_b - r_f||^2, one 3-row factor f per edge. The normal
+// equations are assembled block by block (3x3), so the sparse matrix is the Hessian itself and
+// is factorised once for all K columns.
+template <int K>
+class BlockLeastSquares {
+ public:
+  using Rhs = Eigen::Matrix<double, 3, K>;
+  BlockLeastSquares(int num_vertices, int root, const Rhs& root_value)
+      : col_(num_vertices), root_(root), root_value_(root_value) {
+    int next = 0;
+    for (int v = 0; v < num_vertices; ++v) col_[v] = v == root ? -1 : next++;
+    rhs_ = Eigen::Matrix<double, Eigen::Dynamic, K>::Zero(3 * next, K);
+    trips_.reserve(9 * static_cast<size_t>(num_vertices));
+  }
+  void AddFactor(int a, const Eigen::Matrix3d& ja, int b, const Eigen::Matrix3d& jb, const Rhs& r) {
+    Rhs target = r;
+    if (a == root_) target -= ja * root_value_;
+    if (b == root_) target -= jb * root_value_;
+    const int ca = col_[a], cb = col_[b];
+    if (ca >= 0) {
+      AddBlock(ca, ca, ja.transpose() * ja);
+      rhs_.template middleRows<3>(3 * ca) += ja.transpose() * target;
+    }
+    if (cb >= 0) {
+      AddBlock(cb, cb, jb.transpose() * jb);
+      rhs_.template middleRows<3>(3 * cb) += jb.transpose() * target;
+    }
+    if (ca >= 0 && cb >= 0) {
+      const Eigen::Matrix3d hab = ja.transpose() * jb;
+      AddBlock(ca, cb, hab);
+      AddBlock(cb, ca, hab.transpose());
+    }
+  }
+  // Every vertex's value, the root's as given.
+  Result<std::vector<Rhs>> Solve() {
+    const int n = static_cast<int>(rhs_.rows());
+    Eigen::SparseMatrix<double> h(n, n);
+    h.setFromTriplets(trips_.begin(), trips_.end());
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(h);
+    if (ldlt.info() != Eigen::Success)
+      return MakeError(ErrorCode::kInvalidArgument,
+                       "linear initialisation is singular (is the graph connected?)");
+    const Eigen::Matrix<double, Eigen::Dynamic, K> x = ldlt.solve(rhs_);
+    std::vector<Rhs> out(col_.size());
+    for (size_t v = 0; v < col_.size(); ++v)
+      out[v] = col_[v] < 0 ? root_value_ : Rhs(x.template middleRows<3>(3 * col_[v]));
+    return out;
+  }
+
+ private:
+  void AddBlock(int r, int c, const Eigen::Matrix3d& m) {
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) trips_.emplace_back(3 * r + i, 3 * c + j, m(i, j));
+  }
+  std::vector<int> col_;
+  int root_;
+  Rhs root_value_;
+  Eigen::Matrix<double, Eigen::Dynamic, K> rhs_;
+  std::vector<Eigen::Triplet<double>> trips_;
+};
+
 Eigen::Matrix3d ProjectToSO3(const Eigen::Matrix3d& m) {
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
@@ -206,58 +268,40 @@ Status Chordal3(io::PoseGraph* g, const Topology& t, int root) {
   const int n = static_cast<int>(g->vertices3.size());
   std::vector<int> order, parent;
   if (Status s = Bfs(*g, t, g->vertices3[root].id, &order, &parent); !s.ok()) return s;
-  // Rotations: variable 9 v + 3 m + c is R_v(m, c). R_b(m, c) - sum_l R_a(m, l) Z(l, c) = 0.
-  LinearLeastSquares rot(9 * n);
+  // Rotations, relaxed to any 3x3 matrices: R_b = R_a Z, i.e. R_b^T = Z^T R_a^T. The unknown of
+  // vertex v is X_v = R_v^T, whose three columns (the rows of R_v) are three independent
+  // problems with the same matrix: one factorisation, three right-hand sides.
   const Eigen::Matrix3d r_root = g->vertices3[root].pose.linear();
-  for (int m = 0; m < 3; ++m)
-    for (int c = 0; c < 3; ++c) rot.Fix(9 * root + 3 * m + c, r_root(m, c));
+  BlockLeastSquares<3> rot(n, root, r_root.transpose());
   for (size_t k = 0; k < g->edges3.size(); ++k) {
     const auto& e = g->edges3[k];
     const auto [a, b] = t.edges[k];
     if (a == b) continue;
     const Eigen::Matrix3d z = e.measurement.linear();
     const double w = std::sqrt(MarginalInfo<6, 3>(e.information, 3).trace() / 3.0);
-    for (int m = 0; m < 3; ++m)
-      for (int c = 0; c < 3; ++c) {
-        std::vector<std::pair<int, double>> terms{{9 * b + 3 * m + c, w}};
-        for (int l = 0; l < 3; ++l) terms.push_back({9 * a + 3 * m + l, -w * z(l, c)});
-        rot.AddRow(terms, 0.0);
-      }
+    rot.AddFactor(a, -w * z.transpose(), b, w * Eigen::Matrix3d::Identity(),
+                  Eigen::Matrix3d::Zero());
   }
   auto rv = rot.Solve();
   if (!rv.ok()) return rv.error();
   std::vector<Eigen::Matrix3d> r(n);
-  for (int v = 0; v < n; ++v) {
-    Eigen::Matrix3d m;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) m(i, j) = (*rv)[9 * v + 3 * i + j];
-    r[v] = v == root ? r_root : ProjectToSO3(m);
-  }
-  // Positions: t_b - t_a = R_a t_z.
-  LinearLeastSquares pos(3 * n);
-  for (int i = 0; i < 3; ++i) pos.Fix(3 * root + i, g->vertices3[root].pose.translation()[i]);
+  for (int v = 0; v < n; ++v) r[v] = v == root ? r_root : ProjectToSO3((*rv)[v].transpose());
+  // Positions: t_b - t_a = R_a t_z, weighted by the rotated marginal translation information.
+  BlockLeastSquares<1> pos(n, root, g->vertices3[root].pose.translation());
   for (size_t k = 0; k < g->edges3.size(); ++k) {
     const auto& e = g->edges3[k];
     const auto [a, b] = t.edges[k];
     if (a == b) continue;
     const Eigen::Matrix3d info = r[a] * MarginalInfo<6, 3>(e.information, 0) * r[a].transpose();
     const Eigen::Matrix3d sq = SqrtOf<3>(info);
-    const Eigen::Vector3d rhs = sq * (r[a] * e.measurement.translation());
-    for (int row = 0; row < 3; ++row) {
-      std::vector<std::pair<int, double>> terms;
-      for (int i = 0; i < 3; ++i) {
-        terms.push_back({3 * a + i, -sq(row, i)});
-        terms.push_back({3 * b + i, sq(row, i)});
-      }
-      pos.AddRow(terms, rhs[row]);
-    }
+    pos.AddFactor(a, -sq, b, sq, sq * (r[a] * e.measurement.translation()));
   }
   auto p = pos.Solve();
   if (!p.ok()) return p.error();
   for (int v = 0; v < n; ++v) {
     Eigen::Isometry3d x = Eigen::Isometry3d::Identity();
     x.linear() = r[v];
-    x.translation() = Eigen::Vector3d((*p)[3 * v], (*p)[3 * v + 1], (*p)[3 * v + 2]);
+    x.translation() = (*p)[v];
     g->vertices3[v].pose = x;
   }
   return Status::Ok();
