@@ -1,5 +1,6 @@
 // omni-posegraph (./omni posegraph ...): batch optimisation of a g2o / TORO pose graph with the
 // pose_graph_mapper's Ceres back end, and chi^2 of any graph file with our evaluator.
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -172,13 +173,22 @@ int CmdOptimize(int argc, char** argv) {
   opt.num_threads =
       threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 
+  using Clock = std::chrono::steady_clock;
+  auto seconds = [](Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+  };
+  const auto t_read = Clock::now();
   auto g = omni::io::ReadPoseGraph(in);
   if (!g.ok()) return Fail(g.error().message);
+  const double read_s = seconds(t_read);
   auto r = omni::pgm::OptimizeGraph(&*g, opt);
   if (!r.ok()) return Fail(in + ": " + r.error().message);
   if (verbose) std::fprintf(stderr, "%s\n", r->ceres_report.c_str());
+  double write_s = 0;
   if (!out.empty()) {
+    const auto t_write = Clock::now();
     if (omni::Status s = omni::io::WriteG2o(out, *g); !s.ok()) return Fail(s.message());
+    write_s = seconds(t_write);
   }
   const size_t nv = g->is_3d() ? g->vertices3.size() : g->vertices2.size();
   const size_t ne = g->is_3d() ? g->edges3.size() : g->edges2.size();
@@ -186,11 +196,12 @@ int CmdOptimize(int argc, char** argv) {
     std::printf(
         "{\"graph\": \"%s\", \"type\": \"%s\", \"vertices\": %zu, \"edges\": %zu, "
         "\"initialization\": \"%s\", \"chi2_before\": %.10g, \"chi2_initialized\": %.10g, "
-        "\"chi2\": %.10g, \"iterations\": %d, \"init_s\": %.6f, \"solve_s\": %.6f, "
-        "\"termination\": \"%s\"}\n",
+        "\"chi2\": %.10g, \"iterations\": %d, \"read_s\": %.6f, \"init_s\": %.6f, "
+        "\"solve_s\": %.6f, \"write_s\": %.6f, \"termination\": \"%s\"}\n",
         in.c_str(), g->is_3d() ? "SE3" : "SE2", nv, ne,
         omni::pgm::InitializationName(opt.initialization), r->chi2_input, r->chi2_initialized,
-        r->chi2_final, r->iterations, r->init_s, r->solve_s, r->termination.c_str());
+        r->chi2_final, r->iterations, read_s, r->init_s, r->solve_s, write_s,
+        r->termination.c_str());
   } else {
     std::printf("graph            %s (%s, %zu vertices, %zu edges%s)\n", in.c_str(),
                 g->is_3d() ? "SE3" : "SE2", nv, ne, g->vertices_implicit ? ", implicit" : "");
@@ -201,6 +212,7 @@ int CmdOptimize(int argc, char** argv) {
     std::printf("iterations       %d (%s)\n", r->iterations, r->termination.c_str());
     std::printf("time             %.3f s (initialisation %.3f s, Ceres %.3f s, %d threads)\n",
                 r->init_s + r->solve_s, r->init_s, r->solve_s, opt.num_threads);
+    std::printf("read, write      %.3f s, %.3f s\n", read_s, write_s);
     if (!out.empty()) std::printf("wrote            %s\n", out.c_str());
   }
   return 0;
