@@ -32,7 +32,8 @@ Pose2 OdometrySource::At(size_t upper, int64_t utime) const {
   return Interpolate(pa, pb, f);
 }
 
-std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) const {
+std::optional<std::vector<std::pair<int64_t, Pose2>>> OdometrySource::Steps(int64_t t0,
+                                                                            int64_t t1) const {
   if (samples_.empty() || t1 < t0 || t0 < samples_.front().first || t1 > samples_.back().first)
     return std::nullopt;
   auto upper = [&](int64_t t) {
@@ -49,6 +50,13 @@ std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) co
   for (size_t i = i0; i < i1; ++i)
     if (samples_[i].first > t0) pts.push_back(samples_[i]);
   if (t1 > pts.back().first) pts.emplace_back(t1, At(i1, t1));
+  return pts;
+}
+
+std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) const {
+  const auto steps = Steps(t0, t1);
+  if (!steps) return std::nullopt;
+  const auto& pts = *steps;
   RelativeMotion m;
   Eigen::Matrix3d a, b;
   for (size_t k = 0; k + 1 < pts.size(); ++k) {

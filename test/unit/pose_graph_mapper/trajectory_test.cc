@@ -9,6 +9,7 @@
 
 #include "omni/pose_graph_mapper/batch_optimizer.h"
 #include "omni/pose_graph_mapper/continuous_source.h"
+#include "omni/pose_graph_mapper/gyro_source.h"
 #include "omni/pose_graph_mapper/trajectory.h"
 
 namespace omni::pgm {
@@ -73,6 +74,94 @@ TEST(PoseGraphSources, OdometryOutsideItsDataIsUnavailable) {
   OdometrySource o2;
   EXPECT_TRUE(o2.AddSample(10, Pose2()));
   EXPECT_FALSE(o2.AddSample(5, Pose2()));  // out of order: rejected, the caller counts it
+}
+
+TEST(PoseGraphGyro, IntegratesTheRateLinearBetweenSamples) {
+  GyroYawSource gyro;
+  // 100 Hz, rate ramping from 0 to 1 rad/s over 2 s: the heading is t^2 / 4 exactly.
+  for (int k = 0; k <= 200; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.005 * k));
+  const auto whole = gyro.Between(0, 2'000'000);
+  ASSERT_TRUE(whole);
+  EXPECT_NEAR(whole->delta_rad, 1.0, 1e-12);
+  // Between samples (t = 0.5 s to 1.255 s): the rate is interpolated, so still exact.
+  const auto part = gyro.Between(500'000, 1'255'000);
+  ASSERT_TRUE(part);
+  EXPECT_NEAR(part->delta_rad, (1.255 * 1.255 - 0.25) / 4.0, 1e-12);
+  EXPECT_GT(part->variance, 0.0);
+  EXPECT_LT(part->variance, whole->variance);
+  EXPECT_FALSE(gyro.Between(-1, 10));            // before the first sample
+  EXPECT_FALSE(gyro.Between(0, 2'000'001));      // after the last
+  EXPECT_FALSE(gyro.AddSample(2'000'000, 0.0));  // repeated time
+  EXPECT_FALSE(gyro.AddSample(1'000'000, 0.0));  // older
+  EXPECT_FALSE(gyro.AddSample(3'000'000, std::nan("")));
+  EXPECT_EQ(gyro.size(), 201u);
+}
+
+TEST(PoseGraphGyro, BiasIsRemoved) {
+  GyroYawSource gyro(GyroNoise{}, 0.02);
+  for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.02));
+  EXPECT_NEAR(gyro.Between(0, 1'000'000)->delta_rad, 0.0, 1e-15);
+}
+
+// Odometry whose heading over-reads every turn by 8 % (an omni base's wheels slip when it
+// turns), and a gyro that measures the true rate.
+struct BiasedOdometryAndGyro {
+  OdometrySource odometry;
+  GyroYawSource gyro{GyroNoise{1e-7, 1e-6}};
+  Pose2 truth_end;
+  BiasedOdometryAndGyro() {
+    Pose2 truth, odo;
+    const double rate = 0.3;  // rad/s, 0.2 m/s forward
+    for (int k = 0; k <= 500; ++k) {
+      const int64_t t = 20'000 * k;
+      EXPECT_TRUE(odometry.AddSample(t, odo));
+      for (int j = 0; j < 2; ++j) EXPECT_TRUE(gyro.AddSample(t + 10'000 * j, rate));
+      truth_end = truth;  // the pose at the last sample (10 s) in the end
+      const Pose2 step(0.2 * 0.02, 0.0, rate * 0.02);
+      truth = truth * step;
+      odo = odo * Pose2(step.x, step.y, 1.08 * step.theta);
+    }
+  }
+};
+
+TEST(PoseGraphGyro, FusedHeadingFollowsTheGyroAndTheTranslationFollowsIt) {
+  const BiasedOdometryAndGyro d;
+  const OdometryGyroSource fused(&d.odometry, &d.gyro);
+  const auto odo_only = d.odometry.Between(0, 10'000'000);
+  const auto both = fused.Between(0, 10'000'000);
+  ASSERT_TRUE(odo_only && both);
+  // Odometry alone: 3 rad turned reads 3.24 rad, and the end point is off with it.
+  EXPECT_NEAR(odo_only->delta.theta, WrapAngle(1.08 * 3.0), 1e-9);
+  const double odo_err =
+      std::hypot(odo_only->delta.x - d.truth_end.x, odo_only->delta.y - d.truth_end.y);
+  const double fused_err = std::hypot(both->delta.x - d.truth_end.x, both->delta.y - d.truth_end.y);
+  EXPECT_GT(odo_err, 0.05);
+  EXPECT_LT(fused_err, 0.1 * odo_err);
+  EXPECT_NEAR(WrapAngle(both->delta.theta - d.truth_end.theta), 0.0, 0.01);
+  // The fused heading is more certain than either source alone.
+  EXPECT_LT(both->covariance(2, 2), odo_only->covariance(2, 2));
+  EXPECT_EQ(fused.gyro_missing_steps(), 0u);
+  EXPECT_GT(fused.gyro_fused_steps(), 0u);
+}
+
+TEST(PoseGraphGyro, FusedSplitAtASampleKeepsTheInformationExactly) {
+  const BiasedOdometryAndGyro d;
+  const OdometryGyroSource fused(&d.odometry, &d.gyro);
+  ExpectSplitPreservesInformation(fused, 100'000, 500'000, 3'000'000, 1e-9);
+}
+
+TEST(PoseGraphGyro, StepsWithoutGyroUseTheOdometryAloneAndAreCounted) {
+  OdometrySource odometry = MakeOdometry();  // 1 s .. 11 s
+  GyroYawSource gyro;
+  for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(1'000'000 + 10'000 * k, 0.0));
+  const OdometryGyroSource fused(&odometry, &gyro);  // gyro covers 1 s .. 2 s only
+  const auto later = fused.Between(3'000'000, 4'000'000);
+  const auto plain = odometry.Between(3'000'000, 4'000'000);
+  ASSERT_TRUE(later && plain);
+  EXPECT_EQ(fused.gyro_missing_steps(), 50u);
+  EXPECT_NEAR(later->delta.x, plain->delta.x, 1e-15);
+  EXPECT_NEAR(later->delta.theta, plain->delta.theta, 1e-15);
+  EXPECT_FALSE(fused.Between(0, 2'000'000));  // the odometry does not cover it
 }
 
 TEST(PoseGraphTrajectory, OnePosePerTimestampAndConsecutivePosesLinked) {

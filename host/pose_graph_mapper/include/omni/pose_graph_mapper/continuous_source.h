@@ -15,6 +15,8 @@
 #include <deque>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -59,6 +61,10 @@ class OdometrySource final : public ContinuousPoseSource {
   // False (to be counted by the caller) when utime is older than the newest sample.
   bool AddSample(int64_t utime, const Pose2& odom_pose);
   std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const override;
+  // The odometry poses at t0, at every sample strictly inside (t0, t1) and at t1 (interpolated
+  // at the ends): the steps Between() composes. nullopt when [t0, t1] is not covered.
+  std::optional<std::vector<std::pair<int64_t, Pose2>>> Steps(int64_t t0_us, int64_t t1_us) const;
+  const OdometryNoise& noise() const { return noise_; }
   int64_t newest_utime() const { return samples_.empty() ? 0 : samples_.back().first; }
   int64_t oldest_utime() const { return samples_.empty() ? 0 : samples_.front().first; }
   bool empty() const { return samples_.empty(); }

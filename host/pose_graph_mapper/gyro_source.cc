@@ -1,0 +1,78 @@
+#include "omni/pose_graph_mapper/gyro_source.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace omni::pgm {
+
+bool GyroYawSource::AddSample(int64_t utime, double rate) {
+  if (!std::isfinite(rate)) return false;
+  if (!samples_.empty() && utime <= samples_.back().utime) return false;
+  double integral = 0.0;
+  if (!samples_.empty()) {
+    const Sample& last = samples_.back();
+    integral = last.integral +
+               0.5 * (last.rate + (rate - bias_)) * 1e-6 * static_cast<double>(utime - last.utime);
+  }
+  samples_.push_back({utime, rate - bias_, integral});
+  while (samples_.size() > capacity_) samples_.pop_front();
+  return true;
+}
+
+double GyroYawSource::IntegralAt(int64_t t) const {
+  const auto it = std::lower_bound(samples_.begin(), samples_.end(), t,
+                                   [](const Sample& s, int64_t v) { return s.utime < v; });
+  if (it->utime == t || it == samples_.begin()) return it->integral;
+  const Sample& a = *(it - 1);
+  const Sample& b = *it;
+  const double dt = 1e-6 * static_cast<double>(t - a.utime);
+  const double span = 1e-6 * static_cast<double>(b.utime - a.utime);
+  const double rate_t = a.rate + (b.rate - a.rate) * dt / span;
+  return a.integral + 0.5 * (a.rate + rate_t) * dt;
+}
+
+std::optional<GyroYawSource::Yaw> GyroYawSource::Between(int64_t t0, int64_t t1) const {
+  if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
+    return std::nullopt;
+  Yaw y;
+  y.delta_rad = IntegralAt(t1) - IntegralAt(t0);
+  y.variance = noise_.angle_var_per_s * 1e-6 * static_cast<double>(t1 - t0) +
+               noise_.angle_var_per_rad * std::abs(y.delta_rad);
+  return y;
+}
+
+std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1) const {
+  const auto steps = odometry_->Steps(t0, t1);
+  if (!steps) return std::nullopt;
+  const auto& pts = *steps;
+  const OdometryNoise& noise = odometry_->noise();
+  RelativeMotion m;
+  Eigen::Matrix3d a, b;
+  for (size_t k = 0; k + 1 < pts.size(); ++k) {
+    Pose2 step = pts[k].second.Between(pts[k + 1].second);
+    const double dist = std::hypot(step.x, step.y), rot = std::abs(step.theta);
+    const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
+    Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+    q(0, 0) = q(1, 1) =
+        noise.xy_var_per_m * dist + noise.xy_var_per_rad * rot + noise.xy_var_per_s * dt;
+    q(2, 2) =
+        noise.theta_var_per_m * dist + noise.theta_var_per_rad * rot + noise.theta_var_per_s * dt;
+    const auto yaw = gyro_->Between(pts[k].first, pts[k + 1].first);
+    if (yaw && q(2, 2) + yaw->variance > 0.0) {
+      // Weighted mean of the two heading changes (taken on the shortest arc between them), and
+      // the variance of that mean.
+      const double wo = 1.0 / std::max(q(2, 2), 1e-300), wg = 1.0 / std::max(yaw->variance, 1e-300);
+      step.theta = WrapAngle(step.theta + wg / (wo + wg) * WrapAngle(yaw->delta_rad - step.theta));
+      q(2, 2) = 1.0 / (wo + wg);
+      fused_.fetch_add(1, std::memory_order_relaxed);
+    } else if (pts[k + 1].first > pts[k].first) {
+      missing_.fetch_add(1, std::memory_order_relaxed);
+    }
+    ComposeJacobians(m.delta, step, &a, &b);
+    m.covariance = a * m.covariance * a.transpose() + b * q * b.transpose();
+    m.delta = m.delta * step;
+  }
+  return m;
+}
+
+}  // namespace omni::pgm

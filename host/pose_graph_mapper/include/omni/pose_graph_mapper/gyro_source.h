@@ -1,0 +1,78 @@
+// The IMU as a continuous pose source: the gyro's yaw rate, integrated, gives the heading change
+// between any two times. A gyro alone says nothing about translation, so it is used fused with
+// the wheel odometry: OdometryGyroSource walks the odometry's own steps (as OdometrySource does)
+// and replaces each step's heading change by the variance-weighted mean of the odometry's and the
+// gyro's over the same step. The translation of every step is the odometry's, turned by the fused
+// heading, so the drift of a wheel-odometry heading (slipping omni wheels, scale errors) stops
+// bending the path. Each step's fused variance is that of the weighted mean, so factors still
+// split step by step as continuous_source.h describes (exactly at odometry sample times).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+
+#include "omni/pose_graph_mapper/continuous_source.h"
+
+namespace omni::pgm {
+
+// Heading noise of the integrated gyro: variances linear in the step's duration (angle random
+// walk and bias uncertainty) and rotation (scale-factor error).
+struct GyroNoise {
+  double angle_var_per_s = 1e-5;    // rad^2 per second of integration
+  double angle_var_per_rad = 1e-4;  // rad^2 per radian turned
+};
+
+class GyroYawSource {
+ public:
+  // `bias_rad_s` is subtracted from every sample; `capacity` samples are kept (oldest dropped).
+  explicit GyroYawSource(GyroNoise noise = {}, double bias_rad_s = 0.0, size_t capacity = 200000)
+      : noise_(noise), bias_(bias_rad_s), capacity_(capacity) {}
+  // False (to be counted by the caller) for a non-finite rate or a time older than the newest
+  // sample; a repeated time replaces nothing and is also refused.
+  bool AddSample(int64_t utime, double yaw_rate_rad_s);
+  struct Yaw {
+    double delta_rad = 0;
+    double variance = 0;
+  };
+  // Heading change over [t0, t1] (the rate taken as linear between samples), nullopt when the
+  // samples do not cover the interval.
+  std::optional<Yaw> Between(int64_t t0_us, int64_t t1_us) const;
+  bool empty() const { return samples_.empty(); }
+  size_t size() const { return samples_.size(); }
+
+ private:
+  struct Sample {
+    int64_t utime;
+    double rate;      // rad/s, bias removed
+    double integral;  // rad, from the oldest sample ever kept to this one
+  };
+  double IntegralAt(int64_t utime) const;  // utime within the kept samples
+
+  GyroNoise noise_;
+  double bias_;
+  size_t capacity_;
+  std::deque<Sample> samples_;
+};
+
+// Wheel odometry with the gyro's heading fused in, step by step (see the top of this file).
+// Steps the gyro does not cover use the odometry alone and are counted (gyro_missing_steps()).
+class OdometryGyroSource final : public ContinuousPoseSource {
+ public:
+  // Both must outlive this source.
+  OdometryGyroSource(const OdometrySource* odometry, const GyroYawSource* gyro)
+      : odometry_(odometry), gyro_(gyro) {}
+  std::string name() const override { return "odometry+gyro"; }
+  std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const override;
+  uint64_t gyro_missing_steps() const { return missing_.load(std::memory_order_relaxed); }
+  uint64_t gyro_fused_steps() const { return fused_.load(std::memory_order_relaxed); }
+
+ private:
+  const OdometrySource* odometry_;
+  const GyroYawSource* gyro_;
+  mutable std::atomic<uint64_t> missing_{0}, fused_{0};
+};
+
+}  // namespace omni::pgm
