@@ -9,6 +9,7 @@
 #include <Eigen/LU>
 
 #include "omni/pose_graph_mapper/chi2.h"
+#include "omni/pose_graph_mapper/lie.h"
 
 namespace omni::pgm {
 namespace {
@@ -46,15 +47,23 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
         InRange(0, 100000));
   r.Get("loop_chi2_gate", &o.loop_chi2_gate, Optional(), NonNegative<double>());
   r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
+  r.Get("final_global_optimization", &o.final_global_optimization, Optional());
+  r.Get("interpolate_scan_poses", &o.interpolate_scan_poses, Optional());
   r.Get("loop_cooldown_keyframes", &o.loop_cooldown_keyframes, Optional(), InRange(0, 100000));
   r.Get("num_threads", &o.num_threads, Optional(), InRange(1, 64));
   ConfigReader m = r.Section("scan_match");
   m.Get("submap_keyframes", &o.match.submap_keyframes, Optional(), InRange(1, 100));
   m.Get("min_score", &o.match.min_score, Optional(), InRange(0.0, 1.0));
   m.Get("min_inlier_fraction", &o.match.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
+  m.Get("fill_gap_m", &o.match.fill_gap_m, Optional(), NonNegative<double>());
+  m.Get("reject_window_edge", &o.match.reject_window_edge, Optional());
   ConfigReader l = r.Section("loop_closure");
   l.Get("min_index_gap", &o.loop.min_index_gap, Optional(), InRange(1, 1000000));
   l.Get("search_radius_m", &o.loop.search_radius_m, Optional(), Positive<double>());
+  l.Get("window_growth_per_m", &o.loop.window_growth_per_m, Optional(), NonNegative<double>());
+  l.Get("max_window_m", &o.loop.max_window_m, Optional(), Positive<double>());
+  l.Get("fill_gap_m", &o.loop.fill_gap_m, Optional(), NonNegative<double>());
+  l.Get("submap_half_width", &o.loop.submap_half_width, Optional(), InRange(0, 1000));
   l.Get("max_candidates", &o.loop.max_candidates, Optional(), InRange(1, 100));
   l.Get("min_score", &o.loop.min_score, Optional(), InRange(0.0, 1.0));
   l.Get("min_inlier_fraction", &o.loop.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
@@ -204,6 +213,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   kf.points = std::move(points);
   keyframes_.push_back(std::move(kf));
   kf_scans_.push_back({scan});
+  kf_odom_.push_back(k == 0 ? Pose2() : motion.delta);
   kf_by_utime_[utime] = k;
   nodes_.push_back({utime, k, Pose2()});
   node_of_kf_.push_back(id);
@@ -468,15 +478,32 @@ void PoseGraphSlam::ResetWindow() {
 }
 
 void PoseGraphSlam::Finish() {
-  if (loops_pending_) OptimizeGlobal();
+  // The window after the last global optimisation holds its newest nodes to the scan-match
+  // chain (its links only, the oldest anchored): the loops into it are not in the window and
+  // their correction of those nodes is undone. A last solve of the whole graph restores it.
+  if (loops_pending_ || (o_.final_global_optimization && c_.loops_accepted > 0 &&
+                         last_global_keyframe_ < static_cast<int>(keyframes_.size()) - 1))
+    OptimizeGlobal();
 }
 
 std::vector<ScanPose> PoseGraphSlam::Trajectory() const {
   std::vector<ScanPose> out;
   out.reserve(scans_.size());
-  for (const auto& s : scans_)
-    out.push_back(
-        {s.scan_index, s.utime, keyframes_[static_cast<size_t>(s.keyframe)].estimate * s.delta});
+  // Motion "length" of a step, for the share of the correction: metres plus radians.
+  auto length = [](const Pose2& d) { return std::hypot(d.x, d.y) + std::abs(d.theta); };
+  for (const auto& s : scans_) {
+    const auto k = static_cast<size_t>(s.keyframe);
+    Pose2 pose = keyframes_[k].estimate * s.delta;
+    if (o_.interpolate_scan_poses && k + 1 < keyframes_.size()) {
+      // The correction C with estimate_k * odometry * C = estimate_{k+1}, applied in part.
+      const Pose2& odom = kf_odom_[k + 1];
+      const Pose2 c = (keyframes_[k].estimate * odom).Inverse() * keyframes_[k + 1].estimate;
+      const double total = length(odom);
+      const double f = total > 0 ? std::clamp(length(s.delta) / total, 0.0, 1.0) : 0.0;
+      pose = pose * ExpSE2(f * LogSE2(c));
+    }
+    out.push_back({s.scan_index, s.utime, pose});
+  }
   return out;
 }
 

@@ -32,17 +32,36 @@ RelativePoseFactor MakeFactor(const Keyframe& from, const Keyframe& to, const Ma
 }  // namespace
 
 std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
-                                         int last, int centre, double max_range_m) {
+                                         int last, int centre, double max_range_m,
+                                         double fill_gap_m, double fill_step_m) {
   std::vector<Eigen::Vector2d> out;
   const int n = static_cast<int>(keyframes.size());
   first = std::max(first, 0);
   last = std::min(last, n - 1);
   if (centre < 0 || centre >= n) return out;
   const Pose2 inv = keyframes[centre].estimate.Inverse();
+  const bool fill = fill_gap_m > 0 && fill_step_m > 0;
   for (int i = first; i <= last; ++i) {
     const Pose2 rel = inv * keyframes[i].estimate;
-    for (const auto& p : keyframes[i].points)
-      if (p.norm() <= max_range_m) out.push_back(rel.Transform(p));
+    const Eigen::Vector2d* prev = nullptr;
+    for (const auto& p : keyframes[i].points) {
+      if (p.norm() > max_range_m) {
+        prev = nullptr;
+        continue;
+      }
+      if (fill && prev) {
+        // Points between two neighbouring end points closer than fill_gap_m: the surface they
+        // both lie on, sampled every fill_step_m.
+        const double gap = (p - *prev).norm();
+        if (gap <= fill_gap_m) {
+          const int steps = static_cast<int>(gap / fill_step_m);
+          for (int s = 1; s < steps; ++s)
+            out.push_back(rel.Transform(*prev + (p - *prev) * (s / static_cast<double>(steps))));
+        }
+      }
+      out.push_back(rel.Transform(p));
+      prev = &p;
+    }
   }
   return out;
 }
@@ -58,7 +77,8 @@ std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
     Count("empty_scan");
     return out;
   }
-  const auto submap = BuildSubmap(keyframes, cur - o_.submap_keyframes, prev, prev, o_.max_range_m);
+  const auto submap = BuildSubmap(keyframes, cur - o_.submap_keyframes, prev, prev, o_.max_range_m,
+                                  o_.fill_gap_m, o_.field.resolution_m);
   if (submap.empty()) {
     Count("empty_submap");
     return out;
@@ -70,6 +90,10 @@ std::vector<RelativePoseFactor> KeyframeMatchPlugin::OnKeyframe(
   last_ = MatchScan(field, query, guess, w);
   if (last_.score < o_.min_score || last_.inlier_fraction < o_.min_inlier_fraction) {
     Count("no_match");
+    return out;
+  }
+  if (o_.reject_window_edge && last_.on_window_edge) {
+    Count("window_edge");
     return out;
   }
   Count("accepted");
@@ -113,8 +137,9 @@ std::shared_ptr<const LikelihoodField> LoopClosurePlugin::FindField(const Cached
 
 std::shared_ptr<const LikelihoodField> LoopClosurePlugin::BuildField(
     const std::vector<Keyframe>& keyframes, int candidate) const {
-  const auto submap = BuildSubmap(keyframes, candidate - o_.submap_half_width,
-                                  candidate + o_.submap_half_width, candidate, o_.max_range_m);
+  const auto submap =
+      BuildSubmap(keyframes, candidate - o_.submap_half_width, candidate + o_.submap_half_width,
+                  candidate, o_.max_range_m, o_.fill_gap_m, o_.field.resolution_m);
   if (submap.empty()) return nullptr;
   return std::make_shared<const LikelihoodField>(submap, o_.field);
 }
@@ -127,12 +152,13 @@ void LoopClosurePlugin::CacheField(CachedField entry) {
 
 LoopAttempt LoopClosurePlugin::Verify(const std::vector<Keyframe>& keyframes, int candidate,
                                       const LikelihoodField& field,
-                                      const std::vector<Eigen::Vector2d>& query) const {
+                                      const std::vector<Eigen::Vector2d>& query,
+                                      const SearchWindow& window) const {
   LoopAttempt at;
   at.candidate = candidate;
   const int cur = static_cast<int>(keyframes.size()) - 1;
   const Pose2 guess = keyframes[candidate].estimate.Between(keyframes[cur].estimate);
-  SearchWindow w = o_.window;
+  SearchWindow w = window;
   w.min_score = o_.min_score;
   at.match = MatchScan(field, query, guess, w);
   if (at.match.score < o_.min_score) {
@@ -169,7 +195,7 @@ LoopAttempt LoopClosurePlugin::TryCandidate(const std::vector<Keyframe>& keyfram
     at.reason = "empty_scan";
     return at;
   }
-  return Verify(keyframes, candidate, *field, query);
+  return Verify(keyframes, candidate, *field, query, o_.window);
 }
 
 std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
@@ -177,13 +203,28 @@ std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
   std::vector<RelativePoseFactor> out;
   attempts_.clear();
   const int cur = static_cast<int>(keyframes.size()) - 1;
+  last_window_m_ = o_.window.x_m;
   if (cur < o_.min_index_gap) return out;
+  // The window grows with the path travelled since the last accepted loop.
+  SearchWindow window = o_.window;
+  double grow = 0;
+  if (o_.window_growth_per_m > 0) {
+    double path = 0;
+    for (int i = std::min(last_loop_keyframe_, cur) + 1; i <= cur; ++i)
+      path +=
+          (keyframes[i].estimate.translation() - keyframes[i - 1].estimate.translation()).norm();
+    const double widest = std::max(o_.max_window_m, std::max(window.x_m, window.y_m));
+    grow = std::min(o_.window_growth_per_m * path, widest - std::min(window.x_m, window.y_m));
+    window.x_m = std::min(window.x_m + grow, widest);
+    window.y_m = std::min(window.y_m + grow, widest);
+  }
+  last_window_m_ = window.x_m;
   // Candidates far back in the trajectory and near the current estimate, nearest first.
   std::vector<std::pair<double, int>> cands;
   const Eigen::Vector2d here = keyframes[cur].estimate.translation();
   for (int i = 0; i <= cur - o_.min_index_gap; ++i) {
     const double d = (keyframes[i].estimate.translation() - here).norm();
-    if (d <= o_.search_radius_m) cands.emplace_back(d, i);
+    if (d <= o_.search_radius_m + grow) cands.emplace_back(d, i);
   }
   std::sort(cands.begin(), cands.end());
   if (static_cast<int>(cands.size()) > o_.max_candidates) cands.resize(o_.max_candidates);
@@ -219,7 +260,7 @@ std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
         job.at.reason = "empty_scan";
         continue;
       }
-      job.at = Verify(keyframes, c, *job.entry.field, query);
+      job.at = Verify(keyframes, c, *job.entry.field, query, window);
     }
   };
   const size_t threads = std::min(jobs.size(), static_cast<size_t>(std::max(1, o_.num_threads)));
@@ -238,6 +279,7 @@ std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
     if (at.accepted)
       out.push_back(MakeFactor(keyframes[cands[j].second], keyframes[cur], at.match, name()));
   }
+  if (!out.empty()) last_loop_keyframe_ = cur;
   return out;
 }
 

@@ -82,12 +82,34 @@ struct PoseGraphSlamOptions {
   double loop_chi2_gate = 0;
   int loop_every_keyframes = 1;     // loop closure tried on every k-th keyframe
   int loop_cooldown_keyframes = 5;  // no loop attempts for this many after an accepted one
+  // Finish() optimises the whole graph once more when loops were closed and keyframes were
+  // added since the last global optimisation (the window had undone the loops' correction of
+  // its nodes); false: only when loops are pending.
+  bool final_global_optimization = true;
+  // Trajectory(): a scan between keyframes k and k + 1 follows k by odometry, plus the share of
+  // the correction that closes the gap to k + 1's estimate proportional to the odometry motion
+  // covered (false: it follows keyframe k only, and the poses jump at every keyframe).
+  bool interpolate_scan_poses = true;
   int num_threads = 2;
-  KeyframeMatchOptions match;
+  // The mapper's matchers differ from the plugins' defaults (docs/posegraph.md, "Sparse logs"):
+  // submaps follow the surfaces between neighbouring beams, a keyframe match whose optimum is
+  // on its window's edge is dropped, and the loop search covers 5 keyframes either side of the
+  // candidate in a window that grows with the path since the last loop.
+  KeyframeMatchOptions match = [] {
+    KeyframeMatchOptions m;
+    m.fill_gap_m = 0.5;
+    m.reject_window_edge = true;
+    return m;
+  }();
   // Loop-closure candidates are matched on 2 threads here (the plugin's default is 1).
   LoopClosureOptions loop = [] {
     LoopClosureOptions l;
     l.num_threads = 2;
+    l.submap_half_width = 5;
+    l.fill_gap_m = 0.5;
+    l.min_score = 0.78;
+    l.window_growth_per_m = 0.03;
+    l.max_window_m = 8.0;
     return l;
   }();
 
@@ -226,6 +248,7 @@ class PoseGraphSlam {
   int64_t last_scan_utime_ = INT64_MIN;
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;
+  std::vector<Pose2> kf_odom_;  // odometry from the previous keyframe (identity for the first)
   std::map<int64_t, int> kf_by_utime_;  // keyframe index by time
   std::vector<Node> nodes_;             // by node id
   std::vector<int> node_of_kf_;         // keyframe index -> node id

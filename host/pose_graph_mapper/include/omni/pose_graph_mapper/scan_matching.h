@@ -117,6 +117,9 @@ struct MatchResult {
   long evaluated = 0;            // fine candidates scored (for the search-effort figures)
   long bounded = 0;              // coarse blocks scored
   bool below_min_score = false;  // no candidate reached SearchWindow::min_score (score = 0)
+  // The best discrete candidate lies on the window's boundary (x, y or theta): the score may
+  // still rise outside the window, so the optimum may not have been found.
+  bool on_window_edge = false;
 };
 
 // Matches `query` (points in the query's own frame) against the field. `query` must not be

@@ -20,8 +20,13 @@ namespace omni::pgm {
 
 // The points of keyframes [first, last] mapped into the frame of keyframe `centre` with the
 // current estimates. Points farther than `max_range_m` from their own keyframe are dropped.
+// With fill_gap_m > 0, two consecutive points of one keyframe (neighbouring beams) at most
+// fill_gap_m apart are joined by points every fill_step_m (at most): the field then follows the
+// surface instead of having a bump per beam end (sparse beams along a corridor wall otherwise
+// give false optima along it).
 std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
-                                         int last, int centre, double max_range_m);
+                                         int last, int centre, double max_range_m,
+                                         double fill_gap_m = 0, double fill_step_m = 0);
 
 inline LikelihoodFieldOptions FieldWithMargin(double margin_m) {
   LikelihoodFieldOptions o;
@@ -34,6 +39,10 @@ struct KeyframeMatchOptions {
   double max_range_m = 20.0;  // beams longer than this are ignored
   double min_score = 0.35;    // below: "no match"
   double min_inlier_fraction = 0.4;
+  double fill_gap_m = 0;  // submap: neighbouring end points this close joined (BuildSubmap)
+  // A match whose best candidate lies on the window's boundary gives no factor ("window_edge"):
+  // the scan fits better outside the window, far from the odometry guess.
+  bool reject_window_edge = false;
   LikelihoodFieldOptions field;
   SearchWindow window = MakeSearchWindow(0.3, 0.17);
 };
@@ -56,6 +65,7 @@ struct LoopClosureOptions {
   int max_candidates = 3;        // nearest candidates tried per keyframe
   int submap_half_width = 2;     // submap = candidate +- this many keyframes
   double max_range_m = 20.0;
+  double fill_gap_m = 0;  // submap: neighbouring end points this close joined (BuildSubmap)
   // Verification.
   // Defaults from the Intel tests (plugin_test.cc): true revisits score >= 0.79 with >= 84 % of
   // beams matched, the best false loop (a similar corridor) 0.68 / 72 %.
@@ -67,6 +77,13 @@ struct LoopClosureOptions {
   // are scored without bounds checks (the scores are the same; only the zero border grows).
   LikelihoodFieldOptions field = FieldWithMargin(2.5);
   SearchWindow window = MakeSearchWindow(2.0, 0.5);
+  // The drift the search must cover grows with the path travelled since the robot's pose was
+  // last tied to the old map: the path length (sum of the keyframe estimates' steps) since the
+  // last accepted loop, or since the first keyframe before any, times this rate widens the
+  // window's x and y half-widths and the candidate radius (0: fixed window and radius). The
+  // half-width is capped at max_window_m; the candidate radius grows by the same amount.
+  double window_growth_per_m = 0;
+  double max_window_m = 2.0;
   // Likelihood fields of the most recent candidates' submaps kept for reuse: consecutive
   // keyframes near one place try the same old keyframes, whose submap is unchanged until a
   // global optimisation moves them. A field is reused only when the submap's keyframes (times,
@@ -96,6 +113,8 @@ class LoopClosurePlugin final : public MeasurementPlugin {
   // Checks one candidate against the newest keyframe (also used by OnKeyframe).
   LoopAttempt TryCandidate(const std::vector<Keyframe>& keyframes, int candidate);
   const std::vector<LoopAttempt>& last_attempts() const { return attempts_; }
+  // The x/y half-width of the last OnKeyframe's search window (window.x_m until it grows).
+  double last_window_m() const { return last_window_m_; }
 
  private:
   // A candidate submap's field and what it was built from (see field_cache_size).
@@ -113,9 +132,12 @@ class LoopClosurePlugin final : public MeasurementPlugin {
   void CacheField(CachedField entry);
   // Matches and verifies the query against a candidate's field; const, for the worker threads.
   LoopAttempt Verify(const std::vector<Keyframe>& keyframes, int candidate,
-                     const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query) const;
+                     const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+                     const SearchWindow& window) const;
 
   LoopClosureOptions o_;
+  int last_loop_keyframe_ = 0;  // newest keyframe with an accepted loop (0 before any)
+  double last_window_m_ = 0;
   std::vector<LoopAttempt> attempts_;
   std::vector<CachedField> cache_;  // most recently used last
 };
