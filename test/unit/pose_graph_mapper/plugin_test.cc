@@ -232,6 +232,84 @@ TEST(PoseGraphPlugins, KeyframePluginSyntheticFactor) {
   EXPECT_NEAR(g[0].delta.theta, truth.theta, 0.05 * kDeg);
 }
 
+// The truth lies outside the window (0.5 m off in x, window +-0.3 m): the answer stays inside
+// the window (the polish is bounded to it, plus one step), the optimum is flagged as on the
+// window's edge, and the keyframe plugin told to drop such matches gives no factor.
+TEST(PoseGraphPlugins, MatchOutsideTheWindowStaysInsideAndIsFlagged) {
+  const auto room = Room();
+  const LikelihoodField field(room, {});
+  const Pose2 truth(0.5, 0.0, 0.0);
+  const auto query = Transformed(room, truth.Inverse());
+  const SearchWindow w = MakeSearchWindow(0.3, 0.17);
+  const MatchResult m = MatchScan(field, query, Pose2(), w);
+  EXPECT_TRUE(m.on_window_edge);
+  EXPECT_LE(std::abs(m.pose.x), 0.3 + 0.05 + 1e-9);
+  EXPECT_LE(std::abs(m.pose.y), 0.3 + 0.05 + 1e-9);
+  EXPECT_LE(std::abs(m.pose.theta), 0.17 + w.angle_step_rad + 1e-9);
+  // Inside the window the optimum is not on the edge.
+  EXPECT_FALSE(
+      MatchScan(field, Transformed(room, Pose2(0.1, 0, 0).Inverse()), Pose2(), w).on_window_edge);
+
+  std::vector<Keyframe> kfs(2);
+  kfs[0].points = room;
+  kfs[1].utime = 1;
+  kfs[1].points = query;  // estimate at the origin: the guess is 0.5 m off
+  KeyframeMatchOptions o;
+  o.reject_window_edge = true;
+  KeyframeMatchPlugin p(o);
+  EXPECT_TRUE(p.OnKeyframe(kfs).empty());
+  EXPECT_EQ(p.counters().at("window_edge"), 1);
+  KeyframeMatchPlugin keep;  // the plugin's default keeps such a match
+  EXPECT_EQ(keep.OnKeyframe(kfs).size(), 1u);
+}
+
+// Neighbouring end points at most fill_gap_m apart are joined by points about fill_step_m
+// apart; farther ones (a depth jump) and points beyond the range are not.
+TEST(PoseGraphPlugins, SubmapFillsGapsBetweenNeighbouringBeams) {
+  std::vector<Keyframe> kfs(1);
+  kfs[0].points = {{1, 0}, {1, 0.5}, {1, 1.75}, {30, 0}};
+  EXPECT_EQ(BuildSubmap(kfs, 0, 0, 0, 20.0).size(), 3u);
+  const auto filled = BuildSubmap(kfs, 0, 0, 0, 20.0, 0.6, 0.125);
+  // The 0.5 m gap: 3 points between (4 steps of 0.125 m); the 1.25 m gap is left open.
+  ASSERT_EQ(filled.size(), 3u + 3u);
+  const std::vector<double> ys = {0, 0.125, 0.25, 0.375, 0.5, 1.75};
+  for (size_t i = 0; i < filled.size(); ++i) {
+    EXPECT_NEAR(filled[i].x(), 1.0, 1e-12);
+    EXPECT_NEAR(filled[i].y(), ys[i], 1e-12);
+  }
+}
+
+// The loop search window and candidate radius grow with the path since the last accepted loop
+// (since the first keyframe before any), up to max_window_m.
+TEST(PoseGraphPlugins, LoopWindowGrowsWithThePathSinceTheLastLoop) {
+  std::vector<Keyframe> kfs;
+  for (int i = 0; i < 60; ++i) {
+    Keyframe k;
+    k.utime = i;
+    k.estimate = Pose2(0.5 * i, 0, 0);  // 29.5 m of path to the newest
+    k.points = Room();
+    kfs.push_back(k);
+  }
+  LoopClosureOptions o;
+  o.min_index_gap = 50;
+  o.search_radius_m = 0.1;  // no candidate without the growth
+  LoopClosurePlugin fixed(o);
+  fixed.OnKeyframe(kfs);
+  EXPECT_DOUBLE_EQ(fixed.last_window_m(), 2.0);
+  EXPECT_TRUE(fixed.last_attempts().empty());
+  o.window_growth_per_m = 0.1;
+  o.max_window_m = 8.0;
+  LoopClosurePlugin grown(o);
+  grown.OnKeyframe(kfs);
+  EXPECT_NEAR(grown.last_window_m(), 2.0 + 0.1 * 29.5, 1e-9);
+  // The radius grew by 2.95 m: keyframes 0..9 are 25.5 m or more away, none within 3.05 m.
+  EXPECT_TRUE(grown.last_attempts().empty());
+  o.window_growth_per_m = 1.0;  // capped
+  LoopClosurePlugin capped(o);
+  capped.OnKeyframe(kfs);
+  EXPECT_DOUBLE_EQ(capped.last_window_m(), 8.0);
+}
+
 TEST(PoseGraphPlugins, KeyframePluginCountsPoorMatch) {
   // The new scan sees a round room, the submap a rectangular one: no factor, counted.
   std::vector<Keyframe> kfs(2);

@@ -21,9 +21,9 @@ namespace omni::pgm {
 // The points of keyframes [first, last] mapped into the frame of keyframe `centre` with the
 // current estimates. Points farther than `max_range_m` from their own keyframe are dropped.
 // With fill_gap_m > 0, two consecutive points of one keyframe (neighbouring beams) at most
-// fill_gap_m apart are joined by points every fill_step_m (at most): the field then follows the
-// surface instead of having a bump per beam end (sparse beams along a corridor wall otherwise
-// give false optima along it).
+// fill_gap_m apart are joined by points about fill_step_m apart (the gap split into
+// floor(gap / fill_step_m) equal steps): the field then follows the surface instead of having a
+// bump per beam end (sparse beams along a corridor wall otherwise give false optima along it).
 std::vector<Eigen::Vector2d> BuildSubmap(const std::vector<Keyframe>& keyframes, int first,
                                          int last, int centre, double max_range_m,
                                          double fill_gap_m = 0, double fill_step_m = 0);
