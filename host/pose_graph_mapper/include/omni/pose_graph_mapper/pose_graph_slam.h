@@ -110,6 +110,7 @@ struct PoseGraphSlamOptions {
     l.min_score = 0.78;
     l.window_growth_per_m = 0.03;
     l.max_window_m = 8.0;
+    l.field_cache_size = 4;  // the +-5-keyframe filled fields cost enough for the cache to pay
     return l;
   }();
 
