@@ -81,7 +81,7 @@ struct PoseGraphSlamOptions {
   // it is removed (counted in loops_inconsistent) and the graph optimised again. 0 disables.
   double loop_chi2_gate = 0;
   int loop_every_keyframes = 1;     // loop closure tried on every k-th keyframe
-  int loop_cooldown_keyframes = 5;  // no loop attempts for this many after an accepted one
+  int loop_cooldown_keyframes = 2;  // no loop attempts for this many after an accepted one
   // Finish() optimises the whole graph once more when loops were closed and keyframes were
   // added since the last global optimisation (the window had undone the loops' correction of
   // its nodes); false: only when loops are pending.
