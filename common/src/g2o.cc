@@ -1,9 +1,9 @@
 #include "omni/io/g2o.h"
 
+#include <charconv>
 #include <fstream>
-#include <iomanip>
 #include <set>
-#include <sstream>
+#include <string_view>
 #include <unordered_set>
 
 #include <Eigen/Cholesky>
@@ -38,6 +38,49 @@ Eigen::Matrix3d RollPitchYaw(double roll, double pitch, double yaw) {
       .toRotationMatrix();
 }
 
+// Whitespace-separated fields of one line, parsed with std::from_chars (locale-free and several
+// times faster than an istringstream per line; a 3D graph of 6000 edges is 170 000 numbers).
+// A field must be a number as a whole: "3.5" is not an id, "1.2abc" not a value.
+class Fields {
+ public:
+  explicit Fields(std::string_view line) : rest_(line) {}
+  bool Next(std::string_view* out) {
+    size_t i = 0;
+    while (i < rest_.size() && IsSpace(rest_[i])) ++i;
+    size_t j = i;
+    while (j < rest_.size() && !IsSpace(rest_[j])) ++j;
+    *out = rest_.substr(i, j - i);
+    rest_.remove_prefix(j);
+    return !out->empty();
+  }
+  template <class T>
+  bool Number(T* v) {
+    std::string_view f;
+    if (!Next(&f)) return false;
+    const char* end = f.data() + f.size();
+    const auto [ptr, ec] = std::from_chars(f.data(), end, *v);
+    return ec == std::errc() && ptr == end;
+  }
+
+ private:
+  static bool IsSpace(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\n'; }
+  std::string_view rest_;
+};
+
+// `v` as printf("%.12g") would write it (what the writer always used), appended to `out`.
+void AppendNumber(std::string* out, double v) {
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v, std::chars_format::general, 12);
+  out->push_back(' ');
+  out->append(buf, r.ptr);
+}
+void AppendNumber(std::string* out, int v) {
+  char buf[16];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+  out->push_back(' ');
+  out->append(buf, r.ptr);
+}
+
 }  // namespace
 
 Result<PoseGraph> ReadPoseGraph(const std::string& path) {
@@ -53,22 +96,22 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
   std::unordered_set<int> ids2, ids3;
   while (std::getline(in, line)) {
     ++lineno;
-    std::istringstream ss(line);
-    std::string tag;
-    if (!(ss >> tag) || tag[0] == '#') continue;
-    const std::string where = name + ":" + std::to_string(lineno) + ": ";
+    Fields ss(line);
+    std::string_view tag;
+    if (!ss.Next(&tag) || tag[0] == '#') continue;
     auto bad = [&](const std::string& why) {
-      return MakeError(ErrorCode::kParse, where + tag + ": " + why);
+      return MakeError(ErrorCode::kParse,
+                       name + ":" + std::to_string(lineno) + ": " + std::string(tag) + ": " + why);
     };
     auto read = [&](double* v, int n) {
       for (int i = 0; i < n; ++i)
-        if (!(ss >> v[i]) || !std::isfinite(v[i])) return false;
+        if (!ss.Number(&v[i]) || !std::isfinite(v[i])) return false;
       return true;
     };
     if (tag == "VERTEX_SE2" || tag == "VERTEX2") {
       Vertex2 v;
       double p[3];
-      if (!(ss >> v.id) || !read(p, 3)) return bad("expected id x y theta");
+      if (!ss.Number(&v.id) || !read(p, 3)) return bad("expected id x y theta");
       if (!ids2.insert(v.id).second)
         return bad("vertex id " + std::to_string(v.id) + " defined twice");
       v.pose = Pose2(p[0], p[1], p[2]);
@@ -77,7 +120,7 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
       Edge2 e;
       e.line = lineno;
       double p[9];
-      if (!(ss >> e.from >> e.to) || !read(p, 9))
+      if (!ss.Number(&e.from) || !ss.Number(&e.to) || !read(p, 9))
         return bad("expected from to dx dy dtheta and 6 information values");
       e.measurement = Pose2(p[0], p[1], p[2]);
       if (tag == "EDGE_SE2") {
@@ -94,7 +137,7 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
     } else if (tag == "VERTEX_SE3:QUAT") {
       Vertex3 v;
       double p[7];
-      if (!(ss >> v.id) || !read(p, 7)) return bad("expected id x y z qx qy qz qw");
+      if (!ss.Number(&v.id) || !read(p, 7)) return bad("expected id x y z qx qy qz qw");
       if (!ids3.insert(v.id).second)
         return bad("vertex id " + std::to_string(v.id) + " defined twice");
       Eigen::Quaterniond q(p[6], p[3], p[4], p[5]);
@@ -105,7 +148,7 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
     } else if (tag == "VERTEX3") {
       Vertex3 v;
       double p[6];
-      if (!(ss >> v.id) || !read(p, 6)) return bad("expected id x y z roll pitch yaw");
+      if (!ss.Number(&v.id) || !read(p, 6)) return bad("expected id x y z roll pitch yaw");
       if (!ids3.insert(v.id).second)
         return bad("vertex id " + std::to_string(v.id) + " defined twice");
       v.pose.linear() = RollPitchYaw(p[3], p[4], p[5]);
@@ -118,7 +161,7 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
       const int np = quat ? 7 : 6;
       double p[7];
       double info[21];
-      if (!(ss >> e.from >> e.to) || !read(p, np) || !read(info, 21))
+      if (!ss.Number(&e.from) || !ss.Number(&e.to) || !read(p, np) || !read(info, 21))
         return bad("expected from to, the relative pose and 21 information values");
       if (quat) {
         Eigen::Quaterniond q(p[6], p[3], p[4], p[5]);
@@ -134,9 +177,10 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
       g.edges3.push_back(e);
     } else if (tag == "FIX") {
       int id;
-      while (ss >> id) g.fixed.push_back(id);
+      while (ss.Number(&id)) g.fixed.push_back(id);
     } else {
-      return MakeError(ErrorCode::kParse, where + "unknown tag '" + tag + "'");
+      return MakeError(ErrorCode::kParse, name + ":" + std::to_string(lineno) + ": unknown tag '" +
+                                              std::string(tag) + "'");
     }
   }
   if (!g.vertices2.empty() && !g.vertices3.empty())
@@ -178,39 +222,52 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
 Status WriteG2o(const std::string& path, const PoseGraph& g) {
   const std::string tmp = path + ".tmp";
   {
-    std::ofstream out(tmp);
+    std::ofstream out(tmp, std::ios::binary);
     if (!out) return MakeError(ErrorCode::kIo, "cannot write '" + tmp + "'");
-    out << std::setprecision(12);
-    for (const auto& v : g.vertices2)
-      out << "VERTEX_SE2 " << v.id << ' ' << v.pose.x << ' ' << v.pose.y << ' ' << v.pose.theta
-          << '\n';
+    std::string text;
+    text.reserve(64 * (g.vertices2.size() + g.vertices3.size()) + 160 * g.edges2.size() +
+                 400 * g.edges3.size());
+    for (const auto& v : g.vertices2) {
+      text += "VERTEX_SE2";
+      AppendNumber(&text, v.id);
+      for (double x : {v.pose.x, v.pose.y, v.pose.theta}) AppendNumber(&text, x);
+      text += '\n';
+    }
     for (const auto& e : g.edges2) {
-      out << "EDGE_SE2 " << e.from << ' ' << e.to << ' ' << e.measurement.x << ' '
-          << e.measurement.y << ' ' << e.measurement.theta;
+      text += "EDGE_SE2";
+      AppendNumber(&text, e.from);
+      AppendNumber(&text, e.to);
+      for (double x : {e.measurement.x, e.measurement.y, e.measurement.theta})
+        AppendNumber(&text, x);
       for (int r = 0; r < 3; ++r)
-        for (int c = r; c < 3; ++c) out << ' ' << e.information(r, c);
-      out << '\n';
+        for (int c = r; c < 3; ++c) AppendNumber(&text, e.information(r, c));
+      text += '\n';
     }
     for (const auto& v : g.vertices3) {
       const Eigen::Quaterniond q(v.pose.linear());
       const Eigen::Vector3d t = v.pose.translation();
-      out << "VERTEX_SE3:QUAT " << v.id << ' ' << t.x() << ' ' << t.y() << ' ' << t.z() << ' '
-          << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w() << '\n';
+      text += "VERTEX_SE3:QUAT";
+      AppendNumber(&text, v.id);
+      for (double x : {t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w()}) AppendNumber(&text, x);
+      text += '\n';
     }
     for (const auto& e : g.edges3) {
       const Eigen::Quaterniond q(e.measurement.linear());
       const Eigen::Vector3d t = e.measurement.translation();
-      out << "EDGE_SE3:QUAT " << e.from << ' ' << e.to << ' ' << t.x() << ' ' << t.y() << ' '
-          << t.z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w();
+      text += "EDGE_SE3:QUAT";
+      AppendNumber(&text, e.from);
+      AppendNumber(&text, e.to);
+      for (double x : {t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w()}) AppendNumber(&text, x);
       for (int r = 0; r < 6; ++r)
-        for (int c = r; c < 6; ++c) out << ' ' << e.information(r, c);
-      out << '\n';
+        for (int c = r; c < 6; ++c) AppendNumber(&text, e.information(r, c));
+      text += '\n';
     }
     if (!g.fixed.empty()) {
-      out << "FIX";
-      for (int id : g.fixed) out << ' ' << id;
-      out << '\n';
+      text += "FIX";
+      for (int id : g.fixed) AppendNumber(&text, id);
+      text += '\n';
     }
+    out.write(text.data(), static_cast<std::streamsize>(text.size()));
     if (!out) return MakeError(ErrorCode::kIo, "write to '" + tmp + "' failed");
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0)
