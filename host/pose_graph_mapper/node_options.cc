@@ -11,6 +11,7 @@ Result<PoseGraphNodeOptions> PoseGraphNodeOptions::Load(ConfigReader& r) {
   r.Get("trajectory_channel", &o.trajectory_channel, Optional(), NonEmpty());
   r.Get("map_frame", &o.map_frame, Optional(), NonEmpty());
   r.Get("absolute_channel", &o.absolute_channel, Optional());
+  r.Get("imu_channel", &o.imu_channel, Optional(), NonEmpty());
   r.Get("max_odom_wait_s", &o.max_odom_wait_s, Optional(), InRange(0.0, 60.0));
   r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), NonNegative<double>());
   r.Get("trajectory_publish_interval_s", &o.trajectory_publish_interval_s, Optional(),

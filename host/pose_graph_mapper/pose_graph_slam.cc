@@ -39,6 +39,11 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   n.Get("theta_var_per_s", &o.odometry_noise.theta_var_per_s, Optional(), Positive<double>());
   r.Get("scan_match_information_scale", &o.scan_match_information_scale, Optional(),
         Positive<double>());
+  ConfigReader g = r.Section("gyro");
+  g.Get("enabled", &o.use_gyro, Optional());
+  g.Get("angle_var_per_s", &o.gyro_noise.angle_var_per_s, Optional(), Positive<double>());
+  g.Get("angle_var_per_rad", &o.gyro_noise.angle_var_per_rad, Optional(), NonNegative<double>());
+  g.Get("bias_rad_s", &o.gyro_bias_rad_s, Optional());
   r.Get("global_loss", &o.global_loss, Optional(), OneOf({"none", "huber", "cauchy"}));
   r.Get("global_loss_scale", &o.global_loss_scale, Optional(), Positive<double>());
   r.Get("global_max_iterations", &o.global_max_iterations, Optional(), InRange(1, 10000));
@@ -116,6 +121,7 @@ PoseGraphSlam::PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOpt
       batch_(batch),
       clock_(clock),
       odom_(options.odometry_noise),
+      gyro_(options.gyro_noise, options.gyro_bias_rad_s),
       match_(options.match),
       loop_(options.loop) {
   ResetWindow();
@@ -154,6 +160,15 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
   last_corrected_ = corrected;
 }
 
+bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {
+  ++c_.imu_in;
+  if (!gyro_.AddSample(utime, rate)) {
+    ++c_.imu_rejected;
+    return false;
+  }
+  return true;
+}
+
 bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   ++c_.scans_in;
   if (scan.utime < last_scan_utime_) {
@@ -180,7 +195,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
       ++c_.scans_no_odom;
       return false;
     }
-    auto m = odom_.Between(kt, t);
+    auto m = Motion().Between(kt, t);
     if (!m) {
       ++c_.scans_no_odom;
       return false;
@@ -359,8 +374,8 @@ AbsoluteOutcome PoseGraphSlam::ApplyAbsolute(int64_t utime, const Pose2& z,
     return l.kind == LinkKind::kOdometry && l.from == a && l.to == b;
   });
   if (link == links_.end()) return reject();
-  const auto before = odom_.Between(prev->first, utime);
-  const auto after = odom_.Between(utime, next->first);
+  const auto before = Motion().Between(prev->first, utime);
+  const auto after = Motion().Between(utime, next->first);
   if (!before || !after) return reject();
   if (!window_->RemoveRelative(a, b, link->z)) return reject();
   const int id = static_cast<int>(nodes_.size());
@@ -528,6 +543,7 @@ std::map<std::string, int64_t> PoseGraphSlam::PluginCounters() const {
   std::map<std::string, int64_t> out;
   for (const auto& [k, v] : match_.counters()) out["scan_match." + k] = v;
   for (const auto& [k, v] : loop_.counters()) out["loop_closure." + k] = v;
+  if (o_.use_gyro) out["gyro.missing_steps"] = static_cast<int64_t>(fused_.gyro_missing_steps());
   return out;
 }
 

@@ -72,6 +72,9 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
                "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld",
                ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced),
                ll(c.absolute_queued), ll(c.absolute_rejected), ll(c.absolute_invalid));
+  std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",
+               ll(c.imu_in), ll(c.imu_rejected),
+               ll(static_cast<int64_t>(slam.gyro_missing_steps())));
   for (const auto& [k, v] : info.extra)
     std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));
   std::fprintf(f, "}\n");

@@ -133,6 +133,9 @@ int main(int argc, char** argv) {
     return !(max_scans >= 0 && scans >= max_scans);
   };
   handlers.odom = [&](int64_t utime, const omni::Pose2& p) { slam.AddOdometry(utime, p); };
+  // The gyro (an LCM log's IMU channel) is read only when the config enables it.
+  if (opt.use_gyro)
+    handlers.imu = [&](int64_t utime, double rate) { slam.AddImuYawRate(utime, rate); };
   auto read = omni::bus::ReadSlamLog(input, omni::bus::SlamLogChannels{}, handlers);
   if (!read.ok()) {
     std::fprintf(stderr, "omni-posegraph-slam: %s\n", read.error().message.c_str());

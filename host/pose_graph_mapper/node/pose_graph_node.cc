@@ -8,6 +8,7 @@
 
 #include "omni/bus/convert.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/imu_t.hpp"
 #include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
@@ -47,6 +48,12 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
     it.odom = Pose2(m.x_m, m.y_m, m.yaw_rad);
     OnMessage(std::move(it));
   });
+  if (slam.use_gyro)
+    // The gyro buffer is ordered by time on its own, so samples go straight in (no queue):
+    // a scan waiting for odometry then finds the gyro ahead of it.
+    bus_->Subscribe<omni::imu_t>(o_.imu_channel, [this](const omni::imu_t& m, int64_t) {
+      (void)slam_.AddImuYawRate(m.utime, m.angular_velocity_rad_s[2]);
+    });
   if (!o_.absolute_channel.empty())
     bus_->Subscribe<omni::pose2d_t>(o_.absolute_channel, [this](const omni::pose2d_t& m, int64_t) {
       if (!m.frame.empty() && m.frame != o_.map_frame) {
@@ -91,6 +98,12 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("window_failures", [&c] { return c.window_failures; });
   heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
   heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
+  if (slam.use_gyro) {
+    heartbeat_.AddCounter("imu_in", [&c] { return c.imu_in; });
+    heartbeat_.AddCounter("imu_rejected", [&c] { return c.imu_rejected; });
+    heartbeat_.AddCounter("gyro_missing_steps",
+                          [this] { return static_cast<int64_t>(slam_.gyro_missing_steps()); });
+  }
   heartbeat_.AddCounter("absolute_in", [&c] { return c.absolute_in; });
   heartbeat_.AddCounter("absolute_attached", [&c] { return c.absolute_attached; });
   heartbeat_.AddCounter("absolute_spliced", [&c] { return c.absolute_spliced; });

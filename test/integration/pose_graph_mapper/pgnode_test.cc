@@ -18,6 +18,7 @@
 #include "omni/bus/convert.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/imu_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
 #include "omni/laser_scan_t.hpp"
@@ -353,7 +354,55 @@ TEST(PoseGraphMapperNode, AbsolutePosesAreSplicedAndBadOnesCounted) {
   EXPECT_EQ(counts.count("absolute_rejected"), 1u);
 }
 
-// The shipped config leaves the absolute input off.
+// With slam.gyro.enabled the node reads imu_t on node.imu_channel straight into the gyro source;
+// a non-finite rate and a sample older than the last are counted; the heartbeat carries the
+// counts and the odometry steps the gyro did not cover.
+TEST(PoseGraphMapperNode, GyroSamplesReachTheMapperAndBadOnesAreCounted) {
+  pgm::PoseGraphNodeOptions no;
+  no.imu_channel = "MY_IMU";
+  pgm::PoseGraphSlamOptions so;
+  so.use_gyro = true;
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok());
+  auto& b = **bus_or;
+  ManualClock clock(1000000);
+  pgm::PoseGraphNode node(&b, no, so, pgm::BatchOptions{}, &clock);
+  std::map<std::string, int64_t> counts;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    for (size_t i = 0; i < h.counter_names.size(); ++i)
+      counts[h.counter_names[i]] = h.counter_values[i];
+  });
+  auto pump = [&b] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  auto imu = [](int64_t utime, double rate) {
+    omni::imu_t m{};
+    m.utime = utime;
+    m.angular_velocity_rad_s[2] = rate;
+    return m;
+  };
+  for (int i = 0; i <= 12; ++i) {
+    for (int j = 0; j < 10; ++j) b.Publish("MY_IMU", imu(1000000 + 100000 * i + 10000 * j, 0.0));
+    b.Publish("WHEEL_ODOM", Odom(1000000 + 100000 * i, 0.1 * i, i));
+    b.Publish("LIDAR_SCAN", RingScan(1000000 + 100000 * i, i));
+  }
+  b.Publish("MY_IMU", imu(2300000, std::nan("")));
+  b.Publish("MY_IMU", imu(1500000, 0.0));  // older than the newest sample
+  pump();
+  const auto& c = node.slam().counters();
+  EXPECT_EQ(c.imu_in, 132);
+  EXPECT_EQ(c.imu_rejected, 2);
+  EXPECT_EQ(c.keyframes, 3);
+  EXPECT_EQ(node.slam().gyro_missing_steps(), 0u);
+  node.heartbeat().Tick(true);
+  pump();
+  EXPECT_EQ(counts["imu_in"], 132);
+  EXPECT_EQ(counts["imu_rejected"], 2);
+  EXPECT_EQ(counts["gyro_missing_steps"], 0);
+}
+
+// The shipped config leaves the absolute input and the gyro off.
 TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
   pgm::PoseGraphSlamOptions slam;
   pgm::BatchOptions batch;
@@ -364,6 +413,8 @@ TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
                               &slam, &batch, &node)
           .ok());
   EXPECT_EQ(node.absolute_channel, "");
+  EXPECT_FALSE(slam.use_gyro);
+  EXPECT_EQ(node.imu_channel, "IMU");
 }
 
 }  // namespace

@@ -284,6 +284,58 @@ TEST(PoseGraphSlam, AbsolutePosesCorrectBiasedOdometry) {
   EXPECT_LT(with, 0.5 * without) << "without " << without << " m, with " << with << " m";
 }
 
+// The IMU as a continuous source: odometry that over-reads every turn by 10 % bends a circular
+// drive; with the gyro's heading fused into every odometry factor the path stays on the circle.
+// Scan matches are given almost no weight, so the odometry factors decide the trajectory.
+TEST(PoseGraphSlam, GyroHeadingCorrectsOdometryThatOverReadsTurns) {
+  const double rate = 0.25;  // rad/s on a 2 m circle around (5, 3) at 0.5 m/s
+  auto truth_at = [&](int64_t t_us) {
+    const double a = -M_PI / 2 + rate * 1e-6 * static_cast<double>(t_us);
+    return Pose2(5 + 2 * std::cos(a), 3 + 2 * std::sin(a), WrapAngle(a + M_PI / 2));
+  };
+  auto run = [&](bool gyro) {
+    PoseGraphSlamOptions o;
+    o.scan_match_information_scale = 1e-6;
+    o.use_gyro = gyro;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    Pose2 odo = truth_at(0);
+    for (int k = 0; k <= 1200; ++k) {  // 12 s: gyro at 100 Hz, odometry at 50 Hz, scans at 10 Hz
+      const int64_t t = 10'000 * int64_t{k};
+      if (gyro) {
+        EXPECT_TRUE(slam.AddImuYawRate(t, rate));
+      }
+      if (k % 2 == 0) {
+        if (k > 0) {
+          const Pose2 step = truth_at(t - 20'000).Between(truth_at(t));
+          odo = odo * Pose2(step.x, step.y, 1.1 * step.theta);
+        }
+        slam.AddOdometry(t, odo);
+      }
+      if (k % 10 == 0) slam.AddScan(k / 10, BoxScan(t, truth_at(t)));
+    }
+    if (gyro) {
+      EXPECT_FALSE(slam.AddImuYawRate(12'000'000, 0.0));  // not newer than the last sample
+      EXPECT_FALSE(slam.AddImuYawRate(13'000'000, std::nan("")));
+      EXPECT_EQ(slam.counters().imu_in, 1203);
+      EXPECT_EQ(slam.counters().imu_rejected, 2);
+      EXPECT_EQ(slam.gyro_missing_steps(), 0u);
+      EXPECT_EQ(slam.PluginCounters().at("gyro.missing_steps"), 0);
+    }
+    double sum = 0;
+    const auto traj = slam.Trajectory();
+    EXPECT_EQ(traj.size(), 121u);
+    for (const auto& sp : traj) {
+      const Pose2 truth = truth_at(0).Between(truth_at(sp.utime));
+      sum += std::pow(Distance(sp.pose, truth), 2);
+    }
+    return std::sqrt(sum / static_cast<double>(traj.size()));
+  };
+  const double without = run(false), with = run(true);
+  std::printf("trajectory RMS error: %.3f m odometry only, %.3f m with the gyro\n", without, with);
+  EXPECT_GT(without, 0.2);
+  EXPECT_LT(with, 0.2 * without) << "without " << without << " m, with " << with << " m";
+}
+
 // (c) Each way an absolute pose can go is counted once: at a keyframe's time (attached), newer
 // than the newest pose (queued, then spliced when the next keyframe covers it), older than the
 // window (rejected), a bad information matrix (invalid).

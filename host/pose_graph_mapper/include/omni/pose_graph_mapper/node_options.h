@@ -20,6 +20,8 @@ struct PoseGraphNodeOptions {
   // pose2d_t in: absolute (GPS-like) poses of the base in map_frame with their covariance,
   // attached or spliced into the graph (PoseGraphSlam::AddAbsolutePose). Empty: not subscribed.
   std::string absolute_channel;
+  // imu_t in, subscribed when the slam section's gyro.enabled is true: the z angular rate.
+  std::string imu_channel = "IMU";
   // Scans wait for odometry at or after their time; a scan this far behind the newest message
   // without it is handed to the mapper anyway (which then rejects it if no odometry is near).
   double max_odom_wait_s = 0.5;

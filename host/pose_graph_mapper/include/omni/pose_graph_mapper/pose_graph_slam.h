@@ -45,6 +45,7 @@
 #include "omni/io/grid.h"
 #include "omni/pose_graph_mapper/batch_optimizer.h"
 #include "omni/pose_graph_mapper/continuous_source.h"
+#include "omni/pose_graph_mapper/gyro_source.h"
 #include "omni/pose_graph_mapper/measurement_plugin.h"
 #include "omni/pose_graph_mapper/node_options.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
@@ -67,6 +68,11 @@ struct PoseGraphSlamOptions {
   // the scan matches dominate (intel-raw: ATE 0.21 m with the defaults, 0.10 m with these).
   OdometryNoise odometry_noise{1e-2, 1e-4, 1e-3, 1e-2, 1e-6, 1e-6};
   double scan_match_information_scale = 1.0;  // scales the keyframe matcher's information
+  // The IMU as a continuous source (gyro_source.h): with `use_gyro`, every odometry factor
+  // carries the gyro's heading fused step by step (AddImuYawRate feeds it).
+  bool use_gyro = false;
+  GyroNoise gyro_noise;
+  double gyro_bias_rad_s = 0.0;  // subtracted from every yaw-rate sample
   // Global optimisation on accepted loops.
   std::string global_loss = "cauchy";  // none | huber | cauchy
   double global_loss_scale = 1.0;
@@ -134,6 +140,8 @@ struct SlamCounters {
   int64_t scan_match_factors = 0, scan_match_failures = 0;
   int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
   int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
+  // Gyro (use_gyro): yaw-rate samples received, rejected (non-finite, not newer than the last).
+  int64_t imu_in = 0, imu_rejected = 0;
   int64_t window_updates = 0, window_failures = 0;
   int64_t global_optimizations = 0, global_failures = 0;
   // Absolute poses (AddAbsolutePose): received, attached at a node's exact time, spliced in as
@@ -159,6 +167,11 @@ class PoseGraphSlam {
 
   // Odometry pose of the robot base in the odometry frame.
   void AddOdometry(int64_t utime, const Pose2& odom_pose);
+  // The gyro's yaw rate (rad/s, about the base's up axis) at `utime`; used with `use_gyro`.
+  // False (counted) for a non-finite rate or a time not newer than the previous sample's.
+  bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
+  // Odometry steps whose heading had no gyro data to fuse (use_gyro; 0 otherwise).
+  uint64_t gyro_missing_steps() const { return fused_.gyro_missing_steps(); }
   // Returns true when the scan was accepted (it then has a pose in Trajectory()).
   bool AddScan(int64_t scan_index, const LaserScan2& scan);
 
@@ -239,6 +252,12 @@ class PoseGraphSlam {
   BatchOptions batch_;
   const Clock* clock_;
   OdometrySource odom_;
+  GyroYawSource gyro_;
+  OdometryGyroSource fused_{&odom_, &gyro_};
+  // The continuous source every odometry factor comes from.
+  const ContinuousPoseSource& Motion() const {
+    return o_.use_gyro ? static_cast<const ContinuousPoseSource&>(fused_) : odom_;
+  }
   bool have_odom_ = false;
   // Logs such as intel.clf stamp several messages with one time: equal stamps are nudged by
   // 1 us so the odometry buffer stays strictly ordered (internal time).
