@@ -13,10 +13,20 @@ function(omni_add_gtest name)
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 120)
   endif()
+  # testing::TempDir() is this executable's own folder in the build tree (gtest reads
+  # TEST_TMPDIR), not the shared /tmp: two build trees (a sanitizer build, a second checkout)
+  # can run their tests at the same time without overwriting each other's files.
+  set(tmpdir "${CMAKE_CURRENT_BINARY_DIR}/${name}.tmp")
+  file(MAKE_DIRECTORY "${tmpdir}")
+  # (An empty LABELS value would be dropped and shift the pairs: only given when set.)
+  set(props TIMEOUT ${ARG_TIMEOUT} ENVIRONMENT "TEST_TMPDIR=${tmpdir}")
+  if(ARG_LABELS)
+    list(APPEND props LABELS "${ARG_LABELS}")
+  endif()
   gtest_discover_tests(${name}
     WORKING_DIRECTORY "${CMAKE_BINARY_DIR}"
     DISCOVERY_TIMEOUT 60
-    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}")
+    PROPERTIES ${props})
 endfunction()
 
 # Adds every immediate subfolder of the current folder that has a CMakeLists.txt.

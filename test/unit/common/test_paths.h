@@ -1,5 +1,6 @@
 #pragma once
 
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -13,12 +14,19 @@ inline std::string Dataset(const std::string& relative) {
   return std::filesystem::exists(p) ? p : std::string();
 }
 
+// A fresh folder for the current test: under TEST_TMPDIR (set by omni_add_gtest to a folder of
+// the test executable in its build tree, so two build trees running the same test at once do
+// not wipe each other's files), else under the system's temporary folder.
 inline std::string TempDir() {
+  const char* base = std::getenv("TEST_TMPDIR");
+  const std::filesystem::path root = base != nullptr && base[0] != '\0'
+                                         ? std::filesystem::path(base)
+                                         : std::filesystem::temp_directory_path();
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
   std::string name = std::string(info->test_suite_name()) + "_" + info->name();
   for (auto& c : name)
     if (c == '/') c = '_';
-  const auto dir = std::filesystem::temp_directory_path() / ("omni_test_" + name);
+  const auto dir = root / ("omni_test_" + name);
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir.string();
