@@ -192,6 +192,33 @@ inline bool CastRay(const octomap::OcTree& keyer, const octomap::point3d& origin
   return true;
 }
 
+// Casts the rays of `points` taken in chunks from `*next` (shared by the threads, so long and
+// short rays balance out): the free keys of each ray go to `free(packed)`, the end point's key,
+// for a point within `maxrange`, to `occupied(packed)`. Same expressions as
+// OccupancyOcTreeBase::computeUpdate, so the same keys.
+template <class Free, class Occupied>
+void CastRays(const octomap::OcTree& keyer, const std::vector<Eigen::Vector3f>& points,
+              const octomap::point3d& origin, double maxrange, std::atomic<size_t>* next,
+              Free&& free, Occupied&& occupied) {
+  constexpr size_t kChunk = 512;
+  for (;;) {
+    const size_t begin = next->fetch_add(kChunk);
+    if (begin >= points.size()) break;
+    const size_t end = std::min(points.size(), begin + kChunk);
+    for (size_t i = begin; i < end; ++i) {
+      const octomap::point3d p(points[i].x(), points[i].y(), points[i].z());
+      if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
+        CastRay(keyer, origin, p, free);
+        octomap::OcTreeKey key;
+        if (keyer.coordToKeyChecked(p, key)) occupied(PackKey(key));
+      } else {
+        const octomap::point3d direction = (p - origin).normalized();
+        CastRay(keyer, origin, origin + direction * static_cast<float>(maxrange), free);
+      }
+    }
+  }
+}
+
 template <class F>
 void RunOnThreads(int n, F&& f) {
   std::vector<std::thread> threads;
@@ -512,27 +539,11 @@ bool ParallelKeySetInserter::BitmapKeySets(const std::vector<Eigen::Vector3f>& p
   const int nt = options_.num_threads;
   std::vector<std::vector<uint32_t>> touched_lists(static_cast<size_t>(nt));
   std::vector<std::vector<uint64_t>> outside_lists(static_cast<size_t>(nt));
-  constexpr size_t kChunk = 512;
   std::atomic<size_t> next{0};
   auto cast_all = [&](auto& marker) {
-    auto emit = [&marker](uint64_t packed) { marker.Mark(packed, 0); };
-    for (;;) {
-      const size_t begin = next.fetch_add(kChunk);
-      if (begin >= points.size()) break;
-      const size_t end = std::min(points.size(), begin + kChunk);
-      for (size_t i = begin; i < end; ++i) {
-        const octomap::point3d p(points[i].x(), points[i].y(), points[i].z());
-        // Same expressions as OccupancyOcTreeBase::computeUpdate, so the same keys.
-        if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
-          CastRay(keyer_, origin, p, emit);
-          octomap::OcTreeKey key;
-          if (keyer_.coordToKeyChecked(p, key)) marker.Mark(PackKey(key), kOccupiedWords * 64);
-        } else {
-          const octomap::point3d direction = (p - origin).normalized();
-          CastRay(keyer_, origin, origin + direction * static_cast<float>(maxrange), emit);
-        }
-      }
-    }
+    CastRays(
+        keyer_, points, origin, maxrange, &next, [&marker](uint64_t k) { marker.Mark(k, 0); },
+        [&marker](uint64_t k) { marker.Mark(k, kOccupiedWords * 64); });
   };
   RunOnThreads(nt, [&](int t) {
     const auto ti = static_cast<size_t>(t);
@@ -636,7 +647,6 @@ void ParallelKeySetInserter::HashKeySets(const std::vector<Eigen::Vector3f>& poi
   std::vector<KeyHashSet> occ_local(static_cast<size_t>(nt), KeyHashSet(points.size() / nt + 64));
 
   // Phase 1: rays, in chunks handed out dynamically (ray lengths vary a lot).
-  constexpr size_t kChunk = 512;
   std::atomic<size_t> next{0};
   RunOnThreads(nt, [&](int t) {
     KeyHashSet& fr = free_local[static_cast<size_t>(t)];
@@ -652,26 +662,7 @@ void ParallelKeySetInserter::HashKeySets(const std::vector<Eigen::Vector3f>& poi
       slot = packed;
       fr.Insert(packed);
     };
-    auto add_ray = [&](const octomap::point3d& end_point) {
-      CastRay(keyer_, origin, end_point, emit);
-    };
-    for (;;) {
-      const size_t begin = next.fetch_add(kChunk);
-      if (begin >= points.size()) break;
-      const size_t end = std::min(points.size(), begin + kChunk);
-      for (size_t i = begin; i < end; ++i) {
-        const octomap::point3d p(points[i].x(), points[i].y(), points[i].z());
-        // Same expressions as OccupancyOcTreeBase::computeUpdate, so the same keys.
-        if ((maxrange < 0.0) || ((p - origin).norm() <= maxrange)) {
-          add_ray(p);
-          octomap::OcTreeKey key;
-          if (keyer_.coordToKeyChecked(p, key)) oc.Insert(PackKey(key));
-        } else {
-          const octomap::point3d direction = (p - origin).normalized();
-          add_ray(origin + direction * static_cast<float>(maxrange));
-        }
-      }
-    }
+    CastRays(keyer_, points, origin, maxrange, &next, emit, [&oc](uint64_t k) { oc.Insert(k); });
   });
 
   const int64_t t_rays = NowMicros();
