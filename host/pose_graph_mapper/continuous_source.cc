@@ -13,6 +13,23 @@ void ComposeJacobians(const Pose2& p, const Pose2& q, Eigen::Matrix3d* a, Eigen:
   *b << c, -s, 0, s, c, 0, 0, 0, 1;
 }
 
+Eigen::Matrix3d StepCovariance(const OdometryNoise& noise, const Pose2& step, double dt) {
+  const double dist = std::hypot(step.x, step.y), rot = std::abs(step.theta);
+  Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+  q(0, 0) = q(1, 1) =
+      noise.xy_var_per_m * dist + noise.xy_var_per_rad * rot + noise.xy_var_per_s * dt;
+  q(2, 2) =
+      noise.theta_var_per_m * dist + noise.theta_var_per_rad * rot + noise.theta_var_per_s * dt;
+  return q;
+}
+
+void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q) {
+  Eigen::Matrix3d a, b;
+  ComposeJacobians(m->delta, step, &a, &b);
+  m->covariance = a * m->covariance * a.transpose() + b * q * b.transpose();
+  m->delta = m->delta * step;
+}
+
 bool OdometrySource::AddSample(int64_t utime, const Pose2& pose) {
   if (!samples_.empty() && utime < samples_.back().first) return false;
   if (!samples_.empty() && utime == samples_.back().first) {
@@ -58,19 +75,10 @@ std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) co
   if (!steps) return std::nullopt;
   const auto& pts = *steps;
   RelativeMotion m;
-  Eigen::Matrix3d a, b;
   for (size_t k = 0; k + 1 < pts.size(); ++k) {
     const Pose2 step = pts[k].second.Between(pts[k + 1].second);
-    const double dist = std::hypot(step.x, step.y), rot = std::abs(step.theta);
     const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
-    Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
-    q(0, 0) = q(1, 1) =
-        noise_.xy_var_per_m * dist + noise_.xy_var_per_rad * rot + noise_.xy_var_per_s * dt;
-    q(2, 2) = noise_.theta_var_per_m * dist + noise_.theta_var_per_rad * rot +
-              noise_.theta_var_per_s * dt;
-    ComposeJacobians(m.delta, step, &a, &b);
-    m.covariance = a * m.covariance * a.transpose() + b * q * b.transpose();
-    m.delta = m.delta * step;
+    AppendStep(&m, step, StepCovariance(noise_, step, dt));
   }
   return m;
 }

@@ -45,18 +45,11 @@ std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1
   const auto steps = odometry_->Steps(t0, t1);
   if (!steps) return std::nullopt;
   const auto& pts = *steps;
-  const OdometryNoise& noise = odometry_->noise();
   RelativeMotion m;
-  Eigen::Matrix3d a, b;
   for (size_t k = 0; k + 1 < pts.size(); ++k) {
     Pose2 step = pts[k].second.Between(pts[k + 1].second);
-    const double dist = std::hypot(step.x, step.y), rot = std::abs(step.theta);
     const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
-    Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
-    q(0, 0) = q(1, 1) =
-        noise.xy_var_per_m * dist + noise.xy_var_per_rad * rot + noise.xy_var_per_s * dt;
-    q(2, 2) =
-        noise.theta_var_per_m * dist + noise.theta_var_per_rad * rot + noise.theta_var_per_s * dt;
+    Eigen::Matrix3d q = StepCovariance(odometry_->noise(), step, dt);
     const auto yaw = gyro_->Between(pts[k].first, pts[k + 1].first);
     if (yaw && q(2, 2) + yaw->variance > 0.0) {
       // Weighted mean of the two heading changes (taken on the shortest arc between them), and
@@ -68,9 +61,7 @@ std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1
     } else if (pts[k + 1].first > pts[k].first) {
       missing_.fetch_add(1, std::memory_order_relaxed);
     }
-    ComposeJacobians(m.delta, step, &a, &b);
-    m.covariance = a * m.covariance * a.transpose() + b * q * b.transpose();
-    m.delta = m.delta * step;
+    AppendStep(&m, step, q);
   }
   return m;
 }

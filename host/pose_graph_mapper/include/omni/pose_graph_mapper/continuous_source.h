@@ -52,6 +52,11 @@ struct OdometryNoise {
 // Composition Jacobians of D = P (+) Q (SE(2)), in the frame of P's origin.
 void ComposeJacobians(const Pose2& p, const Pose2& q, Eigen::Matrix3d* a, Eigen::Matrix3d* b);
 
+// Covariance of one odometry step (in its start frame) lasting `dt_s` seconds.
+Eigen::Matrix3d StepCovariance(const OdometryNoise& noise, const Pose2& step, double dt_s);
+// m <- m (+) step, the step with covariance `q`: Sigma <- A Sigma A^T + B q B^T.
+void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q);
+
 // Wheel odometry: a time-ordered buffer of odometry poses (in the odometry frame), interpolated.
 class OdometrySource final : public ContinuousPoseSource {
  public:
