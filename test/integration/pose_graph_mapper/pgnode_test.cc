@@ -298,6 +298,30 @@ omni::pose2d_t Fix(int64_t utime, double x, double var, const std::string& frame
   return m;
 }
 
+// A node on memq:// that is not deferred, with the given options, and the counters of the
+// last heartbeat it published.
+struct HeartbeatNode {
+  HeartbeatNode(const pgm::PoseGraphNodeOptions& no, const pgm::PoseGraphSlamOptions& so)
+      : clock(1000000) {
+    auto bus_or = bus::Bus::Create("memq://");
+    EXPECT_TRUE(bus_or.ok());
+    b = std::move(*bus_or);
+    node = std::make_unique<pgm::PoseGraphNode>(b.get(), no, so, pgm::BatchOptions{}, &clock);
+    b->Subscribe<omni::heartbeat_t>("HEARTBEAT", [this](const omni::heartbeat_t& h, int64_t) {
+      for (size_t i = 0; i < h.counter_names.size(); ++i)
+        counts[h.counter_names[i]] = h.counter_values[i];
+    });
+  }
+  void Pump() {
+    while (b->HandleTimeout(0) > 0) {
+    }
+  }
+  ManualClock clock;
+  std::unique_ptr<bus::Bus> b;
+  std::unique_ptr<pgm::PoseGraphNode> node;
+  std::map<std::string, int64_t> counts;
+};
+
 // With node.absolute_channel set, absolute poses reach the mapper in arrival order: one between
 // two keyframes is spliced, one newer than the newest pose waits for it; a covariance that is not
 // positive definite and a fix in another frame are dropped and counted. The heartbeat carries
@@ -305,20 +329,11 @@ omni::pose2d_t Fix(int64_t utime, double x, double var, const std::string& frame
 TEST(PoseGraphMapperNode, AbsolutePosesAreSplicedAndBadOnesCounted) {
   pgm::PoseGraphNodeOptions no;
   no.absolute_channel = "GPS_FIX";
-  auto bus_or = bus::Bus::Create("memq://");
-  ASSERT_TRUE(bus_or.ok());
-  auto& b = **bus_or;
-  ManualClock clock(1000000);
-  pgm::PoseGraphNode node(&b, no, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, &clock);
-  std::map<std::string, int64_t> counts;
-  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
-    for (size_t i = 0; i < h.counter_names.size(); ++i)
-      counts[h.counter_names[i]] = h.counter_values[i];
-  });
-  auto pump = [&b] {
-    while (b.HandleTimeout(0) > 0) {
-    }
-  };
+  HeartbeatNode n(no, pgm::PoseGraphSlamOptions{});
+  auto& b = *n.b;
+  auto& node = *n.node;
+  auto& counts = n.counts;
+  auto pump = [&n] { n.Pump(); };
   // 0.1 m per scan: keyframes every 5th scan (0.5 m).
   for (int i = 0; i <= 12; ++i) {
     b.Publish("WHEEL_ODOM", Odom(1000000 + 100000 * i, 0.1 * i, i));
@@ -362,20 +377,11 @@ TEST(PoseGraphMapperNode, GyroSamplesReachTheMapperAndBadOnesAreCounted) {
   no.imu_channel = "MY_IMU";
   pgm::PoseGraphSlamOptions so;
   so.use_gyro = true;
-  auto bus_or = bus::Bus::Create("memq://");
-  ASSERT_TRUE(bus_or.ok());
-  auto& b = **bus_or;
-  ManualClock clock(1000000);
-  pgm::PoseGraphNode node(&b, no, so, pgm::BatchOptions{}, &clock);
-  std::map<std::string, int64_t> counts;
-  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
-    for (size_t i = 0; i < h.counter_names.size(); ++i)
-      counts[h.counter_names[i]] = h.counter_values[i];
-  });
-  auto pump = [&b] {
-    while (b.HandleTimeout(0) > 0) {
-    }
-  };
+  HeartbeatNode n(no, so);
+  auto& b = *n.b;
+  auto& node = *n.node;
+  auto& counts = n.counts;
+  auto pump = [&n] { n.Pump(); };
   auto imu = [](int64_t utime, double rate) {
     omni::imu_t m{};
     m.utime = utime;
