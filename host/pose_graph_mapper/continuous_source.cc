@@ -30,6 +30,13 @@ void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q) 
   m->delta = m->delta * step;
 }
 
+void OdometrySource::SetNoiseScale(double scale) {
+  noise_scale_ = scale;
+  const OdometryNoise& b = base_noise_;
+  noise_ = {b.xy_var_per_m * scale,      b.xy_var_per_rad * scale, b.theta_var_per_m * scale,
+            b.theta_var_per_rad * scale, b.xy_var_per_s * scale,   b.theta_var_per_s * scale};
+}
+
 bool OdometrySource::AddSample(int64_t utime, const Pose2& pose) {
   if (!samples_.empty() && utime < samples_.back().first) return false;
   if (!samples_.empty() && utime == samples_.back().first) {
@@ -76,7 +83,7 @@ std::optional<RelativeMotion> OdometrySource::Between(int64_t t0, int64_t t1) co
   const auto& pts = *steps;
   RelativeMotion m;
   for (size_t k = 0; k + 1 < pts.size(); ++k) {
-    const Pose2 step = pts[k].second.Between(pts[k + 1].second);
+    const Pose2 step = CalibratedStep(pts[k].second.Between(pts[k + 1].second));
     const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
     AppendStep(&m, step, StepCovariance(noise_, step, dt));
   }

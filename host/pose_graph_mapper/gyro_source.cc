@@ -47,7 +47,7 @@ std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1
   const auto& pts = *steps;
   RelativeMotion m;
   for (size_t k = 0; k + 1 < pts.size(); ++k) {
-    Pose2 step = pts[k].second.Between(pts[k + 1].second);
+    Pose2 step = odometry_->CalibratedStep(pts[k].second.Between(pts[k + 1].second));
     const double dt = 1e-6 * static_cast<double>(pts[k + 1].first - pts[k].first);
     Eigen::Matrix3d q = StepCovariance(odometry_->noise(), step, dt);
     const auto yaw = gyro_->Between(pts[k].first, pts[k + 1].first);

@@ -62,6 +62,22 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   m.Get("min_inlier_fraction", &o.match.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   m.Get("fill_gap_m", &o.match.fill_gap_m, Optional(), NonNegative<double>());
   m.Get("reject_window_edge", &o.match.reject_window_edge, Optional());
+  ConfigReader oc = r.Section("odometry_calibration");
+  OdometryCalibratorOptions& cal = o.odometry_calibration;
+  oc.Get("enabled", &cal.enabled, Optional());
+  oc.Get("min_pairs", &cal.min_pairs, Optional(), InRange(1, 1000000));
+  oc.Get("min_forward_m", &cal.min_forward_m, Optional(), NonNegative<double>());
+  oc.Get("update_every_pairs", &cal.update_every_pairs, Optional(), InRange(1, 1000000));
+  oc.Get("max_abs_scale", &cal.max_abs_scale, Optional(), InRange(0.0, 0.5));
+  oc.Get("max_abs_y_per_x", &cal.max_abs_y_per_x, Optional(), InRange(0.0, 0.5));
+  oc.Get("max_abs_theta_per_x", &cal.max_abs_theta_per_x, Optional(), InRange(0.0, 1.0));
+  oc.Get("gate_xy_m", &cal.gate_xy_m, Optional(), Positive<double>());
+  oc.Get("gate_theta_rad", &cal.gate_theta_rad, Optional(), Positive<double>());
+  oc.Get("relink_on_global", &cal.relink_on_global, Optional());
+  oc.Get("max_pairs", &cal.max_pairs, Optional(), InRange(1, 10000000));
+  oc.Get("adapt_noise", &cal.adapt_noise, Optional());
+  oc.Get("min_noise_scale", &cal.min_noise_scale, Optional(), Positive<double>());
+  oc.Get("max_noise_scale", &cal.max_noise_scale, Optional(), Positive<double>());
   ConfigReader l = r.Section("loop_closure");
   l.Get("min_index_gap", &o.loop.min_index_gap, Optional(), InRange(1, 1000000));
   l.Get("search_radius_m", &o.loop.search_radius_m, Optional(), Positive<double>());
@@ -121,6 +137,7 @@ PoseGraphSlam::PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOpt
       batch_(batch),
       clock_(clock),
       odom_(options.odometry_noise),
+      calibrator_(options.odometry_calibration),
       gyro_(options.gyro_noise, options.gyro_bias_rad_s),
       match_(options.match),
       loop_(options.loop) {
@@ -261,6 +278,8 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
     if (!window_->AddRelative(na, nb, f.delta, fi).ok()) continue;
     links_.push_back({na, nb, f.delta, fi, LinkKind::kScanMatch});
     ++used;
+    if (o_.odometry_calibration.enabled && a->second == k - 1 && b->second == k)
+      CalibrateOdometry(keyframes_[static_cast<size_t>(k - 1)].utime, utime, f.delta);
   }
   if (used > 0)
     c_.scan_match_factors += used;
@@ -291,6 +310,32 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   }
   if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
     OptimizeGlobal();
+}
+
+void PoseGraphSlam::CalibrateOdometry(int64_t t0, int64_t t1, const Pose2& matched) {
+  const auto steps = odom_.Steps(t0, t1);
+  if (!steps || steps->size() < 2) return;
+  const auto motion = odom_.Between(t0, t1);
+  if (!motion) return;
+  const Pose2 raw = steps->front().second.Between(steps->back().second);
+  const int64_t before = calibrator_.updates();
+  // The covariance is linear in the noise model: divided by the scale in use, the configured one.
+  calibrator_.AddPair(raw, matched, motion->covariance / odom_.noise_scale());
+  if (calibrator_.updates() != before) {
+    odom_.SetCalibration(calibrator_.calibration());
+    odom_.SetNoiseScale(calibrator_.noise_scale());
+  }
+}
+
+void PoseGraphSlam::RelinkOdometry() {
+  for (Link& l : links_) {
+    if (l.kind != LinkKind::kOdometry) continue;
+    const auto m = Motion().Between(nodes_[static_cast<size_t>(l.from)].utime,
+                                    nodes_[static_cast<size_t>(l.to)].utime);
+    if (!m) continue;  // no longer in the odometry buffer: keeps its factor
+    l.z = m->delta;
+    l.information = (m->covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse();
+  }
 }
 
 void PoseGraphSlam::OptimizeWindow() {
@@ -418,6 +463,9 @@ io::PoseGraph PoseGraphSlam::Graph() const {
 
 void PoseGraphSlam::OptimizeGlobal() {
   const double t0 = NowMs();
+  if (o_.odometry_calibration.enabled && o_.odometry_calibration.relink_on_global &&
+      calibrator_.active())
+    RelinkOdometry();
   io::PoseGraph g = Graph();
   BatchOptions b = batch_;
   b.initialization = Initialization::kNone;

@@ -75,6 +75,16 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
   std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",
                ll(c.imu_in), ll(c.imu_rejected),
                ll(static_cast<int64_t>(slam.gyro_missing_steps())));
+  const OdometryCalibrator& oc = slam.odometry_calibrator();
+  const OdometryCalibration& cal = oc.calibration();
+  std::fprintf(f,
+               ", \"odom_calibration\": {\"active\": %s, \"pairs_used\": %lld, "
+               "\"pairs_gated\": %lld, \"updates\": %lld, \"x_scale\": %.6f, "
+               "\"y_per_x\": %.6f, \"theta_scale\": %.6f, \"theta_per_x\": %.6f, "
+               "\"noise_scale\": %.4f, \"suggested_noise_scale\": %.4f}",
+               oc.active() ? "true" : "false", ll(oc.pairs_used()), ll(oc.pairs_gated()),
+               ll(oc.updates()), cal.x_scale, cal.y_per_x, cal.theta_scale, cal.theta_per_x,
+               oc.noise_scale(), oc.suggested_noise_scale());
   for (const auto& [k, v] : info.extra)
     std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));
   std::fprintf(f, "}\n");

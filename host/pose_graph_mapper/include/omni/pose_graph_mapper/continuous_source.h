@@ -21,6 +21,7 @@
 #include <Eigen/Core>
 
 #include "omni/common/geometry.h"
+#include "omni/pose_graph_mapper/odometry_calibration.h"
 
 namespace omni::pgm {
 
@@ -58,10 +59,13 @@ Eigen::Matrix3d StepCovariance(const OdometryNoise& noise, const Pose2& step, do
 void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q);
 
 // Wheel odometry: a time-ordered buffer of odometry poses (in the odometry frame), interpolated.
+// Every step between two samples passes through the calibration (odometry_calibration.h; the
+// identity unless set) before it is composed, so a new calibration applies to every factor
+// asked for afterwards, including intervals whose samples arrived before it.
 class OdometrySource final : public ContinuousPoseSource {
  public:
   explicit OdometrySource(OdometryNoise noise = {}, size_t capacity = 100000)
-      : noise_(noise), capacity_(capacity) {}
+      : base_noise_(noise), noise_(noise), capacity_(capacity) {}
   std::string name() const override { return "odometry"; }
   // False (to be counted by the caller) when utime is older than the newest sample.
   bool AddSample(int64_t utime, const Pose2& odom_pose);
@@ -69,7 +73,16 @@ class OdometrySource final : public ContinuousPoseSource {
   // The odometry poses at t0, at every sample strictly inside (t0, t1) and at t1 (interpolated
   // at the ends): the steps Between() composes. nullopt when [t0, t1] is not covered.
   std::optional<std::vector<std::pair<int64_t, Pose2>>> Steps(int64_t t0_us, int64_t t1_us) const;
+  // The noise model in use: the configured one times noise_scale() (every term).
   const OdometryNoise& noise() const { return noise_; }
+  double noise_scale() const { return noise_scale_; }
+  void SetNoiseScale(double scale);
+  void SetCalibration(const OdometryCalibration& c) { calibration_ = c; }
+  const OdometryCalibration& calibration() const { return calibration_; }
+  // One raw step between two of Steps()' poses, calibrated.
+  Pose2 CalibratedStep(const Pose2& raw) const {
+    return calibration_.IsIdentity() ? raw : calibration_.Correct(raw);
+  }
   int64_t newest_utime() const { return samples_.empty() ? 0 : samples_.back().first; }
   int64_t oldest_utime() const { return samples_.empty() ? 0 : samples_.front().first; }
   bool empty() const { return samples_.empty(); }
@@ -77,7 +90,9 @@ class OdometrySource final : public ContinuousPoseSource {
  private:
   Pose2 At(size_t upper, int64_t utime) const;  // interpolated in [upper-1, upper]
 
-  OdometryNoise noise_;
+  OdometryNoise base_noise_, noise_;
+  double noise_scale_ = 1.0;
+  OdometryCalibration calibration_;
   size_t capacity_;
   std::deque<std::pair<int64_t, Pose2>> samples_;
 };

@@ -48,6 +48,7 @@
 #include "omni/pose_graph_mapper/gyro_source.h"
 #include "omni/pose_graph_mapper/measurement_plugin.h"
 #include "omni/pose_graph_mapper/node_options.h"
+#include "omni/pose_graph_mapper/odometry_calibration.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
 #include "omni/pose_graph_mapper/window_optimizer.h"
 
@@ -71,6 +72,9 @@ struct PoseGraphSlamOptions {
   // The IMU as a continuous source (gyro_source.h): with `use_gyro`, every odometry factor
   // carries the gyro's heading fused step by step (AddImuYawRate feeds it).
   bool use_gyro = false;
+  // Online odometry self-calibration (odometry_calibration.h): scale, lateral creep, heading
+  // scale and heading drift per metre, fitted to the keyframe scan matches.
+  OdometryCalibratorOptions odometry_calibration;
   GyroNoise gyro_noise;
   double gyro_bias_rad_s = 0.0;  // subtracted from every yaw-rate sample
   // Global optimisation on accepted loops.
@@ -203,6 +207,8 @@ class PoseGraphSlam {
   void Finish();
 
   const SlamCounters& counters() const { return c_; }
+  // The odometry self-calibration (enabled or not: its counters stay 0 when off).
+  const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   const std::vector<double>& window_latency_ms() const { return window_ms_; }
   const std::vector<double>& global_latency_ms() const { return global_ms_; }
   std::map<std::string, int64_t> PluginCounters() const;
@@ -243,6 +249,10 @@ class PoseGraphSlam {
   void DrainAbsoluteQueue();
   Pose2 EstimateOf(int node) const;
   void SetEstimate(int node, const Pose2& pose);
+  // A keyframe pair's raw odometry and scan match for the calibrator; applies a new estimate.
+  void CalibrateOdometry(int64_t t0_us, int64_t t1_us, const Pose2& matched);
+  // Every odometry factor still covered by the buffer, recomputed with the current calibration.
+  void RelinkOdometry();
   void OptimizeWindow();
   void OptimizeGlobal();
   void ResetWindow();
@@ -252,6 +262,7 @@ class PoseGraphSlam {
   BatchOptions batch_;
   const Clock* clock_;
   OdometrySource odom_;
+  OdometryCalibrator calibrator_;
   GyroYawSource gyro_;
   OdometryGyroSource fused_{&odom_, &gyro_};
   // The continuous source every odometry factor comes from.
