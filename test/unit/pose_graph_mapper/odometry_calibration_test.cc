@@ -6,7 +6,7 @@
 #include <random>
 
 #include "omni/pose_graph_mapper/continuous_source.h"
-#include "omni/pose_graph_mapper/odometry_calibration.h"
+#include "omni/common/odometry_calibration.h"
 
 namespace omni::pgm {
 namespace {

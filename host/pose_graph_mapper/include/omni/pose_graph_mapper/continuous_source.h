@@ -21,7 +21,7 @@
 #include <Eigen/Core>
 
 #include "omni/common/geometry.h"
-#include "omni/pose_graph_mapper/odometry_calibration.h"
+#include "omni/common/odometry_calibration.h"
 
 namespace omni::pgm {
 

@@ -48,7 +48,7 @@
 #include "omni/pose_graph_mapper/gyro_source.h"
 #include "omni/pose_graph_mapper/measurement_plugin.h"
 #include "omni/pose_graph_mapper/node_options.h"
-#include "omni/pose_graph_mapper/odometry_calibration.h"
+#include "omni/common/odometry_calibration.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
 #include "omni/pose_graph_mapper/window_optimizer.h"
 

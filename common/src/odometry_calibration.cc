@@ -1,4 +1,4 @@
-#include "omni/pose_graph_mapper/odometry_calibration.h"
+#include "omni/common/odometry_calibration.h"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 
 #include <Eigen/Cholesky>
 
-namespace omni::pgm {
+namespace omni {
 
 Pose2 OdometryCalibration::Correct(const Pose2& raw) const {
   const double x = raw.x / (1.0 + x_scale);
@@ -97,4 +97,4 @@ void OdometryCalibrator::Solve() {
   ++updates_;
 }
 
-}  // namespace omni::pgm
+}  // namespace omni

@@ -1,5 +1,6 @@
 // Online odometry self-calibration: the systematic part of wheel odometry's error, estimated
-// from the keyframe scan matches and taken out of every odometry step before it becomes a factor.
+// from scan matches (the pose-graph mapper's keyframe matches, the RBPF's best particle) and
+// taken out of every odometry step before the mapper uses it.
 //
 // Model (per step, in the step's start frame; x forward, y left, true motion (x, y, theta)):
 //   odom_x     = (1 + x_scale) x                 wheel radius / encoder scale error
@@ -10,9 +11,9 @@
 // These are the classic systematic odometry errors (Borenstein and Feng's UMBmark names the
 // first and last for differential drives); an omni base shows the same four, usually larger.
 // Correct() inverts the model on one raw step. The estimate is a linear least-squares fit of
-// raw odometry over consecutive keyframes (composed from many steps, treated as one) against the
-// scan matcher's relative pose of the same pair: the match does not use odometry beyond its
-// search centre, so the fit does not chase its own output. Pairs whose residual is far from the
+// raw odometry between two scans (composed from many steps, treated as one) against the scan
+// matcher's relative pose of the same pair: the match does not use odometry beyond its search
+// centre, so the fit does not chase its own output. Pairs whose residual is far from the
 // current fit are left out, and the result is bounded. The fit uses the newest `max_pairs`
 // pairs, so it follows slow changes (tyre wear, load).
 //
@@ -30,7 +31,7 @@
 
 #include "omni/common/geometry.h"
 
-namespace omni::pgm {
+namespace omni {
 
 struct OdometryCalibration {
   double x_scale = 0.0;
@@ -104,4 +105,4 @@ class OdometryCalibrator {
   std::deque<Pair> pairs_;
 };
 
-}  // namespace omni::pgm
+}  // namespace omni
