@@ -1,5 +1,6 @@
 #include "omni/rbpf_mapper/motion_model.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace omni::rbpf {
@@ -32,6 +33,24 @@ Pose2 OmniMotionModel::Sample(const Pose2& from, const Pose2& delta, std::mt1993
   const double nx = n01(rng), ny = n01(rng), nt = n01(rng);
   Pose2 noisy(d.x + s.x * nx, d.y + s.y * ny, WrapAngle(d.theta + s.theta * nt));
   return from * noisy;
+}
+
+double OmniMotionModel::LogDensity(const Pose2& from, const Pose2& delta, const Pose2& to,
+                                   std::optional<double> imu_dtheta) const {
+  MotionSigma s = Sigma(delta);
+  Pose2 d = delta;
+  if (imu_dtheta) d = FuseImuYaw(delta, *imu_dtheta, &s.theta);
+  // All-zero noise settings make the model exact; keep the density finite.
+  s.x = std::max(s.x, 1e-9);
+  s.y = std::max(s.y, 1e-9);
+  s.theta = std::max(s.theta, 1e-9);
+  // Sample adds the noise to the increment in `from`'s frame, so the increment `from` -> `to`
+  // minus the (fused) odometry increment is that noise.
+  const Pose2 got = from.Between(to);
+  const double ex = (got.x - d.x) / s.x, ey = (got.y - d.y) / s.y;
+  const double et = WrapAngle(got.theta - d.theta) / s.theta;
+  constexpr double kLog2Pi = 1.8378770664093453;
+  return -0.5 * (ex * ex + ey * ey + et * et) - std::log(s.x * s.y * s.theta) - 1.5 * kLog2Pi;
 }
 
 }  // namespace omni::rbpf

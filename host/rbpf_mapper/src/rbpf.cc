@@ -51,6 +51,13 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("temporal_update_s", &o.temporal_update_s, Optional(), NonNegative<double>());
   r.Get("resample_threshold", &o.resample_threshold, Optional(), InRange(0.0, 1.0));
   r.Get("likelihood_gain", &o.likelihood_gain, Optional(), InRange(1e-6, 100.0));
+  std::string proposal = o.proposal == ProposalKind::kGaussian ? "gaussian" : "match";
+  r.Get("proposal", &proposal, Optional(), OneOf({"match", "gaussian"}));
+  o.proposal = proposal == "gaussian" ? ProposalKind::kGaussian : ProposalKind::kMatch;
+  r.Get("proposal_steps", &o.proposal_grid.steps, Optional(), InRange(0, 5));
+  r.Get("proposal_step_xy_m", &o.proposal_grid.step_xy_m, Optional(), InRange(1e-4, 0.5));
+  r.Get("proposal_step_theta_rad", &o.proposal_grid.step_theta_rad, Optional(), InRange(1e-5, 0.5));
+  r.Get("proposal_keep_best", &o.proposal_keep_best, Optional());
   r.Get("proposal_sigma_xy_m", &o.proposal_sigma_xy_m, Optional(), NonNegative<double>());
   r.Get("proposal_sigma_theta_rad", &o.proposal_sigma_theta_rad, Optional(), NonNegative<double>());
   r.Get("min_valid_beams", &o.min_valid_beams, Optional(), InRange(1, 100000));
@@ -123,6 +130,21 @@ Status RbpfOptions::Validate() const {
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
   if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
   return Status::Ok();
+}
+
+ProposalDraw DrawImprovedProposal(const ScanMatcher& matcher, const OmniMotionModel& motion,
+                                  const TiledGrid& map, const MatchScan& scan, const Pose2& from,
+                                  const Pose2& delta, std::optional<double> imu_dtheta,
+                                  const Pose2& optimum, double gain,
+                                  const ProposalGridOptions& grid, std::mt19937_64& rng) {
+  ProposalDraw d;
+  d.gaussian = FitGaussianProposal(optimum, grid, [&](const Pose2& x) {
+    return gain * matcher.Score(map, x, scan).log_likelihood +
+           motion.LogDensity(from, delta, x, imu_dtheta);
+  });
+  d.pose = DrawPose(d.gaussian, rng);
+  d.log_weight = d.gaussian.log_normalizer;
+  return d;
 }
 
 RbpfSlam::RbpfSlam(const RbpfOptions& options)
@@ -304,8 +326,15 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
       const Pose2 pred = motion_.Sample(p.pose, delta, p.rng, imu_dtheta);
       const MatchResult m = matcher_.Match(p.map, pred, mscan);
       searched[static_cast<size_t>(i)] = m.searched;
-      double log_lik;
-      if (m.ok) {
+      double log_w;  // weight factor: tempered likelihood, or the proposal's normaliser
+      if (m.ok && opt_.proposal == ProposalKind::kGaussian) {
+        const ProposalDraw d =
+            DrawImprovedProposal(matcher_, motion_, p.map, mscan, p.pose, delta, imu_dtheta, m.pose,
+                                 opt_.likelihood_gain, opt_.proposal_grid, p.rng);
+        // keep_best: one particle follows the match optima, the others explore around them.
+        p.pose = opt_.proposal_keep_best && i == best_lineage_ ? m.pose : d.pose;
+        log_w = d.log_weight;
+      } else if (m.ok) {
         p.pose = m.pose;
         if (opt_.proposal_sigma_xy_m > 0 || opt_.proposal_sigma_theta_rad > 0) {
           std::normal_distribution<double> n01(0.0, 1.0);
@@ -313,13 +342,14 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
                          p.pose.y + opt_.proposal_sigma_xy_m * n01(p.rng),
                          WrapAngle(p.pose.theta + opt_.proposal_sigma_theta_rad * n01(p.rng)));
         }
-        log_lik = m.score.log_likelihood;
+        log_w = opt_.likelihood_gain * m.score.log_likelihood;
       } else {
+        // Drawn from the motion model alone: the importance weight is the likelihood.
         failed[static_cast<size_t>(i)] = 1;
         p.pose = pred;
-        log_lik = matcher_.Score(p.map, pred, mscan).log_likelihood;
+        log_w = opt_.likelihood_gain * matcher_.Score(p.map, pred, mscan).log_likelihood;
       }
-      p.log_weight += opt_.likelihood_gain * log_lik;
+      p.log_weight += log_w;
     }
     p.map.IntegrateScan(p.pose * scan.sensor_in_base, points, hit);
     auto node = std::make_shared<TrajectoryNode>();
@@ -335,6 +365,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   have_update_ = true;
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
+  best_lineage_ = best_index();
   if (!first) Resample();
 }
 
@@ -351,6 +382,8 @@ void RbpfSlam::Resample() {
   if (EffectiveSampleSize(w) >= opt_.resample_threshold * static_cast<double>(n)) return;
   ++counters_.resamplings;
   const std::vector<int> pick = LowVarianceResample(w, static_cast<int>(n), master_rng_);
+  const auto child = std::find(pick.begin(), pick.end(), best_lineage_);
+  best_lineage_ = child == pick.end() ? 0 : static_cast<int>(child - pick.begin());
   std::vector<Particle> next;
   next.reserve(n);
   for (size_t j = 0; j < n; ++j) {

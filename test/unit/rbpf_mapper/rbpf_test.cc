@@ -12,6 +12,7 @@
 #include "omni/common/config.h"
 #include "omni/io/carmen.h"
 #include "omni/rbpf_mapper/motion_model.h"
+#include "omni/rbpf_mapper/proposal.h"
 #include "omni/rbpf_mapper/rbpf.h"
 #include "omni/rbpf_mapper/scan_matcher.h"
 #include "omni/rbpf_mapper/thread_pool.h"
@@ -67,6 +68,92 @@ TEST(MotionModel, ImuFusionPullsHeadingTowardsTheGyro) {
   EXPECT_LT(fused.theta, 0.30);
   EXPECT_GT(fused.theta, 0.20);
   EXPECT_LT(sigma, model.Sigma(Pose2(0.5, 0, 0.30)).theta);
+}
+
+TEST(MotionModel, LogDensityIsTheSamplersDensity) {
+  OmniMotionModel model;
+  const Pose2 from(1.0, -2.0, 0.7), delta(0.3, 0.1, 0.2);
+  const MotionSigma s = model.Sigma(delta);
+  // At the mean: the peak of three independent Gaussians.
+  const double peak = -std::log(s.x * s.y * s.theta) - 1.5 * std::log(2 * M_PI);
+  EXPECT_NEAR(model.LogDensity(from, delta, from * delta), peak, 1e-9);
+  // One sigma off on each axis of the increment (in `from`'s frame): 1.5 nats lower.
+  const Pose2 off(delta.x + s.x, delta.y - s.y, delta.theta + s.theta);
+  EXPECT_NEAR(model.LogDensity(from, delta, from * off), peak - 1.5, 1e-9);
+  // The gyro narrows the heading: the density at the fused heading's peak is higher.
+  double fused_sigma = 0;
+  const Pose2 fused = model.FuseImuYaw(delta, 0.21, &fused_sigma);
+  EXPECT_LT(fused_sigma, s.theta);
+  EXPECT_GT(model.LogDensity(from, delta, from * fused, 0.21), peak);
+}
+
+// log N(x; mu, cov) + c for the proposal tests.
+double LogGaussian(const Eigen::Vector3d& x, const Eigen::Vector3d& mu, const Eigen::Matrix3d& cov,
+                   double c) {
+  const Eigen::Vector3d e = x - mu;
+  return c - 0.5 * e.dot(cov.inverse() * e) -
+         0.5 * std::log(std::pow(2 * M_PI, 3) * cov.determinant());
+}
+
+Eigen::Matrix3d TestCovariance() {
+  const Eigen::Vector3d sd(0.02, 0.015, 0.01);
+  Eigen::Matrix3d corr;
+  corr << 1.0, 0.5, 0.3, 0.5, 1.0, -0.2, 0.3, -0.2, 1.0;
+  return sd.asDiagonal() * corr * sd.asDiagonal();
+}
+
+TEST(Proposal, FitRecoversAGaussianTargetAndItsIntegral) {
+  const Pose2 center(3.0, -1.0, 3.1);  // near +pi: the heading offsets must not wrap
+  const Eigen::Vector3d mu_off(0.005, -0.003, 0.004);
+  const Eigen::Matrix3d cov = TestCovariance();
+  const double c = -7.5;  // log of the target's integral
+  ProposalGridOptions o;
+  o.steps = 6;  // +-3 sigma at 0.5 sigma spacing
+  o.step_xy_m = 0.01;
+  o.step_theta_rad = 0.005;
+  const GaussianProposal g = FitGaussianProposal(center, o, [&](const Pose2& x) {
+    const Eigen::Vector3d d(x.x - center.x, x.y - center.y, WrapAngle(x.theta - center.theta));
+    return LogGaussian(d, mu_off, cov, c);
+  });
+  EXPECT_EQ(g.points, 13 * 13 * 13);
+  EXPECT_NEAR(g.mean.x, center.x + mu_off.x(), 1e-3);
+  EXPECT_NEAR(g.mean.y, center.y + mu_off.y(), 1e-3);
+  EXPECT_NEAR(WrapAngle(g.mean.theta - center.theta), mu_off.z(), 1e-3);
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(g.cov(r, k), cov(r, k), 0.1 * std::sqrt(cov(r, r) * cov(k, k))) << r << k;
+  // The normaliser is the sum times the volume per point: the target's integral.
+  EXPECT_NEAR(g.log_normalizer, c, 0.05);
+}
+
+TEST(Proposal, DrawnPosesHaveTheFittedMeanAndCovariance) {
+  GaussianProposal g;
+  g.mean = Pose2(1.0, 2.0, -3.13);  // draws cross -pi and wrap
+  g.cov = TestCovariance();
+  std::mt19937_64 rng(5);
+  const int n = 40000;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sq = Eigen::Matrix3d::Zero();
+  for (int i = 0; i < n; ++i) {
+    const Pose2 p = DrawPose(g, rng);
+    ASSERT_LE(std::abs(p.theta), M_PI);
+    const Eigen::Vector3d d(p.x - g.mean.x, p.y - g.mean.y, WrapAngle(p.theta - g.mean.theta));
+    sum += d;
+    sq += d * d.transpose();
+  }
+  const Eigen::Vector3d mean = sum / n;
+  const Eigen::Matrix3d cov = sq / n - mean * mean.transpose();
+  for (int r = 0; r < 3; ++r) {
+    EXPECT_NEAR(mean(r), 0.0, 4 * std::sqrt(g.cov(r, r) / n)) << r;
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(cov(r, k), g.cov(r, k), 0.04 * std::sqrt(g.cov(r, r) * g.cov(k, k))) << r << k;
+  }
+  // A degenerate fit (one point) draws its mean.
+  GaussianProposal point;
+  point.mean = Pose2(1, 2, 3);
+  const Pose2 p = DrawPose(point, rng);
+  EXPECT_NEAR(p.x, 1.0, 1e-6);
+  EXPECT_NEAR(p.theta, 3.0, 1e-6);
 }
 
 TEST(Resampling, EffectiveSampleSize) {
@@ -195,6 +282,58 @@ TEST(ScanMatcher, RecoversAKnownOffsetBetweenTwoCorrectedScans) {
   EXPECT_EQ(checked, 10);
 }
 
+TEST(ScanMatcher, GaussianProposalDrawsAroundTheMatchAndWeighsByTheNormaliser) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/intel-corrected.log.gz");
+  const auto scans = LoadCorrected(path, 40);
+  ASSERT_GE(scans.size(), 40u);
+  MatcherOptions mo;
+  ScanMatcher matcher(mo);
+  OmniMotionModel motion;
+  const CorrectedScan &a = scans[20], &b = scans[21];
+  TiledGrid grid;
+  grid.IntegrateScan(a.pose, a.points, a.hit);
+  const MatchScan ms = MakeMatchScan(b.points, b.hit, Pose2(), 0.05, mo);
+  const Pose2 delta = a.pose.Between(b.pose);
+  const Pose2 start(b.pose.x + 0.1, b.pose.y - 0.05, WrapAngle(b.pose.theta + 0.03));
+  const MatchResult m = matcher.Match(grid, start, ms);
+  ASSERT_TRUE(m.ok);
+  const double gain = 0.33;
+  ProposalGridOptions o;  // 27 points, 1 cm / 0.005 rad apart
+  std::mt19937_64 rng(3);
+  const ProposalDraw d = DrawImprovedProposal(matcher, motion, grid, ms, a.pose, delta,
+                                              std::nullopt, m.pose, gain, o, rng);
+  EXPECT_EQ(d.gaussian.points, 27);
+  // The weight is eta = sum_k likelihood^gain * prior (times the volume per point).
+  double eta = 0;
+  for (int ix = -1; ix <= 1; ++ix)
+    for (int iy = -1; iy <= 1; ++iy)
+      for (int it = -1; it <= 1; ++it) {
+        const Pose2 x(m.pose.x + 0.01 * ix, m.pose.y + 0.01 * iy,
+                      WrapAngle(m.pose.theta + 0.005 * it));
+        eta += std::exp(gain * matcher.Score(grid, x, ms).log_likelihood +
+                        motion.LogDensity(a.pose, delta, x));
+      }
+  EXPECT_NEAR(d.log_weight, std::log(eta * 0.01 * 0.01 * 0.005), 1e-9);
+  EXPECT_EQ(d.log_weight, d.gaussian.log_normalizer);
+  // The Gaussian sits on the optimum and is not a point: draws differ from the optimum and
+  // from each other, within a few sigma of the mean.
+  EXPECT_LT(std::hypot(d.gaussian.mean.x - m.pose.x, d.gaussian.mean.y - m.pose.y), 0.015);
+  EXPECT_GT(d.gaussian.cov(0, 0), 1e-6);
+  EXPECT_GT(d.gaussian.cov(2, 2), 1e-7);
+  const ProposalDraw d2 = DrawImprovedProposal(matcher, motion, grid, ms, a.pose, delta,
+                                               std::nullopt, m.pose, gain, o, rng);
+  EXPECT_NE(d.pose.x, d2.pose.x);
+  EXPECT_NE(d.pose.x, m.pose.x);
+  EXPECT_LT(std::abs(d.pose.x - d.gaussian.mean.x), 5 * std::sqrt(d.gaussian.cov(0, 0)));
+  EXPECT_EQ(d.log_weight, d2.log_weight);  // same points, same normaliser
+  // A particle whose odometry disagrees with the match (its previous pose 4 sigma back along
+  // the motion) gets a far smaller weight from the motion prior (by about 4^2 / 2 nats).
+  const Pose2 off_from = a.pose * Pose2(-4 * motion.Sigma(delta).x, 0, 0);
+  const ProposalDraw far = DrawImprovedProposal(matcher, motion, grid, ms, off_from, delta,
+                                                std::nullopt, m.pose, gain, o, rng);
+  EXPECT_LT(far.log_weight, d.log_weight - 5.0);
+}
+
 TEST(ThreadPool, RunsEveryItemOnce) {
   ThreadPool pool(3);
   std::vector<int> hits(1000, 0);
@@ -216,8 +355,10 @@ ScanInput ToInput(const io::CarmenLaser& l) {
 }
 
 std::vector<EstimatedPose> RunPrefix(const std::string& path, size_t scans, int threads,
-                                     uint64_t seed, RbpfCounters* counters = nullptr) {
+                                     uint64_t seed, RbpfCounters* counters = nullptr,
+                                     ProposalKind proposal = ProposalKind::kMatch) {
   RbpfOptions o;
+  o.proposal = proposal;
   o.particles = 8;
   o.threads = threads;
   o.seed = seed;
@@ -253,6 +394,19 @@ TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
   for (size_t i = 0; i < std::min(a.size(), c.size()); ++i)
     differs |= a[i].pose.x != c[i].pose.x || a[i].pose.theta != c[i].pose.theta;
   EXPECT_TRUE(differs);
+  // The Gaussian proposal draws from each particle's own RNG too: same result on 1 or 2
+  // threads, and not the match proposal's path.
+  const auto g1 = RunPrefix(path, 80, 1, 7, nullptr, ProposalKind::kGaussian);
+  const auto g2 = RunPrefix(path, 80, 2, 7, nullptr, ProposalKind::kGaussian);
+  ASSERT_EQ(g1.size(), g2.size());
+  ASSERT_EQ(g1.size(), a.size());
+  bool differs_from_match = false;
+  for (size_t i = 0; i < g1.size(); ++i) {
+    EXPECT_EQ(g1[i].pose.x, g2[i].pose.x) << i;
+    EXPECT_EQ(g1[i].pose.theta, g2[i].pose.theta) << i;
+    differs_from_match |= g1[i].pose.x != a[i].pose.x;
+  }
+  EXPECT_TRUE(differs_from_match);
 }
 
 ScanInput SyntheticScan(int64_t utime, const Pose2& odom) {
@@ -353,6 +507,15 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   auto r = RbpfOptions::Load(*typo);
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("matcher.kernel_cell"), std::string::npos) << r.error().message;
+  auto gauss = ConfigReader::FromString("proposal: gaussian\nproposal_steps: 2\n", "t.yaml");
+  ASSERT_TRUE(gauss.ok());
+  auto g = RbpfOptions::Load(*gauss);
+  ASSERT_TRUE(g.ok()) << g.error().message;
+  EXPECT_EQ(g->proposal, ProposalKind::kGaussian);
+  EXPECT_EQ(g->proposal_grid.steps, 2);
+  auto bad_kind = ConfigReader::FromString("proposal: gausian\n", "t.yaml");
+  ASSERT_TRUE(bad_kind.ok());
+  EXPECT_FALSE(RbpfOptions::Load(*bad_kind).ok());
   auto range = ConfigReader::FromString("particles: 0\n", "t.yaml");
   ASSERT_TRUE(range.ok());
   EXPECT_FALSE(RbpfOptions::Load(*range).ok());

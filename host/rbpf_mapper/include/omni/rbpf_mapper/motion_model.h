@@ -41,6 +41,10 @@ class OmniMotionModel {
   // Draws a new pose: from * (delta + noise). `imu_dtheta_rad`: optional gyro increment.
   Pose2 Sample(const Pose2& from, const Pose2& delta, std::mt19937_64& rng,
                std::optional<double> imu_dtheta_rad = std::nullopt) const;
+  // Log density (per m^2 rad) of Sample(from, delta, ., imu_dtheta_rad) drawing `to`: the
+  // motion prior p(to | from, odometry) of the improved proposal.
+  double LogDensity(const Pose2& from, const Pose2& delta, const Pose2& to,
+                    std::optional<double> imu_dtheta_rad = std::nullopt) const;
   const MotionNoise& noise() const { return n_; }
 
  private:

@@ -25,11 +25,18 @@
 #include "omni/common/time.h"
 #include "omni/io/grid.h"
 #include "omni/rbpf_mapper/motion_model.h"
+#include "omni/rbpf_mapper/proposal.h"
 #include "omni/rbpf_mapper/scan_matcher.h"
 #include "omni/rbpf_mapper/thread_pool.h"
 #include "omni/rbpf_mapper/tiled_grid.h"
 
 namespace omni::rbpf {
+
+// How a particle's new pose follows from its scan match.
+enum class ProposalKind {
+  kMatch,     // the particle becomes the match optimum; weight: likelihood there
+  kGaussian,  // drawn from the Gaussian fitted around the optimum (proposal.h); weight: eta
+};
 
 struct RbpfOptions {
   int particles = 30;
@@ -38,12 +45,15 @@ struct RbpfOptions {
   GridOptions grid;
   MotionNoise motion;
   MatcherOptions matcher;
-  double linear_update_m = 0.25;     // process a scan after this much travel ...
-  double angular_update_rad = 0.2;   // ... or this much turning ...
-  double temporal_update_s = 0.0;    // ... or this much time (0: never on time alone)
-  double resample_threshold = 0.5;   // resample when Neff < threshold * particles
-  double likelihood_gain = 0.33;     // weight exponent on the scan likelihood (GMapping 1/3)
-  double proposal_sigma_xy_m = 0.0;  // noise drawn around the matched pose
+  double linear_update_m = 0.25;    // process a scan after this much travel ...
+  double angular_update_rad = 0.2;  // ... or this much turning ...
+  double temporal_update_s = 0.0;   // ... or this much time (0: never on time alone)
+  double resample_threshold = 0.5;  // resample when Neff < threshold * particles
+  double likelihood_gain = 0.33;    // weight exponent on the scan likelihood (GMapping 1/3)
+  ProposalKind proposal = ProposalKind::kMatch;
+  ProposalGridOptions proposal_grid;  // kGaussian: the points the Gaussian is fitted on
+  bool proposal_keep_best = false;    // kGaussian: the best particle takes the optimum, undrawn
+  double proposal_sigma_xy_m = 0.0;   // kMatch: noise drawn around the matched pose
   double proposal_sigma_theta_rad = 0.0;
   int min_valid_beams = 20;       // scans with fewer valid returns are rejected
   double max_range_m = 30.0;      // returns at or beyond this are "no return"
@@ -133,6 +143,20 @@ double EffectiveSampleSize(const std::vector<double>& normalized_weights);
 std::vector<int> LowVarianceResample(const std::vector<double>& normalized_weights, int n,
                                      std::mt19937_64& rng);
 
+// One particle's draw from the improved proposal (kGaussian): the Gaussian fitted to
+// p(z | m, x)^likelihood_gain * p(x | from, delta) around the match `optimum`, the pose drawn from
+// it, and the log weight factor log(eta).
+struct ProposalDraw {
+  Pose2 pose;
+  double log_weight = 0;
+  GaussianProposal gaussian;
+};
+ProposalDraw DrawImprovedProposal(const ScanMatcher& matcher, const OmniMotionModel& motion,
+                                  const TiledGrid& map, const MatchScan& scan, const Pose2& from,
+                                  const Pose2& delta, std::optional<double> imu_dtheta_rad,
+                                  const Pose2& optimum, double likelihood_gain,
+                                  const ProposalGridOptions& grid, std::mt19937_64& rng);
+
 class RbpfSlam {
  public:
   explicit RbpfSlam(const RbpfOptions& options);
@@ -188,6 +212,7 @@ class RbpfSlam {
   std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
+  int best_lineage_ = 0;  // the particle that descends from the last update's best
   Pose2 last_update_odom_;
   int64_t last_update_utime_ = 0;
 };
