@@ -408,6 +408,53 @@ TEST(PoseGraphMapperNode, GyroSamplesReachTheMapperAndBadOnesAreCounted) {
   EXPECT_EQ(counts["gyro_missing_steps"], 0);
 }
 
+TEST(PoseGraphMapperNode, HeartbeatReportsTheOdometryCalibration) {
+  for (bool enabled : {true, false}) {
+    pgm::PoseGraphSlamOptions so;
+    so.odometry_calibration.enabled = enabled;
+    HeartbeatNode n({}, so);
+    auto& b = *n.b;
+    // Driving back and forth along x in a 6 m x 6 m box, odometry 3 % long: the keyframe
+    // matches see it.
+    for (int i = 0; i <= 160; ++i) {
+      const int phase = i % 80;
+      const double x = 1.0 + 0.1 * (phase <= 40 ? phase : 80 - phase);
+      b.Publish("WHEEL_ODOM", Odom(1000000 + 100000 * i, 1.03 * x, i));
+      omni::laser_scan_t m = RingScan(1000000 + 100000 * i, i);
+      m.angle_min_rad = static_cast<float>(-M_PI);
+      m.angle_increment_rad = static_cast<float>(2 * M_PI / 360);
+      m.ranges_m.clear();
+      for (int k = 0; k < 360; ++k) {
+        const double a = -M_PI + k * 2 * M_PI / 360, c = std::cos(a), sn = std::sin(a);
+        double t = 1e9;
+        if (c > 1e-9) t = std::min(t, (6 - x) / c);
+        if (c < -1e-9) t = std::min(t, -x / c);
+        if (sn > 1e-9) t = std::min(t, 3 / sn);
+        if (sn < -1e-9) t = std::min(t, -3 / sn);
+        m.ranges_m.push_back(static_cast<float>(t));
+      }
+      m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+      b.Publish("LIDAR_SCAN", m);
+    }
+    n.Pump();
+    n.node->heartbeat().Tick(true);
+    n.Pump();
+    const auto& cal = n.node->slam().odometry_calibrator();
+    if (!enabled) {
+      EXPECT_EQ(n.counts.count("odom_cal_pairs_used"), 0u);
+      EXPECT_EQ(cal.pairs_used(), 0);
+      continue;
+    }
+    EXPECT_GT(cal.pairs_used(), 0);
+    EXPECT_EQ(n.counts["odom_cal_pairs_used"], cal.pairs_used());
+    EXPECT_EQ(n.counts["odom_cal_pairs_gated"], cal.pairs_gated());
+    ASSERT_TRUE(cal.active());
+    // 3 %, in ppm. Measured 2.46 %: in this bare box the matches lean a few millimetres toward
+    // the odometry's guess, which the fit inherits (on Freiburg 079 it finds 2.84 %).
+    EXPECT_NEAR(n.counts["odom_cal_x_scale_ppm"], 30000, 8000);
+  }
+}
+
 // The shipped config leaves the absolute input and the gyro off.
 TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
   pgm::PoseGraphSlamOptions slam;
