@@ -118,10 +118,12 @@ int main(int argc, char** argv) {
   node.pipeline().FlushAwaitingColor();
   omni::Status s = node.SaveOutputs();
   std::printf(
-      "octomap_builder: %lld frames in, %lld posed, %lld inserted, %lld dropped without pose, "
-      "%lld dropped (queue), %lld out of order, %lld decode errors -> %s/map.{bt,ot}\n",
-      static_cast<long long>(pc.frames_in), static_cast<long long>(pc.frames_posed),
-      static_cast<long long>(c.frames_inserted), static_cast<long long>(pc.frames_dropped_no_pose),
+      "octomap_builder: %lld frames in (%lld lost before arriving), %lld posed, %lld inserted, "
+      "%lld dropped without pose, %lld dropped (queue), %lld out of order, %lld decode errors -> "
+      "%s/map.{bt,ot}\n",
+      static_cast<long long>(pc.frames_in), static_cast<long long>(node.depth_frames_lost()),
+      static_cast<long long>(pc.frames_posed), static_cast<long long>(c.frames_inserted),
+      static_cast<long long>(pc.frames_dropped_no_pose),
       static_cast<long long>(pc.frames_dropped_queue),
       static_cast<long long>(pc.frames_out_of_order + pc.poses_out_of_order),
       static_cast<long long>(node.depth_decode_errors()), opt->out_dir.c_str());

@@ -74,6 +74,11 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   });
   bus_->Subscribe<omni::depth_image_t>(
       options_.depth_channel, [this](const omni::depth_image_t& m, int64_t) {
+        // Gaps in the driver's sequence numbers: frames lost before they reached us (a smaller
+        // number is a restarted driver, not a loss).
+        if (last_depth_seq_ >= 0 && m.seq > last_depth_seq_ + 1)
+          depth_frames_lost_ += m.seq - last_depth_seq_ - 1;
+        last_depth_seq_ = m.seq;
         auto im = FromDepthMessage(m);
         if (!im.ok()) {
           ++depth_decode_errors_;
@@ -97,6 +102,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   const auto& pc = pipeline_.poser_counters();
   const auto& c = pipeline_.counters();
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
+  heartbeat_.AddCounter("frames_lost", [this] { return depth_frames_lost_; });
   heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });
   heartbeat_.AddCounter("frames_dropped_no_pose", [&pc] { return pc.frames_dropped_no_pose; });
   heartbeat_.AddCounter("frames_dropped_queue", [&pc] { return pc.frames_dropped_queue; });

@@ -229,7 +229,10 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   (*bus)->Publish("DEPTH", WallFrame(t0 - 10, 0.0, 0));  // before any pose: dropped
   for (int i = 0; i <= 6; ++i) {
     (*bus)->Publish("POSE_RBPF", Pose(t0 + i * 100000, 0.1 * i, i));
-    if (i < 6) (*bus)->Publish("DEPTH", WallFrame(t0 + i * 100000 + 50000, 0.1 * i + 0.05, i + 1));
+    // Sequence numbers 1, 2, 3, 6, 7, 8: frames 4 and 5 were lost on the way.
+    if (i < 6)
+      (*bus)->Publish("DEPTH",
+                      WallFrame(t0 + i * 100000 + 50000, 0.1 * i + 0.05, i + 1 + (i >= 3 ? 2 : 0)));
     pump();
   }
   (*bus)->Publish("POSE_RBPF", Pose(t0, 0.0, 99));  // out of order
@@ -267,6 +270,8 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   std::map<std::string, int64_t> counters;
   for (int i = 0; i < hb.num_counters; ++i) counters[hb.counter_names[i]] = hb.counter_values[i];
   EXPECT_EQ(counters["frames_in"], 7);
+  EXPECT_EQ(counters["frames_lost"], 2);
+  EXPECT_EQ(node.depth_frames_lost(), 2);
   EXPECT_EQ(counters["frames_posed"], 6);
   EXPECT_EQ(counters["frames_dropped_no_pose"], 1);
   EXPECT_EQ(counters["out_of_order"], 1);

@@ -44,6 +44,8 @@ class OctomapNode {
 
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }
+  // Depth frames missing from the sequence numbers received (lost on the bus or by the driver).
+  int64_t depth_frames_lost() const { return depth_frames_lost_; }
   int64_t color_decode_errors() const { return color_decode_errors_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
@@ -54,6 +56,7 @@ class OctomapNode {
   OctomapPipeline pipeline_;
   bus::Heartbeat heartbeat_;
   int64_t depth_decode_errors_ = 0;
+  int64_t depth_frames_lost_ = 0, last_depth_seq_ = -1;
   int64_t color_decode_errors_ = 0;
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
