@@ -57,6 +57,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("proposal_steps", &o.proposal_grid.steps, Optional(), InRange(0, 5));
   r.Get("proposal_step_xy_m", &o.proposal_grid.step_xy_m, Optional(), InRange(1e-4, 0.5));
   r.Get("proposal_step_theta_rad", &o.proposal_grid.step_theta_rad, Optional(), InRange(1e-5, 0.5));
+  r.Get("proposal_draw", &o.proposal_draw, Optional());
   r.Get("proposal_keep_best", &o.proposal_keep_best, Optional());
   r.Get("proposal_sigma_xy_m", &o.proposal_sigma_xy_m, Optional(), NonNegative<double>());
   r.Get("proposal_sigma_theta_rad", &o.proposal_sigma_theta_rad, Optional(), NonNegative<double>());
@@ -331,8 +332,9 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
         const ProposalDraw d =
             DrawImprovedProposal(matcher_, motion_, p.map, mscan, p.pose, delta, imu_dtheta, m.pose,
                                  opt_.likelihood_gain, opt_.proposal_grid, p.rng);
-        // keep_best: one particle follows the match optima, the others explore around them.
-        p.pose = opt_.proposal_keep_best && i == best_lineage_ ? m.pose : d.pose;
+        // Without draw, or for the best lineage with keep_best: the optimum, weighed by eta.
+        const bool keep = !opt_.proposal_draw || (opt_.proposal_keep_best && i == best_lineage_);
+        p.pose = keep ? m.pose : d.pose;
         log_w = d.log_weight;
       } else if (m.ok) {
         p.pose = m.pose;

@@ -102,7 +102,7 @@ Eigen::Matrix3d TestCovariance() {
   return sd.asDiagonal() * corr * sd.asDiagonal();
 }
 
-TEST(Proposal, FitRecoversAGaussianTargetAndItsIntegral) {
+TEST(RbpfProposal, FitRecoversAGaussianTargetAndItsIntegral) {
   const Pose2 center(3.0, -1.0, 3.1);  // near +pi: the heading offsets must not wrap
   const Eigen::Vector3d mu_off(0.005, -0.003, 0.004);
   const Eigen::Matrix3d cov = TestCovariance();
@@ -126,7 +126,7 @@ TEST(Proposal, FitRecoversAGaussianTargetAndItsIntegral) {
   EXPECT_NEAR(g.log_normalizer, c, 0.05);
 }
 
-TEST(Proposal, DrawnPosesHaveTheFittedMeanAndCovariance) {
+TEST(RbpfProposal, DrawnPosesHaveTheFittedMeanAndCovariance) {
   GaussianProposal g;
   g.mean = Pose2(1.0, 2.0, -3.13);  // draws cross -pi and wrap
   g.cov = TestCovariance();
@@ -507,12 +507,14 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   auto r = RbpfOptions::Load(*typo);
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("matcher.kernel_cell"), std::string::npos) << r.error().message;
-  auto gauss = ConfigReader::FromString("proposal: gaussian\nproposal_steps: 2\n", "t.yaml");
+  auto gauss = ConfigReader::FromString(
+      "proposal: gaussian\nproposal_steps: 2\nproposal_draw: false\n", "t.yaml");
   ASSERT_TRUE(gauss.ok());
   auto g = RbpfOptions::Load(*gauss);
   ASSERT_TRUE(g.ok()) << g.error().message;
   EXPECT_EQ(g->proposal, ProposalKind::kGaussian);
   EXPECT_EQ(g->proposal_grid.steps, 2);
+  EXPECT_FALSE(g->proposal_draw);
   auto bad_kind = ConfigReader::FromString("proposal: gausian\n", "t.yaml");
   ASSERT_TRUE(bad_kind.ok());
   EXPECT_FALSE(RbpfOptions::Load(*bad_kind).ok());

@@ -52,8 +52,9 @@ struct RbpfOptions {
   double likelihood_gain = 0.33;    // weight exponent on the scan likelihood (GMapping 1/3)
   ProposalKind proposal = ProposalKind::kMatch;
   ProposalGridOptions proposal_grid;  // kGaussian: the points the Gaussian is fitted on
-  bool proposal_keep_best = false;    // kGaussian: the best particle takes the optimum, undrawn
-  double proposal_sigma_xy_m = 0.0;   // kMatch: noise drawn around the matched pose
+  bool proposal_draw = true;  // kGaussian: draw the pose (false: keep the optimum, weigh by eta)
+  bool proposal_keep_best = false;   // kGaussian: the best particle takes the optimum, undrawn
+  double proposal_sigma_xy_m = 0.0;  // kMatch: noise drawn around the matched pose
   double proposal_sigma_theta_rad = 0.0;
   int min_valid_beams = 20;       // scans with fewer valid returns are rejected
   double max_range_m = 30.0;      // returns at or beyond this are "no return"
