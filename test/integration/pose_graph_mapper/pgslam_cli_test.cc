@@ -91,5 +91,36 @@ TEST(PoseGraphSlamCli, PrefixOfANoisyLogThroughOmniSlam) {
   EXPECT_LT(AteRmse(r.output), kAteBoundM) << r.output;
 }
 
+// The matcher against a corrected log's own poses (docs/posegraph.md, "Freiburg 079"): runs,
+// matches nearly every consecutive pair of the Intel log, and agrees with the corrected poses to
+// a few centimetres (measured 3.5 cm / 0.011 rad RMS); bad arguments are errors.
+TEST(MatchReference, IntelCorrectedConsecutiveScans) {
+  const std::string log =
+      std::string(OMNI_DATASETS_DIR) + "/carmen-corrected/intel-corrected.log.gz";
+  auto r = testing::Run(Bin("omni-match-reference") + " --help");
+  EXPECT_EQ(r.exit_code, 2);
+  r = testing::Run(Bin("omni-match-reference") + " " + log + " --gapp 1");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("--gapp"), std::string::npos) << r.output;
+  r = testing::Run(Bin("omni-match-reference") + " " + testing::TempDir() + "/none.clf");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("none.clf"), std::string::npos) << r.output;
+  if (!fs::exists(log)) GTEST_SKIP() << "dataset " << log << " absent";
+  r = testing::Run(Bin("omni-match-reference") + " " + log + " --gap 1 --submap 1");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  // "...: 900 pairs matched (9 rejected ...)": of 909 consecutive pairs.
+  const auto pairs = r.output.find(" pairs matched");
+  ASSERT_NE(pairs, std::string::npos) << r.output;
+  const auto colon = r.output.rfind(": ", pairs);
+  ASSERT_NE(colon, std::string::npos) << r.output;
+  EXPECT_GT(std::atoi(r.output.c_str() + colon + 2), 850) << r.output;
+  const auto t = r.output.find("translation error RMS ");
+  const auto h = r.output.find("heading RMS ");
+  ASSERT_NE(t, std::string::npos) << r.output;
+  ASSERT_NE(h, std::string::npos) << r.output;
+  EXPECT_LT(std::atof(r.output.c_str() + t + 22), 0.06) << r.output;
+  EXPECT_LT(std::atof(r.output.c_str() + h + 12), 0.03) << r.output;
+}
+
 }  // namespace
 }  // namespace omni
