@@ -77,22 +77,21 @@ void OdometryCalibrator::Solve() {
   c.theta_scale = std::clamp(r, -o_.max_abs_scale, o_.max_abs_scale);
   c.theta_per_x = std::clamp(k, -o_.max_abs_theta_per_x, o_.max_abs_theta_per_x);
   cal_ = c;
-  {
-    // Residual of each pair's calibrated odometry, in its own frame, whitened by the model.
-    std::vector<double> chi2;
-    chi2.reserve(pairs_.size());
-    for (const Pair& p : pairs_) {
-      const Pose2 e = p.matched.Between(cal_.Correct(p.raw));
-      const Eigen::Vector3d v(e.x, e.y, e.theta);
-      chi2.push_back(v.dot(p.information * v));
-    }
-    auto mid = chi2.begin() + static_cast<std::ptrdiff_t>(chi2.size() / 2);
-    std::nth_element(chi2.begin(), mid, chi2.end());
-    constexpr double kChi2Median3 = 2.366;  // median of chi-square, 3 degrees of freedom
-    suggested_noise_scale_ = *mid / kChi2Median3;
-    if (o_.adapt_noise)
-      noise_scale_ = std::clamp(suggested_noise_scale_, o_.min_noise_scale, o_.max_noise_scale);
+  // The noise scale: each pair's calibrated odometry residual, in its own frame, whitened by
+  // the configured model.
+  std::vector<double> chi2;
+  chi2.reserve(pairs_.size());
+  for (const Pair& p : pairs_) {
+    const Pose2 e = p.matched.Between(cal_.Correct(p.raw));
+    const Eigen::Vector3d v(e.x, e.y, e.theta);
+    chi2.push_back(v.dot(p.information * v));
   }
+  auto mid = chi2.begin() + static_cast<std::ptrdiff_t>(chi2.size() / 2);
+  std::nth_element(chi2.begin(), mid, chi2.end());
+  constexpr double kChi2Median3 = 2.366;  // median of chi-square, 3 degrees of freedom
+  suggested_noise_scale_ = *mid / kChi2Median3;
+  if (o_.adapt_noise)
+    noise_scale_ = std::clamp(suggested_noise_scale_, o_.min_noise_scale, o_.max_noise_scale);
   active_ = true;
   ++updates_;
 }

@@ -17,6 +17,12 @@ namespace {
 // Anchors the window's oldest pose (1 mm, 1 mrad): the global solution places the window.
 Eigen::Matrix3d AnchorInformation() { return 1e6 * Eigen::Matrix3d::Identity(); }
 
+// Information of a continuous-source factor (a tiny floor keeps a standstill's zero covariance
+// invertible).
+Eigen::Matrix3d MotionInformation(const RelativeMotion& m) {
+  return (m.covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse();
+}
+
 }  // namespace
 
 Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
@@ -262,8 +268,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   // The newest node before this one is always the previous keyframe: pose nodes are only
   // created inside linked intervals.
   const int prev = node_of_kf_[static_cast<size_t>(k - 1)];
-  Eigen::Matrix3d cov = motion.covariance + 1e-9 * Eigen::Matrix3d::Identity();
-  const Eigen::Matrix3d info = cov.inverse();
+  const Eigen::Matrix3d info = MotionInformation(motion);
   links_.push_back({prev, id, motion.delta, info, LinkKind::kOdometry});
   (void)window_->AddRelative(prev, id, motion.delta, info);
 
@@ -334,7 +339,7 @@ void PoseGraphSlam::RelinkOdometry() {
                                     nodes_[static_cast<size_t>(l.to)].utime);
     if (!m) continue;  // no longer in the odometry buffer: keeps its factor
     l.z = m->delta;
-    l.information = (m->covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse();
+    l.information = MotionInformation(*m);
   }
 }
 
@@ -427,10 +432,8 @@ AbsoluteOutcome PoseGraphSlam::ApplyAbsolute(int64_t utime, const Pose2& z,
   const Pose2 estimate = EstimateOf(a) * before->delta;
   nodes_.push_back({utime, -1, estimate});
   node_by_utime_[utime] = id;
-  auto information = [](const RelativeMotion& m) {
-    return Eigen::Matrix3d((m.covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse());
-  };
-  const Eigen::Matrix3d info_before = information(*before), info_after = information(*after);
+  const Eigen::Matrix3d info_before = MotionInformation(*before);
+  const Eigen::Matrix3d info_after = MotionInformation(*after);
   // The old link becomes the first half in place (indices of pending loops stay valid).
   *link = {a, id, before->delta, info_before, LinkKind::kOdometry};
   links_.push_back({id, b, after->delta, info_after, LinkKind::kOdometry});
