@@ -231,6 +231,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   const bool make_kf = keyframes_.empty() ||
                        std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
                        std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
+  last_scan_motion_covariance_ = make_kf ? Eigen::Matrix3d::Zero() : motion.covariance;
   if (make_kf) {
     NewKeyframe(scan, t, motion, std::move(points));
     scans_.push_back({scan_index, scan.utime, static_cast<int>(keyframes_.size()) - 1, Pose2()});
@@ -248,6 +249,13 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   Keyframe kf;
   kf.utime = utime;
   kf.estimate = k == 0 ? Pose2() : keyframes_.back().estimate * motion.delta;
+  if (k == 0) {
+    kf_covariance_ = AnchorInformation().inverse();
+  } else {
+    Eigen::Matrix3d a, b;
+    ComposeJacobians(keyframes_.back().estimate, motion.delta, &a, &b);
+    kf_covariance_ = a * kf_covariance_ * a.transpose() + b * motion.covariance * b.transpose();
+  }
   kf.points = std::move(points);
   keyframes_.push_back(std::move(kf));
   kf_scans_.push_back({scan});
@@ -352,6 +360,7 @@ void PoseGraphSlam::OptimizeWindow() {
     ++c_.window_failures;
     return;
   }
+  kf_covariance_stale_ = true;
   for (int id : window_->WindowIds())
     if (auto e = window_->Estimate(id)) SetEstimate(id, *e);
 }
@@ -577,6 +586,24 @@ bool PoseGraphSlam::LastScanPose(ScanPose* out) const {
   if (scans_.empty()) return false;
   const ScanRef& s = scans_.back();
   *out = {s.scan_index, s.utime, keyframes_[static_cast<size_t>(s.keyframe)].estimate * s.delta};
+  return true;
+}
+
+bool PoseGraphSlam::LastScanCovariance(Eigen::Matrix3d* covariance) {
+  if (scans_.empty()) return false;
+  if (kf_covariance_stale_) {
+    kf_covariance_stale_ = false;
+    if (auto cov = window_->Covariance(node_of_kf_.back()))
+      kf_covariance_ = *cov;
+    else
+      ++c_.covariance_failures;
+  }
+  // The newest scan belongs to the newest keyframe.
+  const ScanRef& s = scans_.back();
+  Eigen::Matrix3d a, b;
+  ComposeJacobians(keyframes_[static_cast<size_t>(s.keyframe)].estimate, s.delta, &a, &b);
+  *covariance =
+      a * kf_covariance_ * a.transpose() + b * last_scan_motion_covariance_ * b.transpose();
   return true;
 }
 

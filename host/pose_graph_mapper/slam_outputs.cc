@@ -56,7 +56,7 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"decode_errors\": %lld, \"keyframes\": %lld, \"scan_match_factors\": %lld, "
       "\"scan_match_failures\": %lld, \"loops_accepted\": %lld, \"loops_rejected\": %lld, "
       "\"loops_inconsistent\": %lld, \"window_updates\": %lld, \"window_failures\": %lld, "
-      "\"latency_p50_ms\": %.3f, "
+      "\"covariance_failures\": %lld, \"latency_p50_ms\": %.3f, "
       "\"latency_p99_ms\": %.3f, \"latency_max_ms\": %.3f, \"global_optimizations\": %lld, "
       "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f",
       JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
@@ -65,8 +65,9 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ll(c.odom_out_of_order), ll(c.odom_jumps), ll(info.decode_errors), ll(c.keyframes),
       ll(c.scan_match_factors), ll(c.scan_match_failures), ll(c.loops_accepted),
       ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates), ll(c.window_failures),
-      Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0), ll(c.global_optimizations),
-      ll(c.global_failures), Percentile(glat, 0.5), Percentile(glat, 1.0));
+      ll(c.covariance_failures), Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0),
+      ll(c.global_optimizations), ll(c.global_failures), Percentile(glat, 0.5),
+      Percentile(glat, 1.0));
   std::fprintf(f,
                ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "
                "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld",

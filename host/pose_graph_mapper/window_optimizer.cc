@@ -100,6 +100,76 @@ std::optional<Pose2> SlidingWindowOptimizer::Estimate(int id) const {
   return std::nullopt;
 }
 
+namespace {
+
+void Accumulate(const Eigen::VectorXd& r, const std::vector<int>& blocks,
+                const std::vector<Eigen::MatrixXd>& jac, Eigen::MatrixXd* h, Eigen::VectorXd* g) {
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    g->segment(3 * blocks[i], 3) += jac[i].transpose() * r;
+    for (size_t j = 0; j < blocks.size(); ++j)
+      h->block(3 * blocks[i], 3 * blocks[j], 3, 3) += jac[i].transpose() * jac[j];
+  }
+}
+
+}  // namespace
+
+template <typename Index>
+void SlidingWindowOptimizer::Linearize(const Factor& f, Index&& index, Eigen::MatrixXd* h,
+                                       Eigen::VectorXd* g) const {
+  Eigen::Vector3d r;
+  Eigen::Matrix<double, 3, 3, Eigen::RowMajor> ja, jb;
+  double* jacs[2] = {ja.data(), jb.data()};
+  if (f.b >= 0) {
+    RelativePose2Cost cost(f.z, f.information);
+    const double* params[2] = {x_.at(f.a).data(), x_.at(f.b).data()};
+    cost.Evaluate(params, r.data(), jacs);
+    Accumulate(r, {index(f.a), index(f.b)}, {Eigen::MatrixXd(ja), Eigen::MatrixXd(jb)}, h, g);
+  } else {
+    PosePrior2Cost cost(f.z, f.information);
+    const double* params[1] = {x_.at(f.a).data()};
+    cost.Evaluate(params, r.data(), jacs);
+    Accumulate(r, {index(f.a)}, {Eigen::MatrixXd(ja)}, h, g);
+  }
+}
+
+template <typename Index>
+void SlidingWindowOptimizer::LinearizePrior(Index&& index, Eigen::MatrixXd* h,
+                                            Eigen::VectorXd* g) const {
+  if (prior_ids_.empty()) return;
+  const int pn = static_cast<int>(prior_r0_.size());
+  Eigen::VectorXd d(pn);
+  std::vector<int> blocks;
+  std::vector<Eigen::MatrixXd> jac;
+  for (size_t i = 0; i < prior_ids_.size(); ++i) {
+    const auto& x = x_.at(prior_ids_[i]);
+    d[3 * i] = x[0] - prior_x0_[3 * i];
+    d[3 * i + 1] = x[1] - prior_x0_[3 * i + 1];
+    d[3 * i + 2] = WrapAngle(x[2] - prior_x0_[3 * i + 2]);
+    blocks.push_back(index(prior_ids_[i]));
+    jac.push_back(prior_s_.middleCols(3 * i, 3));
+  }
+  Accumulate(prior_s_ * d + prior_r0_, blocks, jac, h, g);
+}
+
+std::optional<Eigen::Matrix3d> SlidingWindowOptimizer::Covariance(int id) const {
+  if (!x_.count(id)) return std::nullopt;
+  std::unordered_map<int, int> block;
+  for (int w : window_) block.emplace(w, static_cast<int>(block.size()));
+  const int n = 3 * static_cast<int>(block.size());
+  Eigen::MatrixXd h = Eigen::MatrixXd::Zero(n, n);
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+  auto index = [&](int pose) { return block.at(pose); };
+  for (const auto& f : factors_) Linearize(f, index, &h, &g);
+  LinearizePrior(index, &h, &g);
+  const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (h + h.transpose()));
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  Eigen::MatrixXd e = Eigen::MatrixXd::Zero(n, 3);
+  e.middleRows(3 * block.at(id), 3).setIdentity();
+  const Eigen::Matrix3d cov = llt.solve(e).middleRows(3 * block.at(id), 3);
+  if (!cov.allFinite()) return std::nullopt;
+  return 0.5 * (cov + cov.transpose());
+}
+
 Status SlidingWindowOptimizer::MarginalizeOldest() {
   const int m = window_.front();
   // Variables: m first, then every other pose of the factors touching m and of the prior.
@@ -121,46 +191,8 @@ Status SlidingWindowOptimizer::MarginalizeOldest() {
   const int n = 3 * static_cast<int>(vars.size());
   Eigen::MatrixXd h = Eigen::MatrixXd::Zero(n, n);
   Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-  auto accumulate = [&](const Eigen::VectorXd& r, const std::vector<int>& blocks,
-                        const std::vector<Eigen::MatrixXd>& jac) {
-    for (size_t i = 0; i < blocks.size(); ++i) {
-      g.segment(3 * blocks[i], 3) += jac[i].transpose() * r;
-      for (size_t j = 0; j < blocks.size(); ++j)
-        h.block(3 * blocks[i], 3 * blocks[j], 3, 3) += jac[i].transpose() * jac[j];
-    }
-  };
-  for (size_t k : touching) {
-    const Factor& f = factors_[k];
-    Eigen::Vector3d r;
-    Eigen::Matrix<double, 3, 3, Eigen::RowMajor> ja, jb;
-    double* jacs[2] = {ja.data(), jb.data()};
-    if (f.b >= 0) {
-      RelativePose2Cost cost(f.z, f.information);
-      const double* params[2] = {x_.at(f.a).data(), x_.at(f.b).data()};
-      cost.Evaluate(params, r.data(), jacs);
-      accumulate(r, {index(f.a), index(f.b)}, {Eigen::MatrixXd(ja), Eigen::MatrixXd(jb)});
-    } else {
-      PosePrior2Cost cost(f.z, f.information);
-      const double* params[1] = {x_.at(f.a).data()};
-      cost.Evaluate(params, r.data(), jacs);
-      accumulate(r, {index(f.a)}, {Eigen::MatrixXd(ja)});
-    }
-  }
-  if (!prior_ids_.empty()) {
-    const int pn = static_cast<int>(prior_r0_.size());
-    Eigen::VectorXd d(pn);
-    std::vector<int> blocks;
-    std::vector<Eigen::MatrixXd> jac;
-    for (size_t i = 0; i < prior_ids_.size(); ++i) {
-      const auto& x = x_.at(prior_ids_[i]);
-      d[3 * i] = x[0] - prior_x0_[3 * i];
-      d[3 * i + 1] = x[1] - prior_x0_[3 * i + 1];
-      d[3 * i + 2] = WrapAngle(x[2] - prior_x0_[3 * i + 2]);
-      blocks.push_back(index(prior_ids_[i]));
-      jac.push_back(prior_s_.middleCols(3 * i, 3));
-    }
-    accumulate(prior_s_ * d + prior_r0_, blocks, jac);
-  }
+  for (size_t k : touching) Linearize(factors_[k], index, &h, &g);
+  LinearizePrior(index, &h, &g);
   // Schur complement onto the other variables.
   const int nk = n - 3;
   if (nk > 0) {

@@ -96,6 +96,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("loops_rejected", [&c] { return c.loops_rejected; });
   heartbeat_.AddCounter("loops_inconsistent", [&c] { return c.loops_inconsistent; });
   heartbeat_.AddCounter("window_failures", [&c] { return c.window_failures; });
+  heartbeat_.AddCounter("covariance_failures", [&c] { return c.covariance_failures; });
   heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
   heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
   if (slam.use_gyro) {
@@ -213,7 +214,8 @@ void PoseGraphNode::HandleScan(const LaserScan2& scan) {
     return;
   }
   ScanPose sp;
-  if (!slam_.LastScanPose(&sp)) return;
+  Eigen::Matrix3d cov;
+  if (!slam_.LastScanPose(&sp) || !slam_.LastScanCovariance(&cov)) return;
   omni::pose2d_t p{};
   p.utime = sp.utime;
   p.seq = pose_seq_++;
@@ -222,6 +224,8 @@ void PoseGraphNode::HandleScan(const LaserScan2& scan) {
   p.x_m = sp.pose.x;
   p.y_m = sp.pose.y;
   p.yaw_rad = sp.pose.theta;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) p.covariance[3 * r + c] = cov(r, c);
   if (bus_->Publish(o_.pose_channel, p)) ++poses_published_;
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
 }

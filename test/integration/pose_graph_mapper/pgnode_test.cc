@@ -2,6 +2,7 @@
 // in a private network namespace) and its node on memq:// in-process: what it publishes, how it
 // orders scans and odometry, what it counts. Data: a prefix of
 // ../shared/datasets/slam-noisy-odom/intel.noisy.clf.gz.
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +11,8 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
 
 #include "../../unit/common/test_paths.h"
 #include "../tools/mapper_replay.h"
@@ -174,11 +177,30 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
   EXPECT_EQ(c.scans_too_few_beams, 1);
   EXPECT_EQ(static_cast<int64_t>(poses.size()), c.scans_used);
   EXPECT_EQ(c.scans_used, 59);
+  double max_sigma_xy = 0, max_sigma_theta = 0;
   for (const auto& p : poses) {
     EXPECT_EQ(p.source, "posegraph");
     EXPECT_EQ(p.frame, "map");
     EXPECT_TRUE(std::isfinite(p.x_m) && std::isfinite(p.y_m) && std::isfinite(p.yaw_rad));
+    // The window's marginal covariance composed with the odometry since the keyframe: a real
+    // covariance, symmetric positive definite, not the zeros of "not computed".
+    const Eigen::Matrix3d cov =
+        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(p.covariance);
+    EXPECT_TRUE(cov.allFinite());
+    EXPECT_LT((cov - cov.transpose()).norm(), 1e-12 + 1e-9 * cov.norm());
+    EXPECT_EQ(Eigen::LLT<Eigen::Matrix3d>(cov).info(), Eigen::Success) << p.seq << "\n" << cov;
+    max_sigma_xy = std::max(max_sigma_xy, std::sqrt(std::max(cov(0, 0), cov(1, 1))));
+    max_sigma_theta = std::max(max_sigma_theta, std::sqrt(cov(2, 2)));
   }
+  // In the map frame (the first keyframe's): the first keyframe pair of this log has no scan
+  // match, so its odometry's 0.078 rad heading sigma stays in every later pose (and grows
+  // slowly), and the position sigma grows with the distance from the origin (1.4 m at 17 m).
+  // Odometry alone, over the ~10 rad these 60 scans turn, would be about 0.3 rad.
+  EXPECT_GT(max_sigma_xy, 1e-3);
+  EXPECT_GT(max_sigma_theta, 0.01);
+  EXPECT_LT(max_sigma_theta, 0.15);
+  RecordProperty("max_sigma_xy_m", std::to_string(max_sigma_xy));
+  RecordProperty("max_sigma_theta_rad", std::to_string(max_sigma_theta));
   EXPECT_GE(trajs, 10);
   EXPECT_GE(grids, 5);
   EXPECT_GE(heartbeats, 5);

@@ -2,6 +2,7 @@
 // equals the full graph's; factors to poses that have left the window are refused.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
 #include "omni/pose_graph_mapper/window_optimizer.h"
@@ -100,6 +101,70 @@ TEST(PoseGraphWindow, OldFactorsStillShapeTheWindowSolution) {
     diff = std::max(diff,
                     (full.Estimate(id)->translation() - other.Estimate(id)->translation()).norm());
   EXPECT_GT(diff, 1e-3);
+}
+
+TEST(PoseGraphWindow, CovarianceEqualsTheFullGraphsOnALinearProblem) {
+  // The marginal prior carries the old poses' information: the window's marginal covariances
+  // are the full graph's, not those of a window cut loose from its past.
+  const Problem p = MakeLinearProblem(20);
+  SlidingWindowOptimizer window(Tight(5)), full(Tight(1000));
+  Feed(p, &window);
+  Feed(p, &full);
+  ASSERT_GT(window.prior_size(), 0u);
+  for (int id : window.WindowIds()) {
+    const auto a = window.Covariance(id), b = full.Covariance(id);
+    ASSERT_TRUE(a && b) << id;
+    EXPECT_LT(((*a - *b).topLeftCorner<2, 2>()).norm(), 1e-6 * b->norm()) << id;
+    EXPECT_GT((*a)(0, 0), 1e-4) << id;  // not the anchor's tiny variance
+  }
+  EXPECT_FALSE(window.Covariance(0).has_value());   // marginalised
+  EXPECT_FALSE(window.Covariance(99).has_value());  // never added
+  // Without the old absolute factors the newest pose is less certain: the prior matters.
+  Problem loose = p;
+  loose.absolute = {loose.absolute[0]};
+  SlidingWindowOptimizer other(Tight(5));
+  Feed(loose, &other);
+  EXPECT_GT((*other.Covariance(19))(0, 0), 1.5 * (*window.Covariance(19))(0, 0));
+}
+
+TEST(PoseGraphWindow, CovarianceOfAnOdometryChainIsThePropagatedOne) {
+  // Anchored first pose, odometry only, turning: the smoother's marginal of each pose equals
+  // Sigma_b = A Sigma_a A^T + B Q B^T, the covariance propagated through the SE(2) composition
+  // (A, B its Jacobians), also after the first poses have been marginalised. Linearisation at
+  // the exact estimates (no noise), so first order is the whole story.
+  SlidingWindowOptimizer w(Tight(3));
+  Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+  q.diagonal() << 0.01, 0.004, 0.002;
+  q(0, 2) = q(2, 0) = 0.001;
+  const Eigen::Matrix3d anchor_cov = 1e-4 * Eigen::Matrix3d::Identity();
+  const Pose2 step(0.8, 0.1, 0.35);
+  Pose2 pose(1.0, -2.0, 0.5);
+  Eigen::Matrix3d sigma = anchor_cov;
+  ASSERT_TRUE(w.AddPose(0, pose).ok());
+  ASSERT_TRUE(w.AddAbsolute(0, pose, anchor_cov.inverse()).ok());
+  ASSERT_TRUE(w.Update().ok());
+  for (int id = 1; id < 9; ++id) {
+    const double c = std::cos(pose.theta), s = std::sin(pose.theta);
+    Eigen::Matrix3d a = Eigen::Matrix3d::Identity();
+    a(0, 2) = -s * step.x - c * step.y;
+    a(1, 2) = c * step.x - s * step.y;
+    // The factor's error is the g2o EDGE_SE2 one, t2v(Z^-1 A^-1 B): noise on the later pose in
+    // its own frame, so B rotates by the later pose's heading.
+    const double cb = std::cos(pose.theta + step.theta), sb = std::sin(pose.theta + step.theta);
+    Eigen::Matrix3d b = Eigen::Matrix3d::Identity();
+    b.topLeftCorner<2, 2>() << cb, -sb, sb, cb;
+    sigma = a * sigma * a.transpose() + b * q * b.transpose();
+    pose = pose * step;
+    ASSERT_TRUE(w.AddPose(id, pose).ok());
+    ASSERT_TRUE(w.AddRelative(id - 1, id, step, q.inverse()).ok());
+    ASSERT_TRUE(w.Update().ok());
+    const auto cov = w.Covariance(id);
+    ASSERT_TRUE(cov.has_value());
+    EXPECT_LT((*cov - sigma).norm(), 1e-6 * sigma.norm()) << "pose " << id << "\n"
+                                                          << *cov << "\n"
+                                                          << sigma;
+  }
+  EXPECT_GT(w.prior_size(), 0u);
 }
 
 TEST(PoseGraphWindow, FactorsToPosesThatLeftTheWindowAreRefused) {

@@ -39,6 +39,7 @@
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
+#include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
 #include "omni/common/time.h"
 #include "omni/io/g2o.h"
@@ -48,7 +49,6 @@
 #include "omni/pose_graph_mapper/gyro_source.h"
 #include "omni/pose_graph_mapper/measurement_plugin.h"
 #include "omni/pose_graph_mapper/node_options.h"
-#include "omni/common/odometry_calibration.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
 #include "omni/pose_graph_mapper/window_optimizer.h"
 
@@ -147,6 +147,9 @@ struct SlamCounters {
   // Gyro (use_gyro): yaw-rate samples received, rejected (non-finite, not newer than the last).
   int64_t imu_in = 0, imu_rejected = 0;
   int64_t window_updates = 0, window_failures = 0;
+  // Window updates whose information matrix gave no marginal covariance (the published
+  // covariance then stays the odometry-predicted one).
+  int64_t covariance_failures = 0;
   int64_t global_optimizations = 0, global_failures = 0;
   // Absolute poses (AddAbsolutePose): received, attached at a node's exact time, spliced in as
   // a new pose node, queued for a future pose (each is later attached, spliced or rejected
@@ -191,6 +194,15 @@ class PoseGraphSlam {
   // The current estimate of the newest accepted scan (what AddScan just accepted); false when
   // no scan has been accepted yet. O(1), for publishing the pose at scan rate.
   bool LastScanPose(ScanPose* out) const;
+  // Covariance over (x, y, theta), in the map frame, of LastScanPose: the window's marginal
+  // covariance of its keyframe (SlidingWindowOptimizer::Covariance) composed with the odometry
+  // covariance since that keyframe. Computed on demand, once per window update (a dense solve
+  // over the window, ~0.5 ms at N = 50), so offline runs that never ask do not pay for it. If
+  // the window gives none (counted, covariance_failures), the keyframe's covariance is the
+  // previous one propagated through its odometry factor. After a global optimisation the
+  // window restarts anchored at its oldest pose, so from then on the covariance is relative to
+  // that pose, not to the map origin. False when no scan has been accepted.
+  bool LastScanCovariance(Eigen::Matrix3d* covariance);
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   // The graph at the current estimates: vertex ids = node ids (keyframes and pose nodes, in
   // creation order; = keyframe indices when nothing was spliced), edges = odometry, scan-match
@@ -289,6 +301,11 @@ class PoseGraphSlam {
   std::vector<Link> links_;
   std::vector<ScanRef> scans_;
   std::unique_ptr<SlidingWindowOptimizer> window_;
+  // Covariance of the newest keyframe (predicted through its odometry factor, then the window's
+  // marginal after each successful update) and of the newest scan's odometry since it.
+  Eigen::Matrix3d kf_covariance_ = Eigen::Matrix3d::Zero();
+  bool kf_covariance_stale_ = false;  // the window changed since kf_covariance_ was computed
+  Eigen::Matrix3d last_scan_motion_covariance_ = Eigen::Matrix3d::Zero();
   KeyframeMatchPlugin match_;
   LoopClosurePlugin loop_;
   bool loops_pending_ = false;

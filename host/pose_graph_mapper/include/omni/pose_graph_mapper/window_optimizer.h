@@ -63,6 +63,13 @@ class SlidingWindowOptimizer {
 
   // Current estimate (window poses) or the estimate at marginalisation (older poses).
   std::optional<Pose2> Estimate(int id) const;
+  // Marginal covariance over (x, y, theta) of a window pose: the inverse of the window's
+  // information (its factors and the marginal prior, linearised at the current estimates),
+  // block `id`. With the gauge held by an absolute factor (the mapper anchors its first pose),
+  // this is the fixed-lag smoother's covariance in the map frame: the marginalised poses count
+  // through the prior, so it equals the full graph's covariance on a linear problem. nullopt
+  // for a pose outside the window or an information matrix that is not positive definite.
+  std::optional<Eigen::Matrix3d> Covariance(int id) const;
   std::vector<int> WindowIds() const { return {window_.begin(), window_.end()}; }
   size_t prior_size() const { return prior_ids_.size(); }
 
@@ -73,6 +80,12 @@ class SlidingWindowOptimizer {
     Eigen::Matrix3d information;
   };
   Status MarginalizeOldest();
+  // Adds a factor's / the marginal prior's J^T J and J^T r to (h, g), at the current estimates;
+  // `index` maps a pose id to its block.
+  template <typename Index>
+  void Linearize(const Factor& f, Index&& index, Eigen::MatrixXd* h, Eigen::VectorXd* g) const;
+  template <typename Index>
+  void LinearizePrior(Index&& index, Eigen::MatrixXd* h, Eigen::VectorXd* g) const;
 
   WindowOptions options_;
   std::deque<int> window_;
