@@ -85,4 +85,14 @@ Eigen::Vector3d SE3VInverse(const Eigen::Vector3d& w, const Eigen::Vector3d& u) 
   return u - 0.5 * wu + d * w.cross(wu);
 }
 
+Eigen::Matrix3d RelativeInformation(const Pose2& z, const Eigen::Matrix3d& covariance,
+                                    double floor) {
+  const double c = std::cos(z.theta), s = std::sin(z.theta);
+  Eigen::Matrix3d t = Eigen::Matrix3d::Identity();
+  t.topLeftCorner<2, 2>() << c, s, -s, c;  // R_z^T
+  const Eigen::Matrix3d info = (covariance + floor * Eigen::Matrix3d::Identity()).inverse();
+  const Eigen::Matrix3d out = t * info * t.transpose();
+  return 0.5 * (out + out.transpose());
+}
+
 }  // namespace omni::pgm

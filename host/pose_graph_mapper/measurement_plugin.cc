@@ -1,4 +1,5 @@
 #include "omni/pose_graph_mapper/measurement_plugin.h"
+#include "omni/pose_graph_mapper/lie.h"
 
 #include <cmath>
 
@@ -35,7 +36,7 @@ std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversion
 
 Eigen::Matrix3d RelativePoseFactor::Information() const {
   // A tiny floor keeps a degenerate covariance invertible (as Trajectory::ToPoseGraph does).
-  return (covariance + 1e-12 * Eigen::Matrix3d::Identity()).inverse();
+  return RelativeInformation(delta, covariance, 1e-12);
 }
 
 io::Edge2 RelativePoseFactor::ToEdge(int from_id, int to_id) const {

@@ -20,7 +20,7 @@ Eigen::Matrix3d AnchorInformation() { return 1e6 * Eigen::Matrix3d::Identity(); 
 // Information of a continuous-source factor (a tiny floor keeps a standstill's zero covariance
 // invertible).
 Eigen::Matrix3d MotionInformation(const RelativeMotion& m) {
-  return (m.covariance + 1e-9 * Eigen::Matrix3d::Identity()).inverse();
+  return RelativeInformation(m.delta, m.covariance, 1e-9);
 }
 
 }  // namespace

@@ -1,4 +1,5 @@
 #include "omni/pose_graph_mapper/trajectory.h"
+#include "omni/pose_graph_mapper/lie.h"
 
 #include <Eigen/LU>
 
@@ -88,7 +89,7 @@ io::PoseGraph Trajectory::ToPoseGraph() const {
     e.to = l.to_id;
     e.measurement = l.motion.delta;
     // A tiny floor keeps a zero-motion, zero-duration link invertible.
-    e.information = (l.motion.covariance + 1e-12 * Eigen::Matrix3d::Identity()).inverse();
+    e.information = RelativeInformation(l.motion.delta, l.motion.covariance, 1e-12);
     g.edges2.push_back(e);
   }
   return g;

@@ -171,6 +171,39 @@ TEST(PoseGraphCostFunctions, ZeroErrorAtTheMeasurement) {
   EXPECT_LT(EdgeError3(zz, za, za * zz).norm(), 1e-12);
 }
 
+TEST(PoseGraphCostFunctions, RelativeInformationIsTheCovarianceOfTheMeasurementsCoordinates) {
+  // The odometry sources and matchers give a covariance over (x, y, theta) of b in a's frame;
+  // the cost's error is in b's frame. With RelativeInformation, a factor's chi^2 must equal the
+  // Mahalanobis distance of the estimate's relative pose from z in z's own coordinates.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int k = 0; k < 20; ++k) {
+    const Pose2 z(u(rng), u(rng), 1.5 * u(rng));
+    Eigen::Matrix3d l = Eigen::Matrix3d::Zero();
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j <= i; ++j) l(i, j) = (i == j ? 0.2 + std::abs(u(rng)) : 0.3 * u(rng));
+    const Eigen::Matrix3d cov = 0.01 * l * l.transpose();  // anisotropic, correlated
+    const Eigen::Matrix3d info = RelativeInformation(z, cov, 0.0);
+    const Pose2 a(u(rng), u(rng), u(rng));
+    const Eigen::Vector3d d(0.05 * u(rng), 0.05 * u(rng), 0.05 * u(rng));
+    const Pose2 b = a * Pose2(z.x + d.x(), z.y + d.y(), z.theta + d.z());
+    const RelativePose2Cost cost(z, info);
+    const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
+    const double* params[2] = {pa, pb};
+    Eigen::Vector3d r;
+    ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
+    const double mahalanobis = d.dot(cov.inverse() * d);
+    EXPECT_NEAR(r.squaredNorm(), mahalanobis, 1e-9 * (1 + mahalanobis)) << k;
+    // Taking Sigma^-1 as the information directly is only right when theta_z = 0 or Sigma's xy
+    // block is isotropic: here it is neither.
+    const RelativePose2Cost naive(z, cov.inverse());
+    ASSERT_TRUE(naive.Evaluate(params, r.data(), nullptr));
+    if (std::abs(z.theta) > 0.3) {
+      EXPECT_GT(std::abs(r.squaredNorm() - mahalanobis), 1e-6) << k;
+    }
+  }
+}
+
 TEST(PoseGraphManifolds, SE2InvariantsHold) {
   using namespace ceres;  // NOLINT: the invariant macro names ceres' matchers unqualified
   SE2Manifold m;

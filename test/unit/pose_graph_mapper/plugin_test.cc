@@ -75,9 +75,17 @@ TEST(PoseGraphPlugins, FactorInformationAndEdge) {
   const io::Edge2 e = f.ToEdge(3, 7);
   EXPECT_EQ(e.from, 3);
   EXPECT_EQ(e.to, 7);
-  EXPECT_NEAR(e.information(0, 0), 100, 1e-6);
-  EXPECT_NEAR(e.information(1, 1), 25, 1e-6);
+  // The covariance is over the measurement's coordinates (in the earlier keyframe's frame); the
+  // g2o edge's error is in the later one's, so the xy information turns by -theta_z.
+  const double c = std::cos(0.3), s = std::sin(0.3);
+  Eigen::Matrix2d rt;
+  rt << c, s, -s, c;
+  const Eigen::Matrix2d xy = rt * Eigen::Vector2d(100, 25).asDiagonal() * rt.transpose();
+  EXPECT_NEAR(e.information(0, 0), xy(0, 0), 1e-6);
+  EXPECT_NEAR(e.information(0, 1), xy(0, 1), 1e-6);
+  EXPECT_NEAR(e.information(1, 1), xy(1, 1), 1e-6);
   EXPECT_NEAR(e.information(2, 2), 400, 1e-4);
+  EXPECT_NEAR(e.information(0, 2), 0, 1e-9);
   EXPECT_DOUBLE_EQ(e.measurement.theta, 0.3);
 }
 

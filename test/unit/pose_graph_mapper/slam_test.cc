@@ -226,13 +226,22 @@ TEST(PoseGraphSlam, AbsolutePoseBetweenKeyframesIsSplicedWithoutDoubleCounting) 
   EXPECT_NEAR(composed.x, old_link.measurement.x, 1e-9);
   EXPECT_NEAR(composed.y, old_link.measurement.y, 1e-9);
   EXPECT_NEAR(WrapAngle(composed.theta - old_link.measurement.theta), 0, 1e-9);
+  // An edge's information is over its error in the later pose's frame (RelativeInformation);
+  // back to the covariance over the measurement's coordinates: Sigma = T^T Omega^-1 T.
+  auto covariance_of = [](const io::Edge2& e) {
+    Eigen::Matrix3d t = Eigen::Matrix3d::Identity();
+    const double c = std::cos(e.measurement.theta), s = std::sin(e.measurement.theta);
+    t.topLeftCorner<2, 2>() << c, s, -s, c;
+    return Eigen::Matrix3d(t.transpose() * e.information.inverse() * t);
+  };
   Eigen::Matrix3d ja, jb;
   ComposeJacobians(first.measurement, second.measurement, &ja, &jb);
-  const Eigen::Matrix3d cov = ja * first.information.inverse() * ja.transpose() +
-                              jb * second.information.inverse() * jb.transpose();
-  EXPECT_LT((cov.inverse() - old_link.information).norm(), 1e-4 * old_link.information.norm())
+  const Eigen::Matrix3d cov = ja * covariance_of(first) * ja.transpose() +
+                              jb * covariance_of(second) * jb.transpose();
+  const Eigen::Matrix3d old_cov = covariance_of(old_link);
+  EXPECT_LT((cov.inverse() - old_cov.inverse()).norm(), 1e-4 * old_cov.inverse().norm())
       << "old:\n"
-      << old_link.information << "\nspliced:\n"
+      << old_cov.inverse() << "\nspliced:\n"
       << cov.inverse();
 
   const Pose2 estimate = after.vertices2.back().pose;

@@ -27,4 +27,12 @@ Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q);
 Eigen::Vector3d SE3V(const Eigen::Vector3d& w, const Eigen::Vector3d& v);
 Eigen::Vector3d SE3VInverse(const Eigen::Vector3d& w, const Eigen::Vector3d& u);
 
+// Information for RelativePose2Cost (cost_functions.h) from a covariance over the measurement's own
+// coordinates (x, y, theta of b in a's frame: how the odometry sources and the scan matchers
+// express it). The cost's error lives in b's frame, e = T (z_hat - z) with T = diag(R_z^T, 1)
+// exactly, so Omega = (T Sigma T^T)^-1 = T Sigma^-1 T^T. `floor` is added to Sigma's diagonal first
+// (keeps a standstill's zero covariance invertible).
+Eigen::Matrix3d RelativeInformation(const Pose2& z, const Eigen::Matrix3d& covariance,
+                                    double floor);
+
 }  // namespace omni::pgm
