@@ -167,97 +167,127 @@ std::vector<uint8_t> DilatedOccupied(const io::GridMap& m, int tol) {
   return mask;
 }
 
-// Maps est world coordinates through (rotation about the estimate's map centre, shift).
-struct Transform2 {
-  double c, s, cx, cy, dx, dy;
-  void Apply(double x, double y, double* ox, double* oy) const {
-    const double rx = x - cx, ry = y - cy;
-    *ox = cx + c * rx - s * ry + dx;
-    *oy = cy + s * rx + c * ry + dy;
-  }
-};
-
 }  // namespace
+
+void MapAlignment::Apply(double x, double y, double* ox, double* oy) const {
+  const double c = std::cos(rotation_rad), s = std::sin(rotation_rad);
+  const double rx = x - cx_m, ry = y - cy_m;
+  *ox = cx_m + c * rx - s * ry + dx_m;
+  *oy = cy_m + s * rx + c * ry + dy_m;
+}
+
+void MapAlignment::Invert(double x, double y, double* ox, double* oy) const {
+  const double c = std::cos(rotation_rad), s = std::sin(rotation_rad);
+  const double rx = x - dx_m - cx_m, ry = y - dy_m - cy_m;
+  *ox = cx_m + c * rx + s * ry;
+  *oy = cy_m - s * rx + c * ry;
+}
+
+MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
+                      const MapCompareOptions& opt) {
+  MapAlignment best;
+  best.cx_m = est.origin_x_m + est.width * est.resolution_m / 2;
+  best.cy_m = est.origin_y_m + est.height * est.resolution_m / 2;
+  const auto occ = OccupiedCells(est);
+  best.occupied = occ.size();
+  if (occ.empty() || ref.width <= 0) return best;
+  const auto mask = DilatedOccupied(ref, 1);
+  auto score = [&](double r, double dx, double dy) {
+    const double c = std::cos(r), s = std::sin(r);
+    size_t hits = 0;
+    for (const auto& cell : occ) {
+      const double rx = cell.x - best.cx_m, ry = cell.y - best.cy_m;
+      const double x = best.cx_m + c * rx - s * ry + dx, y = best.cy_m + s * rx + c * ry + dy;
+      const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
+      const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
+      if (ref.Contains(col, row) && mask[static_cast<size_t>(row) * ref.width + col]) ++hits;
+    }
+    return hits;
+  };
+  best.overlap = score(0, 0, 0);
+  if (!opt.align) return best;
+  // Coarse to fine: each level searches a window around the best so far with a finer step.
+  double rot = 0, dx = 0, dy = 0;
+  double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
+  double rot_step = std::max(opt.max_rotation_rad / 8, 1e-3);
+  double shift_step = std::max(opt.max_shift_m / 8, ref.resolution_m);
+  size_t best_score = best.overlap;
+  for (int level = 0; level < 6; ++level) {
+    double br = rot, bx = dx, by = dy;
+    for (double r = rot - rot_range; r <= rot + rot_range + 1e-12; r += rot_step)
+      for (double x = dx - shift_range; x <= dx + shift_range + 1e-12; x += shift_step)
+        for (double y = dy - shift_range; y <= dy + shift_range + 1e-12; y += shift_step) {
+          const size_t sc = score(r, x, y);
+          if (sc > best_score) {
+            best_score = sc;
+            br = r;
+            bx = x;
+            by = y;
+          }
+        }
+    rot = br;
+    dx = bx;
+    dy = by;
+    rot_range = rot_step;
+    shift_range = shift_step;
+    rot_step = std::max(rot_step / 4, 1e-4);
+    shift_step = std::max(shift_step / 4, ref.resolution_m / 4);
+  }
+  best.rotation_rad = rot;
+  best.dx_m = dx;
+  best.dy_m = dy;
+  best.overlap = best_score;
+  return best;
+}
+
+io::GridMap ResampleOnto(const io::GridMap& geometry, const io::GridMap& est,
+                         const MapAlignment& a) {
+  io::GridMap out;
+  out.resolution_m = geometry.resolution_m;
+  out.origin_x_m = geometry.origin_x_m;
+  out.origin_y_m = geometry.origin_y_m;
+  out.width = geometry.width;
+  out.height = geometry.height;
+  out.cells.assign(geometry.cells.size(), -1);
+  for (int row = 0; row < out.height; ++row)
+    for (int col = 0; col < out.width; ++col) {
+      double ex, ey;
+      a.Invert(out.origin_x_m + (col + 0.5) * out.resolution_m,
+               out.origin_y_m + (row + 0.5) * out.resolution_m, &ex, &ey);
+      const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
+      const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
+      if (est.Contains(ec, er)) out.at(col, row) = est.at(ec, er);
+    }
+  return out;
+}
 
 MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
                              const MapCompareOptions& opt) {
   MapCompareResult res;
-  const double cx = est.origin_x_m + est.width * est.resolution_m / 2;
-  const double cy = est.origin_y_m + est.height * est.resolution_m / 2;
-  Transform2 best{1, 0, cx, cy, 0, 0};
-  const auto occ = OccupiedCells(est);
-  if (opt.align && !occ.empty() && ref.width > 0) {
-    const auto mask = DilatedOccupied(ref, 1);
-    auto score = [&](const Transform2& t) {
-      size_t hits = 0;
-      for (const auto& c : occ) {
-        double x, y;
-        t.Apply(c.x, c.y, &x, &y);
-        const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
-        const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
-        if (ref.Contains(col, row) && mask[static_cast<size_t>(row) * ref.width + col]) ++hits;
-      }
-      return hits;
-    };
-    // Coarse to fine: each level searches a window around the best so far with a finer step.
-    double rot = 0, dx = 0, dy = 0;
-    double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
-    double rot_step = std::max(opt.max_rotation_rad / 8, 1e-3);
-    double shift_step = std::max(opt.max_shift_m / 8, ref.resolution_m);
-    size_t best_score = score(best);
-    for (int level = 0; level < 6; ++level) {
-      double br = rot, bx = dx, by = dy;
-      for (double r = rot - rot_range; r <= rot + rot_range + 1e-12; r += rot_step)
-        for (double x = dx - shift_range; x <= dx + shift_range + 1e-12; x += shift_step)
-          for (double y = dy - shift_range; y <= dy + shift_range + 1e-12; y += shift_step) {
-            const Transform2 t{std::cos(r), std::sin(r), cx, cy, x, y};
-            const size_t s = score(t);
-            if (s > best_score) {
-              best_score = s;
-              br = r;
-              bx = x;
-              by = y;
-            }
-          }
-      rot = br;
-      dx = bx;
-      dy = by;
-      rot_range = rot_step;
-      shift_range = shift_step;
-      rot_step = std::max(rot_step / 4, 1e-4);
-      shift_step = std::max(shift_step / 4, ref.resolution_m / 4);
-    }
-    best = Transform2{std::cos(rot), std::sin(rot), cx, cy, dx, dy};
-    res.rotation_rad = rot;
-    res.dx_m = dx;
-    res.dy_m = dy;
-  }
-  // Inverse transform: for each reference cell, the estimate cell that lands on it.
-  const Transform2 inv{best.c, -best.s, cx, cy, 0, 0};
+  const MapAlignment a = AlignMap(ref, est, opt);
+  res.rotation_rad = a.rotation_rad;
+  res.dx_m = a.dx_m;
+  res.dy_m = a.dy_m;
+  // For each reference cell, the estimate cell that lands on it.
+  const io::GridMap moved = ResampleOnto(ref, est, a);
   double sum2 = 0;
-  for (int row = 0; row < ref.height; ++row)
-    for (int col = 0; col < ref.width; ++col) {
-      const double wx = ref.origin_x_m + (col + 0.5) * ref.resolution_m - best.dx;
-      const double wy = ref.origin_y_m + (row + 0.5) * ref.resolution_m - best.dy;
-      double ex, ey;
-      inv.Apply(wx, wy, &ex, &ey);
-      const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
-      const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
-      const int m = est.Contains(ec, er) ? NormalizedCell(est.at(ec, er)) : -1;
-      const int t = NormalizedCell(ref.at(col, row));
-      const double d = static_cast<double>(t - m);
-      sum2 += d * d;
-      if (t != m) ++res.differing_cells;
-      ++res.cells;
-    }
+  for (size_t i = 0; i < ref.cells.size(); ++i) {
+    const int m = NormalizedCell(moved.cells[i]);
+    const int t = NormalizedCell(ref.cells[i]);
+    const double d = static_cast<double>(t - m);
+    sum2 += d * d;
+    if (t != m) ++res.differing_cells;
+    ++res.cells;
+  }
   res.error = std::sqrt(sum2);
   // Precision / recall of occupied cells with a tolerance.
   const int tol = opt.match_tolerance_cells;
   const auto ref_mask = DilatedOccupied(ref, tol);
+  const auto occ = OccupiedCells(est);
   size_t tp_est = 0;
   for (const auto& c : occ) {
     double x, y;
-    best.Apply(c.x, c.y, &x, &y);
+    a.Apply(c.x, c.y, &x, &y);
     const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
     const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
     if (ref.Contains(col, row) && ref_mask[static_cast<size_t>(row) * ref.width + col]) ++tp_est;
@@ -267,7 +297,7 @@ MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
   size_t tp_ref = 0;
   for (const auto& c : ref_occ) {
     double ex, ey;
-    inv.Apply(c.x - best.dx, c.y - best.dy, &ex, &ey);
+    a.Invert(c.x, c.y, &ex, &ey);
     const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
     const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
     bool found = false;

@@ -62,8 +62,28 @@ struct MapCompareResult {
   double recall = 0;     // occupied reference cells near an occupied estimate cell
   double dx_m = 0, dy_m = 0, rotation_rad = 0;  // alignment applied to the estimate
 };
-// Aligns `est` onto `ref` (coarse-to-fine search over rotation and translation maximising the
-// overlap of occupied cells), then scores it on the reference grid.
+// A rigid alignment of one grid onto another: a point p of `est`'s frame maps to
+// R(rotation) (p - c) + c + (dx, dy), c = (cx, cy) the estimate's map centre.
+struct MapAlignment {
+  double rotation_rad = 0, dx_m = 0, dy_m = 0;
+  double cx_m = 0, cy_m = 0;
+  size_t occupied = 0;  // occupied cells of the estimate
+  size_t overlap = 0;   // of them, landing within one cell of an occupied reference cell
+  void Apply(double x, double y, double* ox, double* oy) const;
+  // The inverse: a point of the reference frame to the estimate's frame.
+  void Invert(double x, double y, double* ox, double* oy) const;
+};
+// Coarse-to-fine search over rotation (±max_rotation_rad) and translation (±max_shift_m)
+// maximising the overlap of occupied cells; the identity when `align` is off or either map has
+// no occupied cell.
+MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
+                      const MapCompareOptions& options = {});
+// `est` moved by `a` and sampled (nearest cell) onto `geometry`'s grid: same resolution, origin
+// and size as `geometry`; -1 where the estimate has no cell.
+io::GridMap ResampleOnto(const io::GridMap& geometry, const io::GridMap& est,
+                         const MapAlignment& a);
+
+// Aligns `est` onto `ref` (AlignMap), then scores it on the reference grid.
 MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
                              const MapCompareOptions& options = {});
 

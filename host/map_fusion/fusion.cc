@@ -1,0 +1,183 @@
+#include "omni/map_fusion/fusion.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+namespace omni::map_fusion {
+
+Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
+  FusionOptions o;
+  r.Get("grid_channels", &o.grid_channels, Optional());
+  r.Get("fused_channel", &o.fused_channel, Optional(), NonEmpty());
+  r.Get("frame", &o.frame, Optional());
+  r.Get("fuse_interval_s", &o.fuse_interval_s, Optional(), InRange(0.05, 3600.0));
+  r.Get("min_maps", &o.min_maps, Optional(), InRange(1, 64));
+  r.Get("base", &o.base, Optional());
+  auto a = r.Section("align");
+  a.Get("enabled", &o.align.align, Optional());
+  a.Get("max_rotation_rad", &o.align.max_rotation_rad, Optional(), InRange(0.0, 3.2));
+  a.Get("max_shift_m", &o.align.max_shift_m, Optional(), InRange(0.0, 100.0));
+  r.Get("min_overlap_fraction", &o.min_overlap_fraction, Optional(), InRange(0.0, 1.0));
+  std::string tie = "occupied";
+  r.Get("tie", &tie, Optional(), OneOf({"occupied", "free", "unknown"}));
+  o.tie = tie == "free"      ? TieRule::kFree
+          : tie == "unknown" ? TieRule::kUnknown
+                             : TieRule::kOccupied;
+  r.Get("unknown_votes", &o.unknown_votes, Optional());
+  if (o.grid_channels.empty()) r.AddError("grid_channels", "must list at least one channel");
+  for (const auto& c : o.grid_channels)
+    if (c.empty()) r.AddError("grid_channels", "must not contain an empty channel name");
+  if (!o.base.empty() &&
+      std::find(o.grid_channels.begin(), o.grid_channels.end(), o.base) == o.grid_channels.end())
+    r.AddError("base", "must be one of grid_channels (or empty)");
+  if (Status s = r.Finish(); !s.ok()) return s.error();
+  return o;
+}
+
+int VoteCell(const size_t votes[3], TieRule tie, bool* tied) {
+  const size_t most = std::max({votes[0], votes[1], votes[2]});
+  int winners = 0, winner = -1;
+  for (int v = -1; v <= 1; ++v)
+    if (votes[v + 1] == most) {
+      ++winners;
+      winner = v;
+    }
+  if (tied) *tied = winners > 1;
+  if (winners == 1) return winner;
+  return tie == TieRule::kOccupied ? 1 : tie == TieRule::kFree ? 0 : -1;
+}
+
+namespace {
+
+size_t KnownCells(const io::GridMap& m) {
+  return static_cast<size_t>(
+      std::count_if(m.cells.begin(), m.cells.end(), [](int8_t v) { return v >= 0; }));
+}
+
+bool Usable(const io::GridMap& m, std::string* why) {
+  if (m.width <= 0 || m.height <= 0 ||
+      m.cells.size() != static_cast<size_t>(m.width) * static_cast<size_t>(m.height)) {
+    *why = "empty or inconsistent grid";
+    return false;
+  }
+  if (!(m.resolution_m > 0) || !std::isfinite(m.resolution_m) || !std::isfinite(m.origin_x_m) ||
+      !std::isfinite(m.origin_y_m)) {
+    *why = "bad resolution or origin";
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& opt) {
+  FusionResult res;
+  res.sources.resize(maps.size());
+  int base = -1;
+  for (size_t i = 0; i < maps.size(); ++i) {
+    SourceReport& rep = res.sources[i];
+    rep.name = maps[i].name;
+    if (!Usable(maps[i].map, &rep.reason)) continue;
+    rep.known_cells = KnownCells(maps[i].map);
+    if (rep.known_cells == 0) {
+      rep.reason = "no known cell";
+      continue;
+    }
+    rep.used = true;
+    if (!opt.base.empty() ? maps[i].name == opt.base : base < 0) base = static_cast<int>(i);
+  }
+  if (base < 0)
+    return MakeError(ErrorCode::kUnavailable,
+                     opt.base.empty() ? "no usable map to fuse"
+                                      : "the base map '" + opt.base + "' is missing or unusable");
+  const io::GridMap& ref = maps[static_cast<size_t>(base)].map;
+  res.base = maps[static_cast<size_t>(base)].name;
+  std::vector<io::GridMap> moved;
+  for (size_t i = 0; i < maps.size(); ++i) {
+    SourceReport& rep = res.sources[i];
+    if (!rep.used) continue;
+    if (static_cast<int>(i) == base) {
+      rep.alignment = eval::AlignMap(ref, ref, [&] {
+        eval::MapCompareOptions o = opt.align;
+        o.align = false;  // the identity, with its overlap figures
+        return o;
+      }());
+    } else {
+      rep.alignment = eval::AlignMap(ref, maps[i].map, opt.align);
+    }
+    rep.overlap_fraction = rep.alignment.occupied == 0
+                               ? 0.0
+                               : static_cast<double>(rep.alignment.overlap) /
+                                     static_cast<double>(rep.alignment.occupied);
+    if (static_cast<int>(i) != base && rep.overlap_fraction < opt.min_overlap_fraction) {
+      rep.used = false;
+      char buf[128];
+      std::snprintf(buf, sizeof(buf), "alignment overlap %.2f below min_overlap_fraction %.2f",
+                    rep.overlap_fraction, opt.min_overlap_fraction);
+      rep.reason = buf;
+      continue;
+    }
+    moved.push_back(
+        static_cast<int>(i) == base ? ref : eval::ResampleOnto(ref, maps[i].map, rep.alignment));
+  }
+  res.maps_used = moved.size();
+  if (static_cast<int>(moved.size()) < opt.min_maps) {
+    std::string why;
+    for (const auto& q : res.sources)
+      if (!q.used) why += "; " + q.name + ": " + q.reason;
+    return MakeError(ErrorCode::kUnavailable, "only " + std::to_string(moved.size()) +
+                                                  " usable map(s), min_maps is " +
+                                                  std::to_string(opt.min_maps) + why);
+  }
+  res.fused.resolution_m = ref.resolution_m;
+  res.fused.origin_x_m = ref.origin_x_m;
+  res.fused.origin_y_m = ref.origin_y_m;
+  res.fused.width = ref.width;
+  res.fused.height = ref.height;
+  res.fused.cells.assign(ref.cells.size(), -1);
+  for (size_t c = 0; c < ref.cells.size(); ++c) {
+    size_t votes[3] = {0, 0, 0};
+    for (const auto& m : moved) {
+      const int v = eval::NormalizedCell(m.cells[c]);
+      if (v < 0 && !opt.unknown_votes) continue;
+      ++votes[v + 1];
+    }
+    const size_t voters = votes[0] + votes[1] + votes[2];
+    if (voters == 0) continue;  // nobody knows it: unknown
+    bool tied = false;
+    const int v = VoteCell(votes, opt.tie, &tied);
+    if (tied)
+      ++res.ties;
+    else if (votes[v + 1] == voters)
+      ++res.unanimous;
+    else
+      ++res.majority;
+    res.fused.cells[c] = static_cast<int8_t>(v < 0 ? -1 : v == 0 ? 0 : 100);
+  }
+  return res;
+}
+
+std::string ReportJson(const FusionResult& r) {
+  std::string s = "{\"base\": \"" + r.base + "\", \"maps_used\": " + std::to_string(r.maps_used) +
+                  ", \"unanimous\": " + std::to_string(r.unanimous) +
+                  ", \"majority\": " + std::to_string(r.majority) +
+                  ", \"ties\": " + std::to_string(r.ties) +
+                  ", \"width\": " + std::to_string(r.fused.width) +
+                  ", \"height\": " + std::to_string(r.fused.height) + ", \"sources\": [";
+  for (size_t i = 0; i < r.sources.size(); ++i) {
+    const SourceReport& q = r.sources[i];
+    char buf[512];
+    std::snprintf(buf, sizeof(buf),
+                  "%s{\"name\": \"%s\", \"used\": %s, \"reason\": \"%s\", \"rotation_rad\": %.5f, "
+                  "\"dx_m\": %.4f, \"dy_m\": %.4f, \"overlap_fraction\": %.4f, \"known_cells\": "
+                  "%zu}",
+                  i ? ", " : "", q.name.c_str(), q.used ? "true" : "false", q.reason.c_str(),
+                  q.alignment.rotation_rad, q.alignment.dx_m, q.alignment.dy_m, q.overlap_fraction,
+                  q.known_cells);
+    s += buf;
+  }
+  return s + "]}";
+}
+
+}  // namespace omni::map_fusion

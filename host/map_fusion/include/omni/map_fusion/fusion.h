@@ -1,0 +1,89 @@
+// Map fusion (SLAMfusion, paper 003 of ../shared/seeds): several 2D occupancy grids of the same
+// place, made by different mappers, are aligned onto one of them (rotation + translation,
+// coarse-to-fine) and every cell is decided by a vote. The library of the map_fusion process: no
+// LCM, no clock.
+//
+// The vote, per cell, over the maps' normalised values (-1 unknown, 0 free, 1 occupied, as the
+// paper and omni::eval normalise them): the value with the most votes wins; when two or more
+// values share the most votes (e.g. two maps that disagree, or three that all differ) the tie
+// rule decides — "occupied" in the paper, whose disagreements were mostly at the border between
+// free and unknown space, where there usually is an obstacle. With `unknown_votes: false` a map
+// that has not seen a cell abstains instead of voting "unknown" (the paper lets it vote), so a
+// region seen by one mapper only (e.g. beyond the depth camera's range) keeps that mapper's value.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/result.h"
+#include "omni/eval/eval.h"
+#include "omni/io/grid.h"
+
+namespace omni::map_fusion {
+
+enum class TieRule { kOccupied, kFree, kUnknown };
+
+struct FusionOptions {
+  // Node: the grids to fuse (latest of each) and where the result goes.
+  std::vector<std::string> grid_channels = {"GRID_PG", "GRID_RBPF", "GRID_OCTO"};
+  std::string fused_channel = "GRID_FUSED";
+  std::string frame = "map";
+  double fuse_interval_s = 5.0;  // node: fuse at most this often, when a grid changed
+  int min_maps = 2;              // fewer usable maps: no fusion (counted)
+  // The map the others are aligned onto and whose grid the result uses: a name from
+  // grid_channels (node) or an input's name (offline); "" = the first usable input (the node
+  // passes its maps in grid_channels order, so the pose-graph map by default). Not "the map
+  // with the most known cells": a drifting map is the largest.
+  std::string base;
+  eval::MapCompareOptions align;  // search ranges; `align: false` trusts the maps' frames
+  // An aligned map whose occupied cells land near the base's occupied cells less often than
+  // this is left out of the vote (counted): a failed alignment must not corrupt the result.
+  double min_overlap_fraction = 0.3;
+  TieRule tie = TieRule::kOccupied;
+  // The paper lets "unknown" vote; here a map abstains where it has not seen a cell (false),
+  // which on the simulator's floor gives a 20 % lower map error (docs/map_fusion.md).
+  bool unknown_votes = false;
+
+  // Every key above is optional; unknown keys and bad values are errors naming the key.
+  static Result<FusionOptions> Load(ConfigReader& reader);
+};
+
+struct SourceMap {
+  std::string name;
+  io::GridMap map;
+};
+
+struct SourceReport {
+  std::string name;
+  bool used = false;
+  std::string reason;  // why it was left out ("" when used)
+  eval::MapAlignment alignment;
+  double overlap_fraction = 0;  // alignment.overlap / alignment.occupied
+  size_t known_cells = 0;
+};
+
+struct FusionResult {
+  io::GridMap fused;  // on the base map's grid; cells -1, 0 or 100
+  std::string base;
+  std::vector<SourceReport> sources;  // one per input, in input order
+  size_t maps_used = 0;
+  size_t unanimous = 0;  // known-or-not cells where every voting map agreed
+  size_t majority = 0;   // decided by a strict plurality that was not unanimous
+  size_t ties = 0;       // decided by the tie rule
+};
+
+// The vote on one cell: `votes[v + 1]` = number of maps saying v (v = -1, 0, 1). Returns the
+// normalised winner; `tied` (optional) tells whether the tie rule decided.
+int VoteCell(const size_t votes[3], TieRule tie, bool* tied = nullptr);
+
+// Aligns every map onto the base, resamples it onto the base's grid and votes. Errors: fewer
+// than min_maps inputs that are non-empty and well aligned, or a configured base that is not
+// among the inputs.
+Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& options);
+
+// A one-line JSON object per source and the vote counts, for logs and stats files.
+std::string ReportJson(const FusionResult& result);
+
+}  // namespace omni::map_fusion

@@ -1,0 +1,101 @@
+#include "omni/map_fusion/map_fusion_node.h"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include "omni/bus/convert.h"
+#include "omni/common/log.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/image_io.h"
+#include "omni/occupancy_grid_t.hpp"
+
+namespace omni::map_fusion {
+
+MapFusionNode::MapFusionNode(bus::Bus* bus, const FusionOptions& options, const Clock* clock)
+    : bus_(bus), o_(options), clock_(clock), heartbeat_(bus, "map_fusion", clock) {
+  for (const auto& ch : o_.grid_channels)
+    bus_->Subscribe<omni::occupancy_grid_t>(
+        ch, [this, ch](const omni::occupancy_grid_t& m, int64_t) { OnGrid(ch, m); });
+  heartbeat_.AddCounter("grids_in", [this] { return grids_in_; });
+  heartbeat_.AddCounter("grids_rejected", [this] { return grids_rejected_; });
+  heartbeat_.AddCounter("fusions", [this] { return fusions_; });
+  heartbeat_.AddCounter("fusion_failures", [this] { return fusion_failures_; });
+  heartbeat_.AddCounter("sources_rejected", [this] { return sources_rejected_; });
+  heartbeat_.AddCounter("maps_held", [this] { return static_cast<int64_t>(latest_.size()); });
+  heartbeat_.AddCounter(
+      "maps_fused", [this] { return last_ ? static_cast<int64_t>(last_->maps_used) : int64_t{0}; });
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for grids");
+}
+
+void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_grid_t& msg) {
+  ++grids_in_;
+  auto map = bus::FromGridMessage(msg);
+  const bool other_frame = !o_.frame.empty() && !msg.frame.empty() && msg.frame != o_.frame;
+  if (!map.ok() || msg.origin_yaw_rad != 0.0 || !std::isfinite(msg.origin_x_m) ||
+      !std::isfinite(msg.origin_y_m) || other_frame) {
+    ++grids_rejected_;
+    LOG_WARN << "grid on " << channel << " rejected: "
+             << (!map.ok()                 ? map.error().message
+                 : other_frame             ? "frame '" + msg.frame + "' is not '" + o_.frame + "'"
+                 : msg.origin_yaw_rad != 0 ? std::string("rotated grids are not supported")
+                                           : std::string("non-finite origin"));
+    return;
+  }
+  latest_[channel] = std::move(*map);
+  newest_utime_ = std::max(newest_utime_, msg.utime);
+  changed_ = true;
+}
+
+Result<FusionResult> MapFusionNode::FuseNow() {
+  std::vector<SourceMap> maps;
+  for (const auto& ch : o_.grid_channels)
+    if (auto it = latest_.find(ch); it != latest_.end()) maps.push_back({ch, it->second});
+  auto r = Fuse(maps, o_);
+  changed_ = false;
+  if (!r.ok()) {
+    ++fusion_failures_;
+    LOG_WARN << "no fusion: " << r.error().message;
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, r.error().message);
+    return r;
+  }
+  ++fusions_;
+  for (const auto& s : r->sources)
+    if (!s.used) ++sources_rejected_;
+  bus_->Publish(
+      o_.fused_channel,
+      bus::ToGridMessage(r->fused, newest_utime_ ? newest_utime_ : clock_->NowUtime(), "fused"));
+  heartbeat_.SetState(omni::heartbeat_t::STATE_OK,
+                      "fused " + std::to_string(r->maps_used) + " maps onto " + r->base);
+  last_ = *r;
+  return r;
+}
+
+void MapFusionNode::Tick() {
+  heartbeat_.Tick();
+  const int64_t now = clock_->NowUtime();
+  if (!changed_ || static_cast<int>(latest_.size()) < o_.min_maps) return;
+  if (last_fuse_utime_ != 0 &&
+      now - last_fuse_utime_ < static_cast<int64_t>(o_.fuse_interval_s * 1e6))
+    return;
+  last_fuse_utime_ = now;
+  (void)FuseNow();
+}
+
+Status MapFusionNode::WriteOutputs(const std::string& dir) {
+  auto r = FuseNow();
+  if (!r.ok()) return r.error();
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  const std::string base = dir + "/fused_map";
+  Status s = io::WriteMapServer(r->fused, base);
+  if (s.ok()) s = io::WritePng(base + ".png", io::RenderGrid(r->fused, {}, 1));
+  if (!s.ok()) return s;
+  std::FILE* f = std::fopen((dir + "/fusion.json").c_str(), "w");
+  if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + dir + "/fusion.json");
+  std::fprintf(f, "%s\n", ReportJson(*r).c_str());
+  std::fclose(f);
+  return Status::Ok();
+}
+
+}  // namespace omni::map_fusion
