@@ -1,7 +1,9 @@
 // omni-sim: the built-in simulator. Drives the three-wheel omni base around a world and writes
 // what its sensors would put on the bus (LIDAR_SCAN, WHEEL_ODOM, IMU, DEPTH) to an LCM log, or
 // publishes it live, plus the true trajectory for the evaluator.
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -13,11 +15,61 @@
 
 #include "omni/bus/bus.h"
 #include "omni/common/time.h"
+#include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
 #include "omni/sim/simulator.h"
 
 namespace {
+
+// The world as an occupancy grid at 5 cm in the frame whose origin is `origin` (a world pose):
+// occupied where a box that stands in the robot's way (from 3 cm to 2 m above the floor, so the
+// low boxes the lidar's plane misses too) covers the cell's centre, free elsewhere inside the
+// boxes' bounding rectangle (the outer walls), unknown outside it.
+omni::io::GridMap TruthMap(const std::vector<omni::sim::Box>& boxes, const omni::Pose2& origin) {
+  constexpr double kRes = 0.05;
+  double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
+  for (const auto& b : boxes) {
+    x0 = std::min(x0, b.x0);
+    y0 = std::min(y0, b.y0);
+    x1 = std::max(x1, b.x1);
+    y1 = std::max(y1, b.y1);
+  }
+  omni::io::GridMap m;
+  m.resolution_m = kRes;
+  if (boxes.empty()) return m;
+  // The bounding rectangle's corners in the map frame give the grid's extent.
+  const omni::Pose2 inv = origin.Inverse();
+  double mx0 = 1e9, my0 = 1e9, mx1 = -1e9, my1 = -1e9;
+  for (const auto& c : {Eigen::Vector2d(x0, y0), Eigen::Vector2d(x1, y0), Eigen::Vector2d(x0, y1),
+                        Eigen::Vector2d(x1, y1)}) {
+    const Eigen::Vector2d p = inv.Transform(c);
+    mx0 = std::min(mx0, p.x());
+    my0 = std::min(my0, p.y());
+    mx1 = std::max(mx1, p.x());
+    my1 = std::max(my1, p.y());
+  }
+  m.origin_x_m = std::floor(mx0 / kRes) * kRes;
+  m.origin_y_m = std::floor(my0 / kRes) * kRes;
+  m.width = static_cast<int>(std::ceil((mx1 - m.origin_x_m) / kRes));
+  m.height = static_cast<int>(std::ceil((my1 - m.origin_y_m) / kRes));
+  m.cells.assign(static_cast<size_t>(m.width) * m.height, -1);
+  for (int row = 0; row < m.height; ++row)
+    for (int col = 0; col < m.width; ++col) {
+      const Eigen::Vector2d w =
+          origin.Transform({m.origin_x_m + (col + 0.5) * kRes, m.origin_y_m + (row + 0.5) * kRes});
+      if (w.x() < x0 || w.x() > x1 || w.y() < y0 || w.y() > y1) continue;
+      int8_t v = 0;
+      for (const auto& b : boxes)
+        if (b.z1 > 0.03 && b.z0 < 2.0 && w.x() >= b.x0 && w.x() <= b.x1 && w.y() >= b.y0 &&
+            w.y() <= b.y1) {
+          v = 100;
+          break;
+        }
+      m.at(col, row) = v;
+    }
+  return m;
+}
 
 void Usage(std::FILE* f) {
   std::fprintf(
@@ -27,7 +79,8 @@ void Usage(std::FILE* f) {
       "  Simulates the omni base touring a world (built-in: a 20 x 14 m floor with an inner\n"
       "  room, alcoves, pillars and low obstacles) and writes DIR/sim.lcmlog (LIDAR_SCAN 10 Hz,\n"
       "  WHEEL_ODOM 50 Hz from noisy wheel encoders, IMU 100 Hz, DEPTH 320x240 at 5 Hz) and\n"
-      "  DIR/truth.txt (true pose at every scan: index timestamp x y theta).\n"
+      "  DIR/truth.txt (true pose at every scan: index timestamp x y theta) and\n"
+      "  DIR/truth_map.{pgm,yaml} (the world at 5 cm in the mappers' frame, for omni eval map).\n"
       "  --world FILE   YAML `boxes: [[x0, y0, x1, y1, z0, z1], ...]` (the tour is built for\n"
       "                 the built-in world; other worlds must leave its path free)\n"
       "  --live URL     also publish on the bus at X times real time (default 1)\n");
@@ -138,6 +191,7 @@ int main(int argc, char** argv) {
     }
   };
   std::vector<omni::io::TrajectoryEntry> truth;
+  const std::vector<omni::sim::Box> boxes = world.boxes();
   omni::sim::Simulator sim(std::move(world), opt);
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {
@@ -147,13 +201,18 @@ int main(int argc, char** argv) {
   if (write_status.ok())
     write_status = omni::io::WriteTrajectory2D(
         out_dir + "/truth.txt", truth, "scan_index timestamp x y theta (simulated ground truth)");
+  // The ground-truth map for `omni eval map`, in the frame the mappers build theirs in (the
+  // robot's pose at the first scan is the origin).
+  if (write_status.ok() && !truth.empty())
+    write_status =
+        omni::io::WriteMapServer(TruthMap(boxes, truth.front().pose2()), out_dir + "/truth_map");
   if (!write_status.ok()) {
     std::fprintf(stderr, "omni-sim: %s\n", write_status.message().c_str());
     return 1;
   }
   std::printf(
       "omni-sim: %.1f s simulated (%s), %.1f m driven, %.1f rad turned: %lld scans, %lld "
-      "odometry, %lld IMU, %lld depth frames -> %s/{sim.lcmlog,truth.txt}\n",
+      "odometry, %lld IMU, %lld depth frames -> %s/{sim.lcmlog,truth.txt,truth_map.*}\n",
       st.duration_s, st.tour_finished ? "tour finished" : "stopped by --duration", st.distance_m,
       st.rotation_rad, static_cast<long long>(st.scans), static_cast<long long>(st.odometry),
       static_cast<long long>(st.imu), static_cast<long long>(st.depth_frames), out_dir.c_str());

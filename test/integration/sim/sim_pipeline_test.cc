@@ -5,6 +5,8 @@
 // the lidar's plane passes over.
 #include <octomap/octomap.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -14,6 +16,8 @@
 
 #include "../tools/mapper_replay.h"
 #include "../tools/run.h"
+#include "omni/eval/eval.h"
+#include "omni/io/grid.h"
 
 namespace omni {
 namespace {
@@ -51,6 +55,31 @@ TEST(SimPipeline, MappersBeatTheDriftingOdometryOnTheSimulatedTour) {
   EXPECT_GT(odom, 0.1) << "odometry ATE " << odom;
   EXPECT_LT(rbpf, 0.05) << "RBPF ATE " << rbpf;
   EXPECT_LT(pg, 0.05) << "pose-graph ATE " << pg;
+
+  // The world as a map, in the mappers' frame: free where the robot started, walls where the
+  // mappers saw them (both SLAM maps need no alignment against it), and map_fusion's vote of
+  // the two SLAM maps scores better than either (each fills in cells the other did not see).
+  auto truth_map = io::ReadMapServer(dir + "/truth_map.yaml");
+  ASSERT_TRUE(truth_map.ok()) << truth_map.error().message;
+  const int c0 = static_cast<int>(std::floor(-truth_map->origin_x_m / truth_map->resolution_m));
+  const int r0 = static_cast<int>(std::floor(-truth_map->origin_y_m / truth_map->resolution_m));
+  EXPECT_EQ(eval::NormalizedCell(truth_map->at(c0, r0)), 0);
+  auto rbpf_map = io::ReadMapServer(dir + "/rbpf/map.yaml");
+  auto pg_map = io::ReadMapServer(dir + "/pg/map.yaml");
+  ASSERT_TRUE(rbpf_map.ok() && pg_map.ok());
+  const auto er = eval::CompareMaps(*truth_map, *rbpf_map);
+  const auto ep = eval::CompareMaps(*truth_map, *pg_map);
+  EXPECT_GT(er.precision, 0.95);
+  EXPECT_GT(ep.precision, 0.95);
+  EXPECT_LT(std::abs(er.dx_m) + std::abs(er.dy_m), 0.1);
+  r = testing::Run(testing::Bin("map_fusion") + cfg + "map_fusion.yaml --fuse " + dir +
+                   "/pg/map.yaml " + dir + "/rbpf/map.yaml --out " + dir + "/fusion");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto fused = io::ReadMapServer(dir + "/fusion/fused_map.yaml");
+  ASSERT_TRUE(fused.ok()) << fused.error().message;
+  const auto ef = eval::CompareMaps(*truth_map, *fused);
+  EXPECT_LT(ef.error, std::min(er.error, ep.error))
+      << "RBPF " << er.error << " pose graph " << ep.error << " fused " << ef.error;
 }
 
 TEST(SimPipeline, OctomapPosedByTheLiveRbpfHoldsTheLowBox) {
