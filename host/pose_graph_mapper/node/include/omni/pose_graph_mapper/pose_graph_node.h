@@ -20,7 +20,8 @@
 // never leaves datagrams to overflow the kernel buffer. The queue is bounded (kMaxQueued):
 // beyond it the oldest scan is processed at once.
 //
-// POSE_PG's covariance is all zeros: the window's marginal covariance is not computed.
+// POSE_PG's covariance: PoseGraphSlam::LastScanCovariance (the window's marginal of the scan's
+// keyframe composed with the odometry since it).
 #pragma once
 
 #include <cstdint>
