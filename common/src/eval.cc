@@ -183,11 +183,21 @@ void MapAlignment::Invert(double x, double y, double* ox, double* oy) const {
   *oy = cy_m - s * rx + c * ry;
 }
 
-MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
-                      const MapCompareOptions& opt) {
+MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapCompareOptions& opt,
+                      const MapAlignment* guess) {
   MapAlignment best;
   best.cx_m = est.origin_x_m + est.width * est.resolution_m / 2;
   best.cy_m = est.origin_y_m + est.height * est.resolution_m / 2;
+  double rot = 0, dx = 0, dy = 0;  // the search's centre
+  if (guess) {
+    // The same transform about this map's centre c': R (p - c') + c' + d' = R (p - c) + c + d
+    // gives d' = (I - R)(c - c') + d.
+    const double c = std::cos(guess->rotation_rad), s = std::sin(guess->rotation_rad);
+    const double ex = guess->cx_m - best.cx_m, ey = guess->cy_m - best.cy_m;
+    rot = guess->rotation_rad;
+    dx = ex - (c * ex - s * ey) + guess->dx_m;
+    dy = ey - (s * ex + c * ey) + guess->dy_m;
+  }
   const auto occ = OccupiedCells(est);
   best.occupied = occ.size();
   if (occ.empty() || ref.width <= 0) return best;
@@ -204,15 +214,18 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
     }
     return hits;
   };
-  best.overlap = score(0, 0, 0);
+  best.rotation_rad = rot;
+  best.dx_m = dx;
+  best.dy_m = dy;
+  best.overlap = score(rot, dx, dy);
   if (!opt.align) return best;
   // Coarse to fine: each level searches a window around the best so far with a finer step.
-  double rot = 0, dx = 0, dy = 0;
   double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
-  double rot_step = std::max(opt.max_rotation_rad / 8, 1e-3);
-  double shift_step = std::max(opt.max_shift_m / 8, ref.resolution_m);
+  const int coarse = std::max(1, opt.coarse_steps), div = std::max(2, opt.refine_divisions);
+  double rot_step = std::max(opt.max_rotation_rad / coarse, 1e-3);
+  double shift_step = std::max(opt.max_shift_m / coarse, ref.resolution_m);
   size_t best_score = best.overlap;
-  for (int level = 0; level < 6; ++level) {
+  for (int level = 0; level < opt.levels; ++level) {
     double br = rot, bx = dx, by = dy;
     for (double r = rot - rot_range; r <= rot + rot_range + 1e-12; r += rot_step)
       for (double x = dx - shift_range; x <= dx + shift_range + 1e-12; x += shift_step)
@@ -230,8 +243,8 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
     dy = by;
     rot_range = rot_step;
     shift_range = shift_step;
-    rot_step = std::max(rot_step / 4, 1e-4);
-    shift_step = std::max(shift_step / 4, ref.resolution_m / 4);
+    rot_step = std::max(rot_step / div, 1e-4);
+    shift_step = std::max(shift_step / div, ref.resolution_m / 4);
   }
   best.rotation_rad = rot;
   best.dx_m = dx;

@@ -71,7 +71,8 @@ bool Usable(const io::GridMap& m, std::string* why) {
 
 }  // namespace
 
-Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& opt) {
+Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& opt,
+                          AlignmentHints* hints) {
   FusionResult res;
   res.sources.resize(maps.size());
   int base = -1;
@@ -93,6 +94,13 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
                                       : "the base map '" + opt.base + "' is missing or unusable");
   const io::GridMap& ref = maps[static_cast<size_t>(base)].map;
   res.base = maps[static_cast<size_t>(base)].name;
+  if (hints && hints->base != res.base) {
+    hints->base = res.base;
+    hints->by_name.clear();
+  }
+  auto fraction = [](const eval::MapAlignment& a) {
+    return a.occupied == 0 ? 0.0 : static_cast<double>(a.overlap) / static_cast<double>(a.occupied);
+  };
   std::vector<io::GridMap> moved;
   for (size_t i = 0; i < maps.size(); ++i) {
     SourceReport& rep = res.sources[i];
@@ -104,20 +112,41 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
         return o;
       }());
     } else {
-      rep.alignment = eval::AlignMap(ref, maps[i].map, opt.align);
+      const eval::MapAlignment* hint = nullptr;
+      if (hints && opt.align.align)
+        if (auto it = hints->by_name.find(maps[i].name); it != hints->by_name.end())
+          hint = &it->second;
+      bool tracked = false;
+      if (hint) {
+        eval::MapCompareOptions near = opt.align;
+        near.max_rotation_rad = std::min(opt.align.max_rotation_rad, kTrackRotationRad);
+        near.max_shift_m = std::min(opt.align.max_shift_m, kTrackShiftM);
+        // 5 values per axis per level, halving: ~125 poses a level instead of ~730.
+        near.coarse_steps = 2;
+        near.refine_divisions = 2;
+        near.levels = 9;
+        rep.alignment = eval::AlignMap(ref, maps[i].map, near, hint);
+        const double f = fraction(rep.alignment);
+        tracked = f >= opt.min_overlap_fraction && f >= fraction(*hint) - 0.05;
+      }
+      if (tracked) {
+        ++res.alignments_tracked;
+      } else {
+        rep.alignment = eval::AlignMap(ref, maps[i].map, opt.align);
+        ++res.alignments_searched;
+      }
     }
-    rep.overlap_fraction = rep.alignment.occupied == 0
-                               ? 0.0
-                               : static_cast<double>(rep.alignment.overlap) /
-                                     static_cast<double>(rep.alignment.occupied);
+    rep.overlap_fraction = fraction(rep.alignment);
     if (static_cast<int>(i) != base && rep.overlap_fraction < opt.min_overlap_fraction) {
       rep.used = false;
       char buf[128];
       std::snprintf(buf, sizeof(buf), "alignment overlap %.2f below min_overlap_fraction %.2f",
                     rep.overlap_fraction, opt.min_overlap_fraction);
       rep.reason = buf;
+      if (hints) hints->by_name.erase(maps[i].name);
       continue;
     }
+    if (hints && static_cast<int>(i) != base) hints->by_name[maps[i].name] = rep.alignment;
     moved.push_back(
         static_cast<int>(i) == base ? ref : eval::ResampleOnto(ref, maps[i].map, rep.alignment));
   }

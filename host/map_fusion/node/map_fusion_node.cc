@@ -22,6 +22,8 @@ MapFusionNode::MapFusionNode(bus::Bus* bus, const FusionOptions& options, const 
   heartbeat_.AddCounter("fusions", [this] { return fusions_; });
   heartbeat_.AddCounter("fusion_failures", [this] { return fusion_failures_; });
   heartbeat_.AddCounter("sources_rejected", [this] { return sources_rejected_; });
+  heartbeat_.AddCounter("alignments_tracked", [this] { return alignments_tracked_; });
+  heartbeat_.AddCounter("alignments_searched", [this] { return alignments_searched_; });
   heartbeat_.AddCounter("maps_held", [this] { return static_cast<int64_t>(latest_.size()); });
   heartbeat_.AddCounter(
       "maps_fused", [this] { return last_ ? static_cast<int64_t>(last_->maps_used) : int64_t{0}; });
@@ -51,7 +53,7 @@ Result<FusionResult> MapFusionNode::FuseNow() {
   std::vector<SourceMap> maps;
   for (const auto& ch : o_.grid_channels)
     if (auto it = latest_.find(ch); it != latest_.end()) maps.push_back({ch, it->second});
-  auto r = Fuse(maps, o_);
+  auto r = Fuse(maps, o_, &hints_);
   changed_ = false;
   if (!r.ok()) {
     ++fusion_failures_;
@@ -60,6 +62,8 @@ Result<FusionResult> MapFusionNode::FuseNow() {
     return r;
   }
   ++fusions_;
+  alignments_tracked_ += static_cast<int64_t>(r->alignments_tracked);
+  alignments_searched_ += static_cast<int64_t>(r->alignments_searched);
   for (const auto& s : r->sources)
     if (!s.used) ++sources_rejected_;
   bus_->Publish(

@@ -52,6 +52,11 @@ struct MapCompareOptions {
   double max_shift_m = 2.0;        // search range for the translation
   int match_tolerance_cells = 1;   // occupied-cell precision/recall tolerance
   bool align = true;               // false: compare in the maps' own frames
+  // The search: the first level tries ±range in `coarse_steps` steps per side; each of the
+  // `levels` - 1 further levels tries ± the previous step in `refine_divisions` steps per side.
+  int coarse_steps = 8;
+  int refine_divisions = 4;
+  int levels = 6;
 };
 
 struct MapCompareResult {
@@ -75,9 +80,11 @@ struct MapAlignment {
 };
 // Coarse-to-fine search over rotation (±max_rotation_rad) and translation (±max_shift_m)
 // maximising the overlap of occupied cells; the identity when `align` is off or either map has
-// no occupied cell.
+// no occupied cell. With `guess` the search is centred on that rigid transform instead of the
+// identity (its centre may differ from this estimate's: the transform is what counts), e.g. the
+// previous alignment of a map that has grown since, with small ranges.
 MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
-                      const MapCompareOptions& options = {});
+                      const MapCompareOptions& options = {}, const MapAlignment* guess = nullptr);
 // `est` moved by `a` and sampled (nearest cell) onto `geometry`'s grid: same resolution, origin
 // and size as `geometry`; -1 where the estimate has no cell.
 io::GridMap ResampleOnto(const io::GridMap& geometry, const io::GridMap& est,

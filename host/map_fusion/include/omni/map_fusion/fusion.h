@@ -13,6 +13,7 @@
 #pragma once
 
 #include <cstddef>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -72,7 +73,22 @@ struct FusionResult {
   size_t unanimous = 0;  // known-or-not cells where every voting map agreed
   size_t majority = 0;   // decided by a strict plurality that was not unanimous
   size_t ties = 0;       // decided by the tie rule
+  // Alignments started from a previous one (hints) and kept, and full searches.
+  size_t alignments_tracked = 0, alignments_searched = 0;
 };
+
+// Previous alignments onto a base, by map name: Fuse first searches a small window around each
+// (kTrackRotationRad, kTrackShiftM) and keeps the result unless its overlap fell by more than
+// 0.05 or below min_overlap_fraction, in which case the full search runs. Maps grow between two
+// fusions but rarely move, so this replaces most full searches by one about six times cheaper
+// (Intel lab, 12k occupied cells: 1.8 s against 0.3 s with another build running; the
+// AlignmentRecoversAKnownTransformOfARealMap test prints both).
+struct AlignmentHints {
+  std::string base;  // the hints hold for this base only
+  std::map<std::string, eval::MapAlignment> by_name;
+};
+inline constexpr double kTrackRotationRad = 0.04;
+inline constexpr double kTrackShiftM = 0.25;
 
 // The vote on one cell: `votes[v + 1]` = number of maps saying v (v = -1, 0, 1). Returns the
 // normalised winner; `tied` (optional) tells whether the tie rule decided.
@@ -81,7 +97,9 @@ int VoteCell(const size_t votes[3], TieRule tie, bool* tied = nullptr);
 // Aligns every map onto the base, resamples it onto the base's grid and votes. Errors: fewer
 // than min_maps inputs that are non-empty and well aligned, or a configured base that is not
 // among the inputs.
-Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& options);
+// `hints` (optional): previous alignments (see AlignmentHints); updated with this fusion's.
+Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& options,
+                          AlignmentHints* hints = nullptr);
 
 // A one-line JSON object per source and the vote counts, for logs and stats files.
 std::string ReportJson(const FusionResult& result);

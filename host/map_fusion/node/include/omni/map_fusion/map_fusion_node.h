@@ -38,6 +38,8 @@ class MapFusionNode {
   int64_t fusions() const { return fusions_; }
   int64_t fusion_failures() const { return fusion_failures_; }
   int64_t sources_rejected() const { return sources_rejected_; }
+  int64_t alignments_tracked() const { return alignments_tracked_; }
+  int64_t alignments_searched() const { return alignments_searched_; }
   const std::optional<FusionResult>& last() const { return last_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
@@ -55,6 +57,8 @@ class MapFusionNode {
   int64_t grids_in_ = 0, grids_rejected_ = 0, fusions_ = 0, fusion_failures_ = 0;
   int64_t sources_rejected_ = 0;
   std::optional<FusionResult> last_;
+  AlignmentHints hints_;
+  int64_t alignments_tracked_ = 0, alignments_searched_ = 0;
 };
 
 }  // namespace omni::map_fusion
