@@ -51,6 +51,13 @@ bool ConfigReader::Has(const std::string& key) const {
   return n.IsDefined() && !n.IsNull();
 }
 
+std::vector<std::string> ConfigReader::Keys() const {
+  std::vector<std::string> out;
+  if (!node_.IsMap()) return out;
+  for (const auto& kv : node_) out.push_back(kv.first.as<std::string>());
+  return out;
+}
+
 void ConfigReader::AddError(const std::string& key, const std::string& message) {
   const YAML::Node n = node_.IsMap() ? node_[key] : YAML::Node();
   Fail(n.IsDefined() ? n : node_, FullKey(key), n.IsDefined() ? Dump(n) : "", message);

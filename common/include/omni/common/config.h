@@ -77,6 +77,9 @@ class ConfigReader {
   // A nested map. A missing section reads as empty (its required keys then fail by name).
   ConfigReader Section(const std::string& key);
   bool Has(const std::string& key) const;
+  // The keys of this section in file order (for sections whose keys are names, e.g. one entry
+  // per supervised process); empty when it is not a map.
+  std::vector<std::string> Keys() const;
 
   // Adds an error for a cross-field rule (e.g. "min_range_m < max_range_m").
   void AddError(const std::string& key, const std::string& message);

@@ -1,0 +1,139 @@
+// The supervisor: starts the stack's processes, watches them (their exit, and their HEARTBEAT
+// on the bus) and restarts them. The library of the supervisor process: no LCM, no clock, no
+// fork — the process feeds it heartbeats and the time, and a Launcher starts and signals the
+// children (PosixLauncher on the robot, a fake in tests).
+//
+// Per child:
+// - it is started at Start(), and restarted after an exit according to `restart` (always, on
+//   failure — a non-zero exit status or a signal —, never), after a backoff that starts at
+//   backoff_initial_s and doubles up to backoff_max_s; the backoff goes back to its initial value
+//   once a start has lived longer than backoff_max_s;
+// - with `heartbeat` set (the `process` name in the child's heartbeat_t), a child whose first
+//   heartbeat has not come start_grace_s after its start, or whose heartbeats stop for
+//   heartbeat_timeout_s, is hung: it gets SIGTERM, SIGKILL stop_grace_s later if still there,
+//   and is restarted (unless `restart: never`);
+// - more than max_restarts restarts within restart_window_s: the supervisor gives up on it
+//   (state kGaveUp, counted, reported) instead of restarting forever.
+// A child's heartbeat state (e.g. ERROR while a driver's device is away) is reported, not acted
+// on: the drivers reconnect by themselves.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "omni/common/config.h"
+#include "omni/common/result.h"
+
+namespace omni::supervisor {
+
+enum class RestartPolicy { kAlways, kOnFailure, kNever };
+
+struct ChildSpec {
+  std::string name;
+  std::vector<std::string> command;  // argv; command[0] by path or looked up in PATH
+  std::string heartbeat;             // heartbeat_t.process to watch ("" = exit watching only)
+  double heartbeat_timeout_s = 5.0;
+  double start_grace_s = 15.0;
+  RestartPolicy restart = RestartPolicy::kOnFailure;
+  int max_restarts = 5;
+  double restart_window_s = 300.0;
+  double backoff_initial_s = 1.0;
+  double backoff_max_s = 30.0;
+  double stop_grace_s = 5.0;
+};
+
+struct SupervisorOptions {
+  std::vector<ChildSpec> children;  // in config order: started in this order
+  std::string working_dir;          // "" = the supervisor's own
+  std::string channel = "HEARTBEAT";
+  // `children:` is a map from a name to that child's keys (command required); unknown keys
+  // and bad values are errors naming them.
+  static Result<SupervisorOptions> Load(ConfigReader& reader);
+};
+
+struct ExitInfo {
+  int code = 0;    // exit status when it exited
+  int signal = 0;  // the signal that ended it (0: it exited)
+  bool failed() const { return signal != 0 || code != 0; }
+};
+
+// Starts and signals child processes.
+class Launcher {
+ public:
+  virtual ~Launcher() = default;
+  // Starts `command` in `working_dir` ("" = current); the child's pid.
+  virtual Result<int> Start(const std::vector<std::string>& command,
+                            const std::string& working_dir) = 0;
+  // The child's exit once it has ended (reaped), nullopt while it runs.
+  virtual std::optional<ExitInfo> Poll(int pid) = 0;
+  virtual void Signal(int pid, int signal) = 0;
+};
+
+// fork + execvp; the child gets SIGTERM if the supervisor dies (PR_SET_PDEATHSIG), its own
+// process group, and the supervisor's stdout/stderr. A command that cannot be executed exits
+// 127 (seen as a failure, so restarted with backoff and in the end given up).
+class PosixLauncher final : public Launcher {
+ public:
+  Result<int> Start(const std::vector<std::string>& command,
+                    const std::string& working_dir) override;
+  std::optional<ExitInfo> Poll(int pid) override;
+  void Signal(int pid, int signal) override;
+};
+
+enum class ChildState { kBackoff, kStarting, kRunning, kStopping, kExited, kGaveUp };
+const char* ChildStateName(ChildState s);
+
+struct ChildStatus {
+  ChildState state = ChildState::kBackoff;
+  int pid = -1;
+  int64_t starts = 0, restarts = 0, exits = 0, failures = 0, heartbeat_timeouts = 0;
+  int64_t start_errors = 0;  // Launcher::Start failed (e.g. fork)
+  std::optional<ExitInfo> last_exit;
+  int64_t started_us = 0, last_heartbeat_us = 0, stop_deadline_us = 0, next_start_us = 0;
+  int8_t heartbeat_state = -1;  // the child's last heartbeat_t.state (-1: none yet)
+  std::string heartbeat_text;
+  double backoff_s = 0;
+  bool restart_after_stop = false;
+  std::deque<int64_t> restart_times_us;
+};
+
+class Supervisor {
+ public:
+  Supervisor(SupervisorOptions options, Launcher* launcher);
+
+  // Starts every child (in order).
+  void Start(int64_t now_us);
+  // Reaps exits, acts on silent children, kills those past their stop grace, restarts the due.
+  void Tick(int64_t now_us);
+  // A heartbeat from `process` (its heartbeat_t.process) with its state and text.
+  void OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
+                   int64_t now_us);
+  // Stops every child (SIGTERM, SIGKILL after its stop grace) and restarts none; keep calling
+  // Tick until AllStopped().
+  void StopAll(int64_t now_us);
+  bool AllStopped() const;
+
+  const SupervisorOptions& options() const { return o_; }
+  const std::vector<ChildStatus>& children() const { return st_; }
+  int running() const;  // children in kStarting or kRunning
+  int64_t total(int64_t ChildStatus::*field) const;
+  int64_t gave_up() const;
+  // "all 5 running" or the names of the children that are not, with why.
+  std::string Summary() const;
+
+ private:
+  void Launch(size_t i, int64_t now_us);
+  void OnExit(size_t i, const ExitInfo& e, int64_t now_us);
+  void Stop(size_t i, int64_t now_us, bool restart);
+  void ScheduleRestart(size_t i, int64_t now_us);
+
+  SupervisorOptions o_;
+  Launcher* launcher_;
+  std::vector<ChildStatus> st_;
+  bool stopping_all_ = false;
+};
+
+}  // namespace omni::supervisor

@@ -1,0 +1,158 @@
+// supervisor process: starts the processes of config/supervisor.yaml, restarts them when they
+// exit or their HEARTBEAT stops, reports in its own HEARTBEAT, and stops them all on
+// SIGINT/SIGTERM.
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
+#include "omni/bus/node_loop.h"
+#include "omni/common/log.h"
+#include "omni/common/time.h"
+#include "omni/heartbeat_t.hpp"
+#include "omni/supervisor/supervisor.h"
+
+namespace {
+
+void Usage(std::FILE* f) {
+  std::fprintf(
+      f,
+      "usage: supervisor --config FILE [--url LCM_URL] [--duration-s S]\n"
+      "  Starts every process of FILE's `children` (in order), watches its exit and, when the\n"
+      "  child has a `heartbeat` name, its HEARTBEAT on the bus; restarts it per `restart`\n"
+      "  (always | on-failure | never) with a doubling backoff, kills and restarts a child whose\n"
+      "  heartbeat stops, gives up on one that keeps failing. Publishes HEARTBEAT (process\n"
+      "  \"supervisor\": children running, starts, restarts, failures, heartbeat timeouts, given\n"
+      "  up; the text names the children that are down). SIGINT/SIGTERM (or S seconds) stops\n"
+      "  the children, newest first (SIGTERM, then SIGKILL after their stop_grace_s). Exits\n"
+      "  by itself when no child is left to run: 0 if all exited cleanly, 1 otherwise.\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string config_path, url;
+  double duration_s = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "supervisor: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--help" || a == "-h") {
+      Usage(stdout);
+      return 0;
+    } else if (a == "--config") {
+      config_path = val();
+    } else if (a == "--url") {
+      url = val();
+    } else if (a == "--duration-s") {
+      duration_s = std::atof(val().c_str());
+    } else {
+      std::fprintf(stderr, "supervisor: unknown option '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  if (config_path.empty()) {
+    std::fprintf(stderr, "supervisor: --config FILE is required (see config/supervisor.yaml)\n");
+    return 2;
+  }
+  omni::SetLogProcessName("supervisor");
+  auto reader = omni::ConfigReader::FromFile(config_path);
+  if (!reader.ok()) {
+    std::fprintf(stderr, "supervisor: %s\n", reader.error().message.c_str());
+    return 1;
+  }
+  auto opt = omni::supervisor::SupervisorOptions::Load(*reader);
+  if (!opt.ok()) {
+    std::fprintf(stderr, "supervisor: bad config:\n%s\n", opt.error().message.c_str());
+    return 1;
+  }
+  auto bus_or = omni::bus::Bus::Create(url);
+  if (!bus_or.ok()) {
+    std::fprintf(stderr, "supervisor: %s\n", bus_or.error().message.c_str());
+    return 1;
+  }
+  auto& bus = **bus_or;
+  omni::SystemClock clock;
+  omni::supervisor::PosixLauncher launcher;
+  omni::supervisor::Supervisor sup(*opt, &launcher);
+  bus.Subscribe<omni::heartbeat_t>(opt->channel, [&](const omni::heartbeat_t& h, int64_t) {
+    if (h.process != "supervisor")
+      sup.OnHeartbeat(h.process, h.state, h.status_text, omni::MonotonicMicros());
+  });
+  omni::bus::Heartbeat hb(&bus, "supervisor", &clock);
+  hb.AddCounter("children", [&] { return static_cast<int64_t>(sup.children().size()); });
+  hb.AddCounter("running", [&] { return static_cast<int64_t>(sup.running()); });
+  using CS = omni::supervisor::ChildStatus;
+  hb.AddCounter("starts", [&] { return sup.total(&CS::starts); });
+  hb.AddCounter("restarts", [&] { return sup.total(&CS::restarts); });
+  hb.AddCounter("failures", [&] { return sup.total(&CS::failures); });
+  hb.AddCounter("heartbeat_timeouts", [&] { return sup.total(&CS::heartbeat_timeouts); });
+  hb.AddCounter("start_errors", [&] { return sup.total(&CS::start_errors); });
+  hb.AddCounter("gave_up", [&] { return sup.gave_up(); });
+  omni::bus::InstallStopSignals();
+  const int64_t t0 = omni::MonotonicMicros();
+  sup.Start(t0);
+  LOG_INFO << "started " << sup.children().size() << " processes (bus "
+           << (url.empty() ? "default" : url) << ")";
+  std::string last_summary;
+  auto report = [&] {
+    const std::string summary = sup.Summary();
+    const bool all_ok = sup.running() == static_cast<int>(sup.children().size()) &&
+                        summary.rfind("all ", 0) == 0 && summary.find(';') == std::string::npos;
+    hb.SetState(all_ok              ? omni::heartbeat_t::STATE_OK
+                : sup.gave_up() > 0 ? omni::heartbeat_t::STATE_ERROR
+                                    : omni::heartbeat_t::STATE_DEGRADED,
+                summary);
+    if (summary != last_summary) {
+      LOG_INFO << summary;
+    }
+    last_summary = summary;
+  };
+  bool done = false;
+  while (!omni::bus::StopRequested() && !done) {
+    bus.HandleTimeout(50);
+    const int64_t now = omni::MonotonicMicros();
+    sup.Tick(now);
+    report();
+    hb.Tick();
+    if (duration_s > 0 && now - t0 > static_cast<int64_t>(duration_s * 1e6)) break;
+    // Nothing left to run: every child exited for good or was given up.
+    done = sup.AllStopped() && sup.running() == 0 &&
+           std::all_of(sup.children().begin(), sup.children().end(), [](const CS& s) {
+             return s.state == omni::supervisor::ChildState::kExited ||
+                    s.state == omni::supervisor::ChildState::kGaveUp;
+           });
+  }
+  LOG_INFO << (done ? "no process left to run" : "stopping every process");
+  hb.SetState(omni::heartbeat_t::STATE_STOPPING, "stopping the processes");
+  hb.Tick(true);
+  sup.StopAll(omni::MonotonicMicros());
+  while (!sup.AllStopped()) {
+    bus.HandleTimeout(20);
+    sup.Tick(omni::MonotonicMicros());
+  }
+  int exit_code = 0;
+  for (size_t i = 0; i < sup.children().size(); ++i) {
+    const CS& s = sup.children()[i];
+    std::printf(
+        "supervisor: %s: %lld starts, %lld restarts, %lld failures, %lld heartbeat "
+        "timeouts, %s\n",
+        opt->children[i].name.c_str(), static_cast<long long>(s.starts),
+        static_cast<long long>(s.restarts), static_cast<long long>(s.failures),
+        static_cast<long long>(s.heartbeat_timeouts),
+        s.state == omni::supervisor::ChildState::kGaveUp ? "given up" : "stopped");
+    if (done && (s.state == omni::supervisor::ChildState::kGaveUp ||
+                 (s.last_exit && s.last_exit->failed())))
+      exit_code = 1;
+  }
+  return exit_code;
+}

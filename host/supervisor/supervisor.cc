@@ -1,0 +1,303 @@
+#include "omni/supervisor/supervisor.h"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+
+namespace omni::supervisor {
+
+namespace {
+constexpr int64_t kUs = 1000000;
+int64_t Us(double s) { return static_cast<int64_t>(s * 1e6); }
+}  // namespace
+
+Result<SupervisorOptions> SupervisorOptions::Load(ConfigReader& r) {
+  SupervisorOptions o;
+  r.Get("working_dir", &o.working_dir, Optional());
+  r.Get("channel", &o.channel, Optional(), NonEmpty());
+  auto children = r.Section("children");
+  for (const std::string& name : children.Keys()) {
+    ChildSpec c;
+    c.name = name;
+    auto s = children.Section(name);
+    s.Get("command", &c.command, Required());
+    if (s.Has("command") && c.command.empty()) s.AddError("command", "must not be empty");
+    s.Get("heartbeat", &c.heartbeat, Optional());
+    s.Get("heartbeat_timeout_s", &c.heartbeat_timeout_s, Optional(), InRange(0.1, 3600.0));
+    s.Get("start_grace_s", &c.start_grace_s, Optional(), InRange(0.1, 3600.0));
+    std::string restart = "on-failure";
+    s.Get("restart", &restart, Optional(), OneOf({"always", "on-failure", "never"}));
+    c.restart = restart == "always"  ? RestartPolicy::kAlways
+                : restart == "never" ? RestartPolicy::kNever
+                                     : RestartPolicy::kOnFailure;
+    s.Get("max_restarts", &c.max_restarts, Optional(), InRange(0, 100000));
+    s.Get("restart_window_s", &c.restart_window_s, Optional(), InRange(1.0, 1e6));
+    s.Get("backoff_initial_s", &c.backoff_initial_s, Optional(), InRange(0.0, 3600.0));
+    s.Get("backoff_max_s", &c.backoff_max_s, Optional(), InRange(0.0, 3600.0));
+    s.Get("stop_grace_s", &c.stop_grace_s, Optional(), InRange(0.0, 600.0));
+    if (c.backoff_max_s < c.backoff_initial_s)
+      s.AddError("backoff_max_s", "must be >= backoff_initial_s");
+    o.children.push_back(std::move(c));
+  }
+  if (o.children.empty()) r.AddError("children", "must name at least one process to supervise");
+  if (Status st = r.Finish(); !st.ok()) return st.error();
+  return o;
+}
+
+Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
+                                 const std::string& working_dir) {
+  if (command.empty()) return MakeError(ErrorCode::kInvalidArgument, "empty command");
+  std::vector<char*> argv;
+  for (const auto& a : command) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  const pid_t parent = getpid();
+  const pid_t pid = fork();
+  if (pid < 0)
+    return MakeError(ErrorCode::kUnavailable, std::string("fork: ") + std::strerror(errno));
+  if (pid == 0) {
+    // Child: die with the supervisor, own process group (a terminal's Ctrl-C goes to the
+    // supervisor, which stops the children in order).
+    prctl(PR_SET_PDEATHSIG, SIGTERM);
+    if (getppid() != parent) _exit(126);
+    setpgid(0, 0);
+    if (!working_dir.empty() && chdir(working_dir.c_str()) != 0) _exit(126);
+    execvp(argv[0], argv.data());
+    _exit(127);
+  }
+  return static_cast<int>(pid);
+}
+
+std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
+  int status = 0;
+  const pid_t r = waitpid(pid, &status, WNOHANG);
+  if (r == 0) return std::nullopt;
+  ExitInfo e;
+  if (r < 0) {
+    e.code = 255;  // not our child any more (should not happen): treat as a failed exit
+    return e;
+  }
+  if (WIFSIGNALED(status)) e.signal = WTERMSIG(status);
+  if (WIFEXITED(status)) e.code = WEXITSTATUS(status);
+  return e;
+}
+
+void PosixLauncher::Signal(int pid, int sig) {
+  if (pid > 0) kill(pid, sig);
+}
+
+const char* ChildStateName(ChildState s) {
+  switch (s) {
+    case ChildState::kBackoff:
+      return "waiting to restart";
+    case ChildState::kStarting:
+      return "starting";
+    case ChildState::kRunning:
+      return "running";
+    case ChildState::kStopping:
+      return "stopping";
+    case ChildState::kExited:
+      return "exited";
+    case ChildState::kGaveUp:
+      return "gave up";
+  }
+  return "?";
+}
+
+Supervisor::Supervisor(SupervisorOptions options, Launcher* launcher)
+    : o_(std::move(options)), launcher_(launcher), st_(o_.children.size()) {
+  for (size_t i = 0; i < st_.size(); ++i) st_[i].backoff_s = o_.children[i].backoff_initial_s;
+}
+
+void Supervisor::Start(int64_t now_us) {
+  for (size_t i = 0; i < st_.size(); ++i) Launch(i, now_us);
+}
+
+void Supervisor::Launch(size_t i, int64_t now_us) {
+  ChildStatus& s = st_[i];
+  auto pid = launcher_->Start(o_.children[i].command, o_.working_dir);
+  if (!pid.ok()) {
+    ++s.start_errors;
+    ScheduleRestart(i, now_us);
+    return;
+  }
+  s.pid = *pid;
+  ++s.starts;
+  s.started_us = now_us;
+  s.last_heartbeat_us = 0;
+  s.heartbeat_state = -1;
+  s.restart_after_stop = false;
+  s.state = o_.children[i].heartbeat.empty() ? ChildState::kRunning : ChildState::kStarting;
+}
+
+void Supervisor::ScheduleRestart(size_t i, int64_t now_us) {
+  const ChildSpec& c = o_.children[i];
+  ChildStatus& s = st_[i];
+  while (!s.restart_times_us.empty() &&
+         now_us - s.restart_times_us.front() > Us(c.restart_window_s))
+    s.restart_times_us.pop_front();
+  if (static_cast<int>(s.restart_times_us.size()) >= c.max_restarts) {
+    s.state = ChildState::kGaveUp;
+    s.pid = -1;
+    return;
+  }
+  // A start that lived longer than the longest backoff was a healthy run: begin again.
+  if (s.starts > 0 && now_us - s.started_us > Us(c.backoff_max_s))
+    s.backoff_s = c.backoff_initial_s;
+  s.restart_times_us.push_back(now_us);
+  if (s.starts > 0) ++s.restarts;
+  s.next_start_us = now_us + Us(s.backoff_s);
+  s.backoff_s = std::min(c.backoff_max_s, std::max(s.backoff_s * 2, 0.05));
+  s.state = ChildState::kBackoff;
+  s.pid = -1;
+}
+
+void Supervisor::OnExit(size_t i, const ExitInfo& e, int64_t now_us) {
+  const ChildSpec& c = o_.children[i];
+  ChildStatus& s = st_[i];
+  ++s.exits;
+  if (e.failed()) ++s.failures;
+  s.last_exit = e;
+  const bool was_stopping = s.state == ChildState::kStopping;
+  bool restart = false;
+  if (stopping_all_) {
+    restart = false;
+  } else if (was_stopping) {
+    restart = s.restart_after_stop;  // a hung child we stopped
+  } else {
+    restart = c.restart == RestartPolicy::kAlways ||
+              (c.restart == RestartPolicy::kOnFailure && e.failed());
+  }
+  if (restart) {
+    ScheduleRestart(i, now_us);
+  } else {
+    s.state = ChildState::kExited;
+    s.pid = -1;
+  }
+}
+
+void Supervisor::Stop(size_t i, int64_t now_us, bool restart) {
+  ChildStatus& s = st_[i];
+  if (s.pid <= 0) return;
+  launcher_->Signal(s.pid, SIGTERM);
+  s.state = ChildState::kStopping;
+  s.stop_deadline_us = now_us + Us(o_.children[i].stop_grace_s);
+  s.restart_after_stop = restart;
+}
+
+void Supervisor::Tick(int64_t now_us) {
+  for (size_t i = 0; i < st_.size(); ++i) {
+    const ChildSpec& c = o_.children[i];
+    ChildStatus& s = st_[i];
+    if (s.pid > 0) {
+      if (auto e = launcher_->Poll(s.pid)) {
+        OnExit(i, *e, now_us);
+        continue;
+      }
+    }
+    switch (s.state) {
+      case ChildState::kStarting:
+      case ChildState::kRunning: {
+        if (c.heartbeat.empty()) break;
+        const bool silent = s.last_heartbeat_us == 0
+                                ? now_us - s.started_us > Us(c.start_grace_s)
+                                : now_us - s.last_heartbeat_us > Us(c.heartbeat_timeout_s);
+        if (silent) {
+          ++s.heartbeat_timeouts;
+          Stop(i, now_us, c.restart != RestartPolicy::kNever);
+        }
+        break;
+      }
+      case ChildState::kStopping:
+        if (now_us >= s.stop_deadline_us && s.pid > 0) {
+          launcher_->Signal(s.pid, SIGKILL);
+          s.stop_deadline_us = now_us + kUs;  // and again each second until it is reaped
+        }
+        break;
+      case ChildState::kBackoff:
+        if (!stopping_all_ && now_us >= s.next_start_us) Launch(i, now_us);
+        break;
+      case ChildState::kExited:
+      case ChildState::kGaveUp:
+        break;
+    }
+  }
+}
+
+void Supervisor::OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
+                             int64_t now_us) {
+  for (size_t i = 0; i < st_.size(); ++i) {
+    if (o_.children[i].heartbeat != process) continue;
+    ChildStatus& s = st_[i];
+    if (s.state != ChildState::kStarting && s.state != ChildState::kRunning) continue;
+    s.last_heartbeat_us = now_us;
+    s.heartbeat_state = state;
+    s.heartbeat_text = text;
+    s.state = ChildState::kRunning;
+  }
+}
+
+void Supervisor::StopAll(int64_t now_us) {
+  stopping_all_ = true;
+  // Last started first: the mappers before the drivers that feed them.
+  for (size_t k = st_.size(); k-- > 0;) {
+    ChildStatus& s = st_[k];
+    if (s.state == ChildState::kBackoff) s.state = ChildState::kExited;
+    if (s.pid > 0 && s.state != ChildState::kStopping) Stop(k, now_us, false);
+  }
+}
+
+bool Supervisor::AllStopped() const {
+  return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) { return s.pid <= 0; });
+}
+
+int Supervisor::running() const {
+  return static_cast<int>(std::count_if(st_.begin(), st_.end(), [](const ChildStatus& s) {
+    return s.state == ChildState::kStarting || s.state == ChildState::kRunning;
+  }));
+}
+
+int64_t Supervisor::total(int64_t ChildStatus::*field) const {
+  int64_t n = 0;
+  for (const auto& s : st_) n += s.*field;
+  return n;
+}
+
+int64_t Supervisor::gave_up() const {
+  return std::count_if(st_.begin(), st_.end(),
+                       [](const ChildStatus& s) { return s.state == ChildState::kGaveUp; });
+}
+
+std::string Supervisor::Summary() const {
+  std::string down;
+  for (size_t i = 0; i < st_.size(); ++i) {
+    const ChildStatus& s = st_[i];
+    if (s.state == ChildState::kRunning) {
+      // heartbeat_t::STATE_DEGRADED = 2, STATE_ERROR = 3: running, but saying something is wrong.
+      if (s.heartbeat_state == 2 || s.heartbeat_state == 3) {
+        if (!down.empty()) down += ", ";
+        down += o_.children[i].name + (s.heartbeat_state == 3 ? " reports ERROR" : " degraded") +
+                (s.heartbeat_text.empty() ? "" : ": " + s.heartbeat_text);
+      }
+      continue;
+    }
+    if (!down.empty()) down += ", ";
+    down += o_.children[i].name + " " + ChildStateName(s.state);
+    if (s.last_exit && s.state != ChildState::kStarting) {
+      down += s.last_exit->signal ? " (signal " + std::to_string(s.last_exit->signal) + ")"
+                                  : " (exit " + std::to_string(s.last_exit->code) + ")";
+    }
+  }
+  if (down.empty()) return "all " + std::to_string(st_.size()) + " running";
+  const bool all_running = std::all_of(
+      st_.begin(), st_.end(), [](const ChildStatus& c) { return c.state == ChildState::kRunning; });
+  if (all_running) return "all running; " + down;
+  return down;
+}
+
+}  // namespace omni::supervisor
