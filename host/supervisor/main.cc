@@ -27,8 +27,9 @@ void Usage(std::FILE* f) {
       "  heartbeat stops, gives up on one that keeps failing. Publishes HEARTBEAT (process\n"
       "  \"supervisor\": children running, starts, restarts, failures, heartbeat timeouts, given\n"
       "  up; the text names the children that are down). SIGINT/SIGTERM (or S seconds) stops\n"
-      "  the children, newest first (SIGTERM, then SIGKILL after their stop_grace_s). Exits\n"
-      "  by itself when no child is left to run: 0 if all exited cleanly, 1 otherwise.\n");
+      "  the children one at a time, newest first (SIGTERM, then SIGKILL after their\n"
+      "  stop_grace_s). Exits by itself when no child is left to run. Exit status 0 when every\n"
+      "  child's last exit was clean, 1 otherwise.\n");
 }
 
 }  // namespace
@@ -150,8 +151,7 @@ int main(int argc, char** argv) {
         static_cast<long long>(s.restarts), static_cast<long long>(s.failures),
         static_cast<long long>(s.heartbeat_timeouts),
         s.state == omni::supervisor::ChildState::kGaveUp ? "given up" : "stopped");
-    if (done && (s.state == omni::supervisor::ChildState::kGaveUp ||
-                 (s.last_exit && s.last_exit->failed())))
+    if (s.state == omni::supervisor::ChildState::kGaveUp || (s.last_exit && s.last_exit->failed()))
       exit_code = 1;
   }
   return exit_code;

@@ -227,6 +227,7 @@ void Supervisor::Tick(int64_t now_us) {
         break;
     }
   }
+  if (stopping_all_) StopNext(now_us);
 }
 
 void Supervisor::OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
@@ -244,12 +245,22 @@ void Supervisor::OnHeartbeat(const std::string& process, int8_t state, const std
 
 void Supervisor::StopAll(int64_t now_us) {
   stopping_all_ = true;
-  // Last started first: the mappers before the drivers that feed them.
-  for (size_t k = st_.size(); k-- > 0;) {
-    ChildStatus& s = st_[k];
+  for (auto& s : st_)
     if (s.state == ChildState::kBackoff) s.state = ChildState::kExited;
-    if (s.pid > 0 && s.state != ChildState::kStopping) Stop(k, now_us, false);
-  }
+  StopNext(now_us);
+}
+
+void Supervisor::StopNext(int64_t now_us) {
+  // One at a time, newest first: each child is gone before the one started before it is asked,
+  // so a process listed early (e.g. map_fusion) still receives what the later ones (the
+  // mappers' final maps) publish as they stop.
+  for (const auto& s : st_)
+    if (s.state == ChildState::kStopping) return;
+  for (size_t k = st_.size(); k-- > 0;)
+    if (st_[k].pid > 0) {
+      Stop(k, now_us, false);
+      return;
+    }
 }
 
 bool Supervisor::AllStopped() const {

@@ -111,8 +111,8 @@ class Supervisor {
   // A heartbeat from `process` (its heartbeat_t.process) with its state and text.
   void OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
                    int64_t now_us);
-  // Stops every child (SIGTERM, SIGKILL after its stop grace) and restarts none; keep calling
-  // Tick until AllStopped().
+  // Stops every child, one at a time and newest first (SIGTERM, SIGKILL after its stop grace;
+  // the next once it is gone), and restarts none; keep calling Tick until AllStopped().
   void StopAll(int64_t now_us);
   bool AllStopped() const;
 
@@ -129,6 +129,7 @@ class Supervisor {
   void OnExit(size_t i, const ExitInfo& e, int64_t now_us);
   void Stop(size_t i, int64_t now_us, bool restart);
   void ScheduleRestart(size_t i, int64_t now_us);
+  void StopNext(int64_t now_us);
 
   SupervisorOptions o_;
   Launcher* launcher_;
