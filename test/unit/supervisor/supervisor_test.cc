@@ -309,20 +309,21 @@ TEST(SupervisorProcess, WatchesARealProcessHeartbeatOverUdpInANetns) {
   const std::string dir = ::testing::TempDir() + "/supervisor_netns";
   std::filesystem::create_directories(dir);
   {
-    // odom_mapper heartbeats at 1 Hz: never restarted. A `sleep` that claims to heartbeat as
-    // "ghost" never does: stopped after its grace and restarted.
+    // odom_mapper heartbeats at 1 Hz: never restarted (margins wide enough for a loaded
+    // sanitizer run). A `sleep` that claims to heartbeat as "ghost" never does: stopped after
+    // its grace and restarted.
     std::ofstream f(dir + "/sup.yaml");
     f << "children:\n"
          "  odom_mapper:\n    command: ["
       << testing::Bin("odom_mapper") << ", --out, " << dir
-      << "/odom]\n    heartbeat: odom_mapper\n    heartbeat_timeout_s: 2.5\n"
-         "    start_grace_s: 3\n"
+      << "/odom]\n    heartbeat: odom_mapper\n    heartbeat_timeout_s: 5\n"
+         "    start_grace_s: 8\n"
          "  ghost:\n    command: [sleep, '100']\n    heartbeat: ghost\n    start_grace_s: 1\n"
          "    stop_grace_s: 0.5\n    backoff_initial_s: 0.2\n";
     std::ofstream s(dir + "/run.sh");
     s << "ip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
       << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0'\n"
-      << testing::Bin("supervisor") << " --config " << dir << "/sup.yaml --duration-s 5\n";
+      << testing::Bin("supervisor") << " --config " << dir << "/sup.yaml --duration-s 7\n";
   }
   auto r = testing::Run("timeout 60 unshare -n bash " + dir + "/run.sh");
   EXPECT_EQ(r.exit_code, 1) << r.output;  // odom_mapper's exit without a scan is a failure
