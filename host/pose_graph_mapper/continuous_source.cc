@@ -23,10 +23,15 @@ Eigen::Matrix3d StepCovariance(const OdometryNoise& noise, const Pose2& step, do
   return q;
 }
 
-void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q) {
+Eigen::Matrix3d ComposeCovariance(const Pose2& p, const Eigen::Matrix3d& cov_p, const Pose2& q,
+                                  const Eigen::Matrix3d& cov_q) {
   Eigen::Matrix3d a, b;
-  ComposeJacobians(m->delta, step, &a, &b);
-  m->covariance = a * m->covariance * a.transpose() + b * q * b.transpose();
+  ComposeJacobians(p, q, &a, &b);
+  return a * cov_p * a.transpose() + b * cov_q * b.transpose();
+}
+
+void AppendStep(RelativeMotion* m, const Pose2& step, const Eigen::Matrix3d& q) {
+  m->covariance = ComposeCovariance(m->delta, m->covariance, step, q);
   m->delta = m->delta * step;
 }
 

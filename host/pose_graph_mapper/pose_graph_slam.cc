@@ -252,9 +252,8 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   if (k == 0) {
     kf_covariance_ = AnchorInformation().inverse();
   } else {
-    Eigen::Matrix3d a, b;
-    ComposeJacobians(keyframes_.back().estimate, motion.delta, &a, &b);
-    kf_covariance_ = a * kf_covariance_ * a.transpose() + b * motion.covariance * b.transpose();
+    kf_covariance_ = ComposeCovariance(keyframes_.back().estimate, kf_covariance_, motion.delta,
+                                       motion.covariance);
   }
   kf.points = std::move(points);
   keyframes_.push_back(std::move(kf));
@@ -600,10 +599,8 @@ bool PoseGraphSlam::LastScanCovariance(Eigen::Matrix3d* covariance) {
   }
   // The newest scan belongs to the newest keyframe.
   const ScanRef& s = scans_.back();
-  Eigen::Matrix3d a, b;
-  ComposeJacobians(keyframes_[static_cast<size_t>(s.keyframe)].estimate, s.delta, &a, &b);
-  *covariance =
-      a * kf_covariance_ * a.transpose() + b * last_scan_motion_covariance_ * b.transpose();
+  *covariance = ComposeCovariance(keyframes_[static_cast<size_t>(s.keyframe)].estimate,
+                                  kf_covariance_, s.delta, last_scan_motion_covariance_);
   return true;
 }
 

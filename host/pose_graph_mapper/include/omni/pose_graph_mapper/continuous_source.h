@@ -52,6 +52,10 @@ struct OdometryNoise {
 
 // Composition Jacobians of D = P (+) Q (SE(2)), in the frame of P's origin.
 void ComposeJacobians(const Pose2& p, const Pose2& q, Eigen::Matrix3d* a, Eigen::Matrix3d* b);
+// Covariance of P (+) Q from P's (over its coordinates) and Q's (in P's frame), independent:
+// A cov_p A^T + B cov_q B^T.
+Eigen::Matrix3d ComposeCovariance(const Pose2& p, const Eigen::Matrix3d& cov_p, const Pose2& q,
+                                  const Eigen::Matrix3d& cov_q);
 
 // Covariance of one odometry step (in its start frame) lasting `dt_s` seconds.
 Eigen::Matrix3d StepCovariance(const OdometryNoise& noise, const Pose2& step, double dt_s);
