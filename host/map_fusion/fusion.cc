@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
+
+#include "omni/io/image_io.h"
 
 namespace omni::map_fusion {
 
@@ -207,6 +210,20 @@ std::string ReportJson(const FusionResult& r) {
     s += buf;
   }
   return s + "]}";
+}
+
+Status WriteFusionOutputs(const FusionResult& r, const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  const std::string base = dir + "/fused_map";
+  Status s = io::WriteMapServer(r.fused, base);
+  if (s.ok()) s = io::WritePng(base + ".png", io::RenderGrid(r.fused, {}, 1));
+  if (!s.ok()) return s;
+  std::FILE* f = std::fopen((dir + "/fusion.json").c_str(), "w");
+  if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + dir + "/fusion.json");
+  std::fprintf(f, "%s\n", ReportJson(r).c_str());
+  std::fclose(f);
+  return Status::Ok();
 }
 
 }  // namespace omni::map_fusion

@@ -11,7 +11,6 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
-#include "omni/io/image_io.h"
 #include "omni/map_fusion/map_fusion_node.h"
 
 namespace {
@@ -109,14 +108,8 @@ int main(int argc, char** argv) {
     auto r = omni::map_fusion::Fuse(maps, opt);
     if (!r.ok()) return Fail(r.error().message);
     const std::string base = out_dir + "/fused_map";
-    omni::Status s = omni::io::WriteMapServer(r->fused, base);
-    if (s.ok()) s = omni::io::WritePng(base + ".png", omni::io::RenderGrid(r->fused, {}, 1));
-    if (!s.ok()) return Fail(s.message());
-    const std::string report = omni::map_fusion::ReportJson(*r);
-    if (std::FILE* f = std::fopen((out_dir + "/fusion.json").c_str(), "w")) {
-      std::fprintf(f, "%s\n", report.c_str());
-      std::fclose(f);
-    }
+    if (const omni::Status s = omni::map_fusion::WriteFusionOutputs(*r, out_dir); !s.ok())
+      return Fail(s.message());
     for (const auto& src : r->sources)
       std::printf("map_fusion: %s: %s, rotation %.4f rad, shift (%.3f, %.3f) m, overlap %.2f%s%s\n",
                   src.name.c_str(), src.used ? "used" : "left out", src.alignment.rotation_rad,

@@ -2,12 +2,10 @@
 
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 
 #include "omni/bus/convert.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
-#include "omni/io/image_io.h"
 #include "omni/occupancy_grid_t.hpp"
 
 namespace omni::map_fusion {
@@ -89,17 +87,7 @@ void MapFusionNode::Tick() {
 Status MapFusionNode::WriteOutputs(const std::string& dir) {
   auto r = FuseNow();
   if (!r.ok()) return r.error();
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  const std::string base = dir + "/fused_map";
-  Status s = io::WriteMapServer(r->fused, base);
-  if (s.ok()) s = io::WritePng(base + ".png", io::RenderGrid(r->fused, {}, 1));
-  if (!s.ok()) return s;
-  std::FILE* f = std::fopen((dir + "/fusion.json").c_str(), "w");
-  if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + dir + "/fusion.json");
-  std::fprintf(f, "%s\n", ReportJson(*r).c_str());
-  std::fclose(f);
-  return Status::Ok();
+  return WriteFusionOutputs(*r, dir);
 }
 
 }  // namespace omni::map_fusion

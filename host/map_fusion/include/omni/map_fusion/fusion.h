@@ -104,4 +104,7 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
 // A one-line JSON object per source and the vote counts, for logs and stats files.
 std::string ReportJson(const FusionResult& result);
 
+// DIR/fused_map.{pgm,yaml,png} and DIR/fusion.json (ReportJson), creating DIR.
+Status WriteFusionOutputs(const FusionResult& result, const std::string& dir);
+
 }  // namespace omni::map_fusion
