@@ -162,12 +162,8 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
                                                   " usable map(s), min_maps is " +
                                                   std::to_string(opt.min_maps) + why);
   }
-  res.fused.resolution_m = ref.resolution_m;
-  res.fused.origin_x_m = ref.origin_x_m;
-  res.fused.origin_y_m = ref.origin_y_m;
-  res.fused.width = ref.width;
-  res.fused.height = ref.height;
-  res.fused.cells.assign(ref.cells.size(), -1);
+  res.fused = ref;  // the base's grid, every cell decided below
+  std::fill(res.fused.cells.begin(), res.fused.cells.end(), int8_t{-1});
   for (size_t c = 0; c < ref.cells.size(); ++c) {
     size_t votes[3] = {0, 0, 0};
     for (const auto& m : moved) {

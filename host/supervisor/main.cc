@@ -2,7 +2,6 @@
 // exit or their HEARTBEAT stops, reports in its own HEARTBEAT, and stops them all on
 // SIGINT/SIGTERM.
 
-#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -107,9 +106,7 @@ int main(int argc, char** argv) {
   std::string last_summary;
   auto report = [&] {
     const std::string summary = sup.Summary();
-    const bool all_ok = sup.running() == static_cast<int>(sup.children().size()) &&
-                        summary.rfind("all ", 0) == 0 && summary.find(';') == std::string::npos;
-    hb.SetState(all_ok              ? omni::heartbeat_t::STATE_OK
+    hb.SetState(sup.Healthy()       ? omni::heartbeat_t::STATE_OK
                 : sup.gave_up() > 0 ? omni::heartbeat_t::STATE_ERROR
                                     : omni::heartbeat_t::STATE_DEGRADED,
                 summary);
@@ -126,12 +123,7 @@ int main(int argc, char** argv) {
     report();
     hb.Tick();
     if (duration_s > 0 && now - t0 > static_cast<int64_t>(duration_s * 1e6)) break;
-    // Nothing left to run: every child exited for good or was given up.
-    done = sup.AllStopped() && sup.running() == 0 &&
-           std::all_of(sup.children().begin(), sup.children().end(), [](const CS& s) {
-             return s.state == omni::supervisor::ChildState::kExited ||
-                    s.state == omni::supervisor::ChildState::kGaveUp;
-           });
+    done = sup.Finished();
   }
   LOG_INFO << (done ? "no process left to run" : "stopping every process");
   hb.SetState(omni::heartbeat_t::STATE_STOPPING, "stopping the processes");

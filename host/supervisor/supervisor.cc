@@ -267,6 +267,25 @@ bool Supervisor::AllStopped() const {
   return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) { return s.pid <= 0; });
 }
 
+namespace {
+// heartbeat_t::STATE_DEGRADED = 2, STATE_ERROR = 3: running, but saying something is wrong.
+bool ReportsTrouble(const ChildStatus& s) {
+  return s.heartbeat_state == 2 || s.heartbeat_state == 3;
+}
+}  // namespace
+
+bool Supervisor::Healthy() const {
+  return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) {
+    return s.state == ChildState::kRunning && !ReportsTrouble(s);
+  });
+}
+
+bool Supervisor::Finished() const {
+  return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) {
+    return s.state == ChildState::kExited || s.state == ChildState::kGaveUp;
+  });
+}
+
 int Supervisor::running() const {
   return static_cast<int>(std::count_if(st_.begin(), st_.end(), [](const ChildStatus& s) {
     return s.state == ChildState::kStarting || s.state == ChildState::kRunning;
@@ -289,8 +308,7 @@ std::string Supervisor::Summary() const {
   for (size_t i = 0; i < st_.size(); ++i) {
     const ChildStatus& s = st_[i];
     if (s.state == ChildState::kRunning) {
-      // heartbeat_t::STATE_DEGRADED = 2, STATE_ERROR = 3: running, but saying something is wrong.
-      if (s.heartbeat_state == 2 || s.heartbeat_state == 3) {
+      if (ReportsTrouble(s)) {
         if (!down.empty()) down += ", ";
         down += o_.children[i].name + (s.heartbeat_state == 3 ? " reports ERROR" : " degraded") +
                 (s.heartbeat_text.empty() ? "" : ": " + s.heartbeat_text);

@@ -115,6 +115,10 @@ class Supervisor {
   // the next once it is gone), and restarts none; keep calling Tick until AllStopped().
   void StopAll(int64_t now_us);
   bool AllStopped() const;
+  // Every child running and none reporting DEGRADED or ERROR in its heartbeat.
+  bool Healthy() const;
+  // Nothing left to run: every child exited for good or was given up.
+  bool Finished() const;
 
   const SupervisorOptions& options() const { return o_; }
   const std::vector<ChildStatus>& children() const { return st_; }
