@@ -3,8 +3,9 @@
 // error enters it). On the Radish logs this measures the corrected poses' scan-to-scan noise as
 // much as the matcher's (docs/posegraph.md, "Freiburg 079: what the 0.05 m goal measures").
 //
-// usage: omni-match-reference LOG [--gap N] [--submap K] [--icp]
-//   LOG: CARMEN log whose laser poses are corrected (../shared/datasets/carmen-corrected)
+// usage: omni-match-reference LOG [--truth FILE] [--gap N] [--submap K] [--icp]
+//   LOG: CARMEN log whose laser poses are corrected (../shared/datasets/carmen-corrected), or
+//        an LCM log with --truth: the simulator's sim.lcmlog and truth.txt (exact poses)
 //   --gap N: scans between the pair (1: consecutive; 6: about a keyframe step), default 6
 //   --submap K: the previous K scans (N apart) form the submap, default 3 (as the mapper)
 //   --icp: point-to-line ICP polish after the correlative search
@@ -16,6 +17,9 @@
 #include <vector>
 
 #include "omni/io/carmen.h"
+#include "omni/io/lcm_log.h"
+#include "omni/io/trajectory_io.h"
+#include "omni/laser_scan_t.hpp"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 #include "omni/pose_graph_mapper/scan_plugins.h"
 
@@ -23,9 +27,11 @@ namespace {
 
 int Usage() {
   std::fprintf(stderr,
-               "usage: omni-match-reference LOG [--gap N] [--submap K] [--icp]\n"
+               "usage: omni-match-reference LOG [--truth FILE] [--gap N] [--submap K] [--icp]\n"
                "  The keyframe matcher against submaps at a corrected log's poses: its error\n"
-               "  relative to the log's own relative poses (RMS, median, mean).\n");
+               "  relative to the log's own relative poses (RMS, median, mean). With --truth,\n"
+               "  LOG is an LCM log (omni-sim's sim.lcmlog) and FILE its true poses by scan\n"
+               "  index (truth.txt).\n");
   return 2;
 }
 
@@ -49,10 +55,13 @@ int main(int argc, char** argv) {
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") return Usage();
   const std::string path = argv[1];
   int gap = 6, submap = 3;
+  std::string truth_path;
   bool icp = false;
   for (int i = 2; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "--gap" && i + 1 < argc) {
+    if (a == "--truth" && i + 1 < argc) {
+      truth_path = argv[++i];
+    } else if (a == "--gap" && i + 1 < argc) {
       gap = std::atoi(argv[++i]);
     } else if (a == "--submap" && i + 1 < argc) {
       submap = std::atoi(argv[++i]);
@@ -64,26 +73,67 @@ int main(int argc, char** argv) {
     }
   }
   if (gap < 1 || submap < 1) return Usage();
-  auto log = io::ReadCarmenLog(path);
-  if (!log.ok()) {
-    std::fprintf(stderr, "omni-match-reference: %s\n", log.error().message.c_str());
-    return 1;
-  }
-  // Every laser scan as a keyframe at its corrected pose, end points in the base frame.
+  // Every laser scan as a keyframe at its corrected (or true) pose, end points in the laser's
+  // frame.
   const KeyframeMatchOptions mapper = PoseGraphSlamOptions().match;
   std::vector<Keyframe> scans;
-  for (const auto& r : log->records) {
-    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    const io::CarmenLaser& l = r.laser;
+  auto add_scan = [&](const Pose2& laser_pose, const std::vector<float>& ranges, double angle_min,
+                      double increment, double max_range) {
     Keyframe k;
-    k.estimate = l.laser_pose;
-    for (size_t i = 0; i < l.ranges_m.size(); ++i) {
-      const double d = l.ranges_m[i];
-      if (!(d > 0.05) || d >= l.max_range_m || d > mapper.max_range_m) continue;
-      const double a = l.angle_min_rad + static_cast<double>(i) * l.angle_increment_rad;
+    k.estimate = laser_pose;
+    for (size_t i = 0; i < ranges.size(); ++i) {
+      const double d = ranges[i];
+      if (!(d > 0.05) || d >= max_range || d > mapper.max_range_m) continue;
+      const double a = angle_min + static_cast<double>(i) * increment;
       k.points.emplace_back(d * std::cos(a), d * std::sin(a));
     }
     scans.push_back(std::move(k));
+  };
+  if (!truth_path.empty()) {
+    auto truth = io::ReadTrajectory(truth_path);
+    auto reader = io::LcmLogReader::Open(path);
+    if (!truth.ok() || !reader.ok()) {
+      std::fprintf(stderr, "omni-match-reference: %s\n",
+                   (!truth.ok() ? truth.error() : reader.error()).message.c_str());
+      return 1;
+    }
+    std::vector<const io::TrajectoryEntry*> by_index;
+    for (const auto& e : truth->entries) {
+      if (e.index < 0) continue;
+      if (by_index.size() <= static_cast<size_t>(e.index)) by_index.resize(e.index + 1, nullptr);
+      by_index[static_cast<size_t>(e.index)] = &e;
+    }
+    io::LcmLogEvent ev;
+    for (;;) {
+      auto more = reader->Next(&ev);
+      if (!more.ok()) {
+        std::fprintf(stderr, "omni-match-reference: %s\n", more.error().message.c_str());
+        return 1;
+      }
+      if (!*more) break;
+      if (ev.channel != "LIDAR_SCAN") continue;
+      omni::laser_scan_t m;
+      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) continue;
+      if (m.seq < 0 || static_cast<size_t>(m.seq) >= by_index.size() || !by_index[m.seq]) continue;
+      const Pose2 laser =
+          by_index[m.seq]->pose2() * Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+      std::vector<float> r = m.ranges_m;
+      for (float& x : r)
+        if (!std::isfinite(x)) x = 0.f;
+      add_scan(laser, r, m.angle_min_rad, m.angle_increment_rad, m.range_max_m);
+    }
+  } else {
+    auto log = io::ReadCarmenLog(path);
+    if (!log.ok()) {
+      std::fprintf(stderr, "omni-match-reference: %s\n", log.error().message.c_str());
+      return 1;
+    }
+    for (const auto& r : log->records) {
+      if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+      const io::CarmenLaser& l = r.laser;
+      std::vector<float> ranges(l.ranges_m.begin(), l.ranges_m.end());
+      add_scan(l.laser_pose, ranges, l.angle_min_rad, l.angle_increment_rad, l.max_range_m);
+    }
   }
   std::vector<double> et, er;
   double bx = 0, by = 0, bt = 0;

@@ -3,27 +3,19 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 #include "omni/depth_image_t.hpp"
 #include "omni/imu_t.hpp"
 #include "omni/kinect/depth_codec.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
+#include "omni/sim/firmware_base.h"
 
 namespace omni::sim {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-template <class Msg>
-SimEvent Encode(const std::string& channel, int64_t utime, const Msg& msg) {
-  SimEvent e;
-  e.channel = channel;
-  e.utime = utime;
-  e.payload.resize(static_cast<size_t>(msg.getEncodedSize()));
-  msg.encode(e.payload.data(), 0, static_cast<int>(e.payload.size()));
-  return e;
-}
 
 // Integrates a body twist over dt at the midpoint heading.
 Pose2 Integrate(const Pose2& p, const kinematics::BodyTwist<double>& t, double dt) {
@@ -117,24 +109,54 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   for (int lap = 0; lap < std::max(1, o_.laps); ++lap)
     route.insert(route.end(), tour_.begin() + (lap == 0 ? 0 : 1), tour_.end());
   if (route.empty()) return st;
-  Pose2 pose = route.front(), odom = pose, start = pose;
+  Pose2 pose = route.front(), odom = pose;
+  const Pose2 start = pose;
+  const bool firmware = o_.base == SimOptions::Base::kFirmware;
+  std::unique_ptr<FirmwareBase> base;
+  if (firmware) {
+    base = std::make_unique<FirmwareBase>(o_.center_to_wheel_m, o_.wheel_radius_m);
+    if (!base->booted(&st.base_problem)) return st;
+  }
+  auto base_sink = [&](const SimEvent& e) {
+    if (e.channel == base->bridge_options().odom_channel) ++st.odometry;
+    sink(e);
+  };
+  if (firmware) {
+    // The base boots before the tour starts: firmware heartbeats and encoder feedback (the
+    // odometry at rest) are on the bus when the first scan is taken, as on a robot whose base
+    // came up first.
+    const double boot_s = 0.2;
+    for (int64_t us = o_.start_utime - std::llround(boot_s * 1e6); us < o_.start_utime;
+         us += std::llround(dt * 1e6))
+      base->Advance(nullptr, us, dt, base_sink);
+  }
   double imu_yaw = pose.theta;
   double vx_w = 0, vy_w = 0;  // commanded world velocity
   size_t target = 1;
   int64_t seq_scan = 0, seq_odom = 0, seq_imu = 0, seq_depth = 0;
   double next_scan = 0, next_odom = 0, next_imu = 0, next_depth = 0;
   kinematics::BodyTwist<double> measured{};
+  int64_t utime = o_.start_utime;
   for (int64_t step = 0;; ++step) {
     const double t = static_cast<double>(step) * dt;
-    const int64_t utime = o_.start_utime + static_cast<int64_t>(std::llround(t * 1e6));
+    utime = o_.start_utime + static_cast<int64_t>(std::llround(t * 1e6));
     if (o_.max_duration_s > 0 && t > o_.max_duration_s) break;
+    // The next waypoint not yet reached.
+    while (target < route.size()) {
+      const Pose2& goal = route[target];
+      if (std::hypot(goal.x - pose.x, goal.y - pose.y) >= o_.waypoint_tolerance_m ||
+          std::abs(WrapAngle(goal.theta - pose.theta)) >= 0.1)
+        break;
+      ++target;
+    }
     if (target >= route.size()) {
       st.tour_finished = true;
       break;
     }
     // Sensors at this instant (true pose `pose`, odometry `odom`).
-    // Odometry first: a consumer then has odometry at every scan's time.
-    if (t >= next_odom) {
+    // Odometry first: a consumer then has odometry at every scan's time. (The firmware base's
+    // odometry comes from the bridge as the base advances, stamped up to this instant.)
+    if (!firmware && t >= next_odom) {
       omni::odometry_t m{};
       m.utime = utime;
       m.seq = seq_odom++;
@@ -151,7 +173,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       m.pose_covariance[8] = 1e-3 * d;
       m.twist_covariance[0] = m.twist_covariance[4] = o_.wheel_noise_m_s * o_.wheel_noise_m_s;
       m.twist_covariance[8] = m.twist_covariance[0] / (o_.center_to_wheel_m * o_.center_to_wheel_m);
-      sink(Encode("WHEEL_ODOM", utime, m));
+      sink(EncodeEvent("WHEEL_ODOM", utime, m));
       ++st.odometry;
       next_odom += 1.0 / o_.odom_hz;
     }
@@ -171,7 +193,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       m.ranges_m = ScanRanges(pose);
       m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
       m.num_intensities = 0;
-      sink(Encode("LIDAR_SCAN", utime, m));
+      sink(EncodeEvent("LIDAR_SCAN", utime, m));
       if (truth) truth(seq_scan, utime, pose);
       ++seq_scan;
       ++st.scans;
@@ -194,7 +216,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
         m.magnetic_field_t[i] = std::numeric_limits<double>::quiet_NaN();
       }
       m.temperature_c = std::numeric_limits<float>::quiet_NaN();
-      sink(Encode("IMU", utime, m));
+      sink(EncodeEvent("IMU", utime, m));
       ++st.imu;
       next_imu += 1.0 / o_.imu_hz;
     }
@@ -218,7 +240,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
                               o_.depth_height, {}, &m.data)
               .ok()) {
         m.size = static_cast<int32_t>(m.data.size());
-        sink(Encode("DEPTH", utime, m));
+        sink(EncodeEvent("DEPTH", utime, m));
         ++st.depth_frames;
       }
       next_depth += 1.0 / o_.depth_hz;
@@ -229,10 +251,6 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     const double ex = goal.x - pose.x, ey = goal.y - pose.y;
     const double dist = std::hypot(ex, ey);
     const double heading_err = WrapAngle(goal.theta - pose.theta);
-    if (dist < o_.waypoint_tolerance_m && std::abs(heading_err) < 0.1) {
-      ++target;
-      continue;
-    }
     const double speed = dist > 1e-9 ? std::min(o_.max_speed_m_s, 0.6 * dist + 0.05) : 0.0;
     const double want_x = dist > 1e-9 ? speed * ex / dist : 0.0;
     const double want_y = dist > 1e-9 ? speed * ey / dist : 0.0;
@@ -245,24 +263,45 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
         std::clamp(2.0 * heading_err, -o_.max_yaw_rate_rad_s, o_.max_yaw_rate_rad_s);
     const auto cmd =
         kinematics::WorldToBody(pose.theta, kinematics::WorldVelocity<double>{vx_w, vy_w, omega});
-    // The wheels turn at eq. (1)'s rim speeds; the encoders see them with scale errors and
-    // noise; the odometry integrates what the encoders saw.
-    const auto wheels = kinematics::BodyToWheels(geom, cmd);
-    kinematics::WheelSpeeds<double> seen;
-    for (int i = 0; i < 3; ++i)
-      seen.v_m_s[i] =
-          wheels.v_m_s[i] * (1.0 + o_.wheel_scale_error[i]) + o_.wheel_noise_m_s * n01(rng_);
-    if (!kinematics::WheelsToBody(geom, seen, &measured)) measured = {};
-    measured_gyro_ = cmd.omega_rad_s + o_.gyro_bias_rad_s + o_.gyro_noise_rad_s * n01(rng_);
+    Pose2 next;
+    double true_omega = cmd.omega_rad_s;
+    if (firmware) {
+      // The command goes through the bridge and the firmware to the plant; each wheel slips by
+      // its own fraction this step, which its encoder does not see.
+      for (int i = 0; i < 3; ++i)
+        base->SetSlip(i, std::clamp(o_.wheel_slip[i] + o_.wheel_slip_noise * n01(rng_), 0.0, 0.5));
+      base->Advance(&cmd, utime, dt, base_sink);
+      next = start * base->pose();
+      true_omega = WrapAngle(next.theta - pose.theta) / dt;
+    } else {
+      // The wheels turn at eq. (1)'s rim speeds; the encoders see them with scale errors and
+      // noise; the odometry integrates what the encoders saw.
+      const auto wheels = kinematics::BodyToWheels(geom, cmd);
+      kinematics::WheelSpeeds<double> seen;
+      for (int i = 0; i < 3; ++i)
+        seen.v_m_s[i] =
+            wheels.v_m_s[i] * (1.0 + o_.wheel_scale_error[i]) + o_.wheel_noise_m_s * n01(rng_);
+      if (!kinematics::WheelsToBody(geom, seen, &measured)) measured = {};
+      next = Integrate(pose, cmd, dt);
+      odom = Integrate(odom, measured, dt);
+    }
+    measured_gyro_ = true_omega + o_.gyro_bias_rad_s + o_.gyro_noise_rad_s * n01(rng_);
     imu_yaw = WrapAngle(imu_yaw + measured_gyro_ * dt);
-    const Pose2 next = Integrate(pose, cmd, dt);
     st.distance_m += std::hypot(next.x - pose.x, next.y - pose.y);
-    st.rotation_rad += std::abs(cmd.omega_rad_s) * dt;
+    st.rotation_rad += std::abs(true_omega) * dt;
     pose = next;
-    odom = Integrate(odom, measured, dt);
     st.duration_s = t;
   }
-  (void)start;
+  if (firmware) {
+    const auto& fs = base->stats();
+    st.can_frames = fs.frames_to_firmware + fs.frames_from_firmware;
+    st.encoders = fs.encoders;
+    st.base_status = fs.status;
+    st.firmware_state = static_cast<int>(base->firmware().state());
+    st.firmware_faults = base->firmware().fault_bits();
+    st.watchdog_trips = base->firmware().counters().watchdog_trips;
+    st.base_problem = base->Problem(utime);
+  }
   return st;
 }
 

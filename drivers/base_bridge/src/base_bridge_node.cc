@@ -3,12 +3,10 @@
 #include <algorithm>
 #include <vector>
 
+#include "omni/base_bridge/messages.h"
 #include "omni/base_cmd_t.hpp"
-#include "omni/base_status_t.hpp"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
-#include "omni/odometry_t.hpp"
-#include "omni/wheel_encoders_t.hpp"
 
 namespace omni::base_bridge {
 
@@ -125,52 +123,13 @@ void BaseBridgeNode::SpinOnce() {
 
 void BaseBridgeNode::Publish(int64_t now) {
   Odometry od;
-  if (bridge_.TakeOdometry(&od)) {
-    omni::odometry_t m;
-    m.utime = od.utime;
-    m.seq = od.seq;
-    m.frame = o_.odom_frame;
-    m.child_frame = o_.base_frame;
-    m.x_m = od.x_m;
-    m.y_m = od.y_m;
-    m.yaw_rad = od.yaw_rad;
-    m.vx_m_s = od.vx_m_s;
-    m.vy_m_s = od.vy_m_s;
-    m.omega_rad_s = od.omega_rad_s;
-    std::copy(od.pose_cov, od.pose_cov + 9, m.pose_covariance);
-    std::copy(od.twist_cov, od.twist_cov + 9, m.twist_covariance);
-    bus_->Publish(o_.odom_channel, m);
-  }
+  if (bridge_.TakeOdometry(&od)) bus_->Publish(o_.odom_channel, ToMessage(od, o_));
   Encoders en;
-  if (bridge_.TakeEncoders(&en)) {
-    omni::wheel_encoders_t m;
-    m.utime = en.utime;
-    m.mcu_time_us = en.mcu_time_us;
-    m.seq = en.seq;
-    m.num_wheels = 3;
-    m.position_ticks.assign(en.position_ticks, en.position_ticks + 3);
-    m.velocity_rad_s.assign(en.velocity_rad_s, en.velocity_rad_s + 3);
-    m.current_a.assign(en.current_a, en.current_a + 3);
-    m.ticks_per_rev = static_cast<float>(o_.ticks_per_rev);
-    bus_->Publish(o_.encoders_channel, m);
-  }
+  if (bridge_.TakeEncoders(&en)) bus_->Publish(o_.encoders_channel, ToMessage(en, o_));
   if (now - last_status_us_ >= static_cast<int64_t>(1e6 / o_.status_rate_hz)) {
     last_status_us_ = now;
     const BaseStatus s = bridge_.status(now);
-    const Counters& c = bridge_.counters();
-    omni::base_status_t m;
-    m.utime = s.utime;
-    m.state = s.state;
-    m.fault_bits = s.fault_bits;
-    m.firmware_alive = s.firmware_alive;
-    m.missed_heartbeats = s.missed_heartbeats;
-    m.bus_voltage_v = s.bus_voltage_v;
-    std::copy(s.wheel_speed_rad_s, s.wheel_speed_rad_s + 3, m.wheel_speed_rad_s);
-    std::copy(s.wheel_setpoint_rad_s, s.wheel_setpoint_rad_s + 3, m.wheel_setpoint_rad_s);
-    m.commands_clamped = c.commands_clamped;
-    m.can_rx_errors = c.can_rx_errors + c.unknown_frames;
-    m.feedback_frames_lost = c.feedback_frames_lost;
-    bus_->Publish(o_.status_channel, m);
+    bus_->Publish(o_.status_channel, ToMessage(s, bridge_.counters()));
     const std::string problem = bridge_.Problem(now);
     if (problem.empty()) {
       heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "ok");

@@ -17,6 +17,7 @@ class HostHal final : public Hal {
   explicit HostHal(Plant* plant) : plant_(plant) {}
 
   uint32_t MicrosNow() override {
+    if (clock_us_ != nullptr) return static_cast<uint32_t>(*clock_us_);
     return static_cast<uint32_t>(std::chrono::duration_cast<std::chrono::microseconds>(
                                      std::chrono::steady_clock::now().time_since_epoch())
                                      .count());
@@ -45,6 +46,10 @@ class HostHal final : public Hal {
   bool CanBusOff() override { return bus_off; }
   void SetStatusLed(bool on) override { led = on; }
 
+  // Simulated time: when set, MicrosNow() reads *clock_us (a simulator that steps the firmware
+  // in simulated time stays deterministic); nullptr: the steady clock.
+  void UseClock(const int64_t* clock_us) { clock_us_ = clock_us; }
+
   // Test hooks.
   void OverrideCurrent(float amps) { current_override_a_ = amps; }  // wheel 0; < 0 = off
 
@@ -57,6 +62,7 @@ class HostHal final : public Hal {
  private:
   Plant* plant_;
   float current_override_a_ = -1.f;
+  const int64_t* clock_us_ = nullptr;
 };
 
 }  // namespace omni::firmware::sim

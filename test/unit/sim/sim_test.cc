@@ -1,6 +1,8 @@
 // The built-in simulator: exact ray casts against hand-computed geometry, the sensor models on a
-// known pose, the tour of the built-in world (collision-free, finished, odometry drifting from
-// the truth the way noisy encoders make it), determinism by seed, and world-file errors.
+// known pose, the tour of the built-in world on both bases (collision-free, finished, odometry
+// drifting from the truth the way slipping wheels or noisy encoders make it), the firmware base
+// on its own (odometry through the bridge, slip, the watchdog stop), determinism by seed, and
+// world-file errors.
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -10,11 +12,14 @@
 
 #include <gtest/gtest.h>
 
+#include "omni/base_status_t.hpp"
 #include "omni/depth_image_t.hpp"
 #include "omni/kinect/depth_codec.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
+#include "omni/sim/firmware_base.h"
 #include "omni/sim/simulator.h"
+#include "omni/wheel_encoders_t.hpp"
 
 namespace omni::sim {
 namespace {
@@ -118,8 +123,12 @@ Recorded RunSim(const SimOptions& o) {
   return rec;
 }
 
-TEST(Simulator, DrivesTheBuiltInTourWithoutTouchingAnything) {
+class SimulatorTour : public ::testing::TestWithParam<SimOptions::Base> {};
+
+TEST_P(SimulatorTour, DrivesTheBuiltInTourWithoutTouchingAnything) {
   SimOptions o;
+  o.base = GetParam();
+  const bool firmware = o.base == SimOptions::Base::kFirmware;
   o.depth = false;  // the sensor test above covers depth; this one covers the tour
   const Recorded rec = RunSim(o);
   EXPECT_TRUE(rec.stats.tour_finished);
@@ -137,9 +146,42 @@ TEST(Simulator, DrivesTheBuiltInTourWithoutTouchingAnything) {
   }
   const double dur = rec.stats.duration_s;
   EXPECT_NEAR(count["LIDAR_SCAN"], dur * o.lidar_hz, 2);
-  EXPECT_NEAR(count["WHEEL_ODOM"], dur * o.odom_hz, 2);
   EXPECT_NEAR(count["IMU"], dur * o.imu_hz, 2);
   EXPECT_EQ(count.count("DEPTH"), 0u);
+  EXPECT_EQ(count["WHEEL_ODOM"], rec.stats.odometry);
+  if (firmware) {
+    // The bridge publishes odometry and encoders at the firmware's 100 Hz feedback rate and
+    // status at 10 Hz, from the base's boot 0.2 s before the first scan (the first feedback
+    // frame only sets the encoders' zero).
+    EXPECT_NEAR(count["WHEEL_ODOM"], (dur + 0.2) * 100, 3);
+    EXPECT_EQ(count["WHEEL_ENCODERS"], count["WHEEL_ODOM"]);
+    EXPECT_NEAR(count["BASE_STATUS"], (dur + 0.2) * 10, 2);
+    // Odometry is on the bus before the first scan.
+    for (const auto& e : rec.events) {
+      if (e.channel == "LIDAR_SCAN") FAIL() << "a scan before any odometry";
+      if (e.channel == "WHEEL_ODOM") break;
+    }
+    // A healthy run: the firmware still running the speed loops, no fault, no watchdog stop,
+    // the bridge content (heartbeats seen, geometry checked against the firmware's).
+    EXPECT_EQ(rec.stats.firmware_state, omni::base_status_t::STATE_RUNNING);
+    EXPECT_EQ(rec.stats.firmware_faults, 0u);
+    EXPECT_EQ(rec.stats.watchdog_trips, 0u);
+    EXPECT_EQ(rec.stats.base_problem, "");
+    EXPECT_GT(rec.stats.can_frames, dur * 100 * 5);  // feedback frames alone: ~5 per 10 ms
+    int statuses = 0;
+    for (const auto& e : rec.events) {
+      if (e.channel != "BASE_STATUS") continue;
+      omni::base_status_t m;
+      ASSERT_GE(m.decode(e.payload.data(), 0, static_cast<int>(e.payload.size())), 0);
+      if (++statuses < 3) continue;  // before the first firmware heartbeat
+      EXPECT_TRUE(m.firmware_alive) << "status " << statuses;
+      EXPECT_EQ(m.fault_bits, 0);
+      EXPECT_EQ(m.feedback_frames_lost, 0);
+    }
+  } else {
+    EXPECT_NEAR(count["WHEEL_ODOM"], dur * o.odom_hz, 2);
+    EXPECT_EQ(count.count("WHEEL_ENCODERS"), 0u);
+  }
   // Every scan decodes and sees walls in most directions.
   int scans = 0;
   for (const auto& e : rec.events) {
@@ -151,8 +193,9 @@ TEST(Simulator, DrivesTheBuiltInTourWithoutTouchingAnything) {
     ASSERT_GT(valid, 200) << "scan " << scans;
     ++scans;
   }
-  // The encoders' scale errors make the odometry drift: metres by the end of the tour, while
-  // the truth returns to the start.
+  // The wheels' slip (or the encoders' scale errors) make the odometry drift: metres by the end
+  // of the tour, while the truth returns to the start. (The firmware base's odometry starts at
+  // zero in its own odom frame, the ideal base's at the start pose.)
   omni::odometry_t last_odom;
   for (const auto& e : rec.events) {
     if (e.channel != "WHEEL_ODOM") continue;
@@ -160,9 +203,71 @@ TEST(Simulator, DrivesTheBuiltInTourWithoutTouchingAnything) {
   }
   const Pose2& end = rec.truth.back();
   EXPECT_LT(std::hypot(end.x - 2.5, end.y - 3.0), 0.3);
-  const double drift = std::hypot(last_odom.x_m - end.x, last_odom.y_m - end.y);
+  Pose2 odom(last_odom.x_m, last_odom.y_m, last_odom.yaw_rad);
+  if (firmware) odom = rec.truth.front() * odom;
+  const double drift = std::hypot(odom.x - end.x, odom.y - end.y);
   EXPECT_GT(drift, 0.3);
   EXPECT_LT(drift, 20);
+}
+
+INSTANTIATE_TEST_SUITE_P(Bases, SimulatorTour,
+                         ::testing::Values(SimOptions::Base::kFirmware, SimOptions::Base::kIdeal),
+                         [](const ::testing::TestParamInfo<SimOptions::Base>& i) {
+                           return i.param == SimOptions::Base::kFirmware ? "Firmware" : "Ideal";
+                         });
+
+// The firmware base alone: a straight run without slip is measured by the bridge's odometry to
+// within encoder quantisation; slip on one wheel turns the base while the odometry does not see
+// it; and when commands stop, the bridge ramps down and the firmware's watchdog parks the base.
+TEST(FirmwareBase, OdometryThroughTheBridgeSlipAndTheWatchdogStop) {
+  const double dt = 0.005;
+  int64_t now = 1700000000000000;
+  auto drive = [&](FirmwareBase* b, const kinematics::BodyTwist<double>* cmd, double seconds,
+                   omni::odometry_t* last) {
+    for (int i = 0; i < std::lround(seconds / dt); ++i) {
+      b->Advance(cmd, now, dt, [&](const SimEvent& e) {
+        if (e.channel == "WHEEL_ODOM") {
+          ASSERT_GE(last->decode(e.payload.data(), 0, static_cast<int>(e.payload.size())), 0);
+        }
+      });
+      now += 5000;
+    }
+  };
+  const kinematics::BodyTwist<double> ahead{0.3, 0.1, 0.2};
+  {
+    FirmwareBase base(0.2, 0.05);
+    ASSERT_TRUE(base.booted(nullptr));
+    for (int w = 0; w < 3; ++w) base.SetSlip(w, 0.0);
+    omni::odometry_t odom;
+    drive(&base, &ahead, 5.0, &odom);
+    const Pose2 truth = base.pose();
+    EXPECT_GT(std::hypot(truth.x, truth.y), 1.0);  // it drove
+    EXPECT_NEAR(truth.theta, WrapAngle(0.2 * 5.0), 0.05);
+    // The odometry starts at the first feedback frame (after 10 ms of motion from rest).
+    EXPECT_LT(std::hypot(odom.x_m - truth.x, odom.y_m - truth.y), 0.005);
+    EXPECT_NEAR(odom.yaw_rad, truth.theta, 0.005);
+    EXPECT_EQ(base.bridge().counters().geometry_mismatches, 0);
+    EXPECT_EQ(base.Problem(now), "");
+    // Commands stop: the bridge ramps the twist to zero and stops sending, the watchdog stops
+    // the wheels and the firmware goes back to IDLE with the motors off.
+    drive(&base, nullptr, 1.5, &odom);
+    EXPECT_EQ(base.firmware().state(), firmware::State::kIdle);
+    EXPECT_EQ(base.firmware().counters().watchdog_trips, 1u);
+    const Pose2 parked = base.pose();
+    drive(&base, nullptr, 0.5, &odom);
+    EXPECT_LT(std::hypot(base.pose().x - parked.x, base.pose().y - parked.y), 1e-4);
+  }
+  {
+    // Wheel 1 loses 5 % of its rim motion: the truth and the odometry part.
+    FirmwareBase base(0.2, 0.05);
+    for (int w = 0; w < 3; ++w) base.SetSlip(w, w == 0 ? 0.05 : 0.0);
+    omni::odometry_t odom;
+    const kinematics::BodyTwist<double> straight{0.4, 0.0, 0.0};
+    drive(&base, &straight, 5.0, &odom);
+    EXPECT_LT(std::abs(odom.yaw_rad), 0.005);  // the encoders saw a straight run
+    EXPECT_GT(std::abs(base.pose().theta), 0.01);
+    EXPECT_GT(std::hypot(odom.x_m - base.pose().x, odom.y_m - base.pose().y), 0.02);
+  }
 }
 
 TEST(Simulator, SameSeedSameBytesOtherSeedOtherNoise) {

@@ -1,16 +1,23 @@
 // The built-in simulator: the three-wheel omni base driving a scripted tour of a World, with the
 // sensors the stack expects on the bus, so the whole pipeline runs without hardware or data.
 //
-// Motion: a holonomic waypoint follower commands a body twist; the true pose integrates it
-// (eq. 2). The wheels' rim speeds follow from eq. (1); the encoders measure them with a per-wheel
-// scale error and noise, and the odometry integrates the forward kinematics of the *measured*
-// speeds, so it drifts the way a real omni base's odometry does (systematic heading drift plus
+// Motion: a holonomic waypoint follower commands a body twist from the true pose. Two bases:
+//   firmware (the default): the twist goes through the real base bridge and firmware code to
+//     the motor-and-wheel plant (firmware_base.h); the true pose is the plant's, WHEEL_ODOM is
+//     the bridge's encoder odometry (plus WHEEL_ENCODERS and BASE_STATUS), and it drifts
+//     because each wheel slips by its own fraction (plus noise) that the encoders cannot see.
+//   ideal: the true pose integrates the twist (eq. 2); the wheels' rim speeds follow from
+//     eq. (1), the encoders see them with a per-wheel scale error and noise, and the odometry
+//     integrates the forward kinematics of what they saw.
+// Either way the odometry drifts the way a real omni base's does (systematic heading drift plus
 // a random walk), while the truth stays exact.
 //
 // Sensors (each at its own rate, stamped with simulated time):
 //   LIDAR_SCAN  laser_scan_t: a 360-degree scanner in a plane at lidar_height_m, Gaussian range
 //               noise, NaN beyond range_max_m or on random dropouts;
-//   WHEEL_ODOM  odometry_t: the encoder odometry above, with its twist;
+//   WHEEL_ODOM  odometry_t: the encoder odometry above, with its twist (firmware base: the base
+//               bridge's, at the firmware's 100 Hz feedback rate, with WHEEL_ENCODERS and
+//               BASE_STATUS beside it; ideal base: at odom_hz);
 //   IMU         imu_t: gyro z with bias and noise, accelerometer at rest plus noise, heading
 //               quaternion from the integrated gyro;
 //   DEPTH       depth_image_t: a pinhole depth camera (Kinect-like noise growing with the square
@@ -27,6 +34,7 @@
 
 #include "omni/common/geometry.h"
 #include "omni/common/kinematics.h"
+#include "omni/sim/event.h"
 #include "omni/sim/world.h"
 
 namespace omni::sim {
@@ -37,6 +45,7 @@ struct SimOptions {
   double max_duration_s = 0;               // 0: until the tour ends
   int laps = 1;                            // times the tour is driven
   double physics_hz = 200;
+  enum class Base { kFirmware, kIdeal } base = Base::kFirmware;
   // Motion.
   double max_speed_m_s = 0.4;
   double max_accel_m_s2 = 0.5;
@@ -44,8 +53,14 @@ struct SimOptions {
   double waypoint_tolerance_m = 0.15;
   double center_to_wheel_m = 0.2;
   double wheel_radius_m = 0.05;
-  double wheel_scale_error[3] = {0.010, -0.006, 0.004};  // measured = true * (1 + e)
-  double wheel_noise_m_s = 0.01;                         // per physics step, per wheel
+  // Ideal base: measured = true * (1 + e), plus noise.
+  double wheel_scale_error[3] = {0.010, -0.006, 0.004};
+  double wheel_noise_m_s = 0.01;  // per physics step, per wheel
+  // Firmware base: the fraction of rim motion each wheel loses at the ground (the encoders see
+  // the motor turn, the base moves less), redrawn every physics step with this sigma. The
+  // differences between wheels match the ideal base's scale errors.
+  double wheel_slip[3] = {0.026, 0.010, 0.020};
+  double wheel_slip_noise = 0.01;
   // Lidar.
   double lidar_hz = 10;
   int lidar_beams = 360;
@@ -70,17 +85,18 @@ struct SimOptions {
   double depth_noise_per_m2 = 0.0012;  // sigma = k * z^2 (Kinect v1 order of magnitude)
 };
 
-// One bus message of the simulation: channel, stamp and the encoded LCM payload.
-struct SimEvent {
-  std::string channel;
-  int64_t utime = 0;
-  std::vector<uint8_t> payload;
-};
-
 struct SimStats {
   int64_t scans = 0, odometry = 0, imu = 0, depth_frames = 0;
   double duration_s = 0, distance_m = 0, rotation_rad = 0;
   bool tour_finished = false;
+  // Firmware base only: what crossed the simulated CAN bus, the other bridge messages, and
+  // the base's state at the end (firmware state and fault bits as in base_status_t, the
+  // bridge's health text, "" when all is well).
+  int64_t can_frames = 0, encoders = 0, base_status = 0;
+  int firmware_state = 0;
+  uint32_t firmware_faults = 0;
+  uint32_t watchdog_trips = 0;
+  std::string base_problem;
 };
 
 class Simulator {
