@@ -68,6 +68,9 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   m.Get("min_inlier_fraction", &o.match.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   m.Get("fill_gap_m", &o.match.fill_gap_m, Optional(), NonNegative<double>());
   m.Get("reject_window_edge", &o.match.reject_window_edge, Optional());
+  m.Get("field_resolution_m", &o.match.field.resolution_m, Optional(), InRange(0.01, 0.2));
+  m.Get("icp_polish", &o.match.window.icp_polish, Optional());
+  m.Get("icp_pair_m", &o.match.window.icp_pair_m, Optional(), Positive<double>());
   ConfigReader oc = r.Section("odometry_calibration");
   OdometryCalibratorOptions& cal = o.odometry_calibration;
   oc.Get("enabled", &cal.enabled, Optional());

@@ -136,7 +136,7 @@ int main(int argc, char** argv) {
     }
   }
   std::vector<double> et, er;
-  double bx = 0, by = 0, bt = 0;
+  double bx = 0, by = 0, bt = 0, tt = 0, te = 0;
   int rejected = 0;
   const size_t first = static_cast<size_t>(gap) * static_cast<size_t>(submap);
   for (size_t cur = first; cur < scans.size(); cur += static_cast<size_t>(gap)) {
@@ -169,6 +169,9 @@ int main(int argc, char** argv) {
     bx += e.x;
     by += e.y;
     bt += e.theta;
+    // Heading error against the pair's true turn: a matcher that under- or over-states turns.
+    tt += truth.theta * truth.theta;
+    te += truth.theta * e.theta;
   }
   if (et.empty()) {
     std::fprintf(stderr, "omni-match-reference: no pair matched in %s\n", path.c_str());
@@ -178,8 +181,9 @@ int main(int argc, char** argv) {
   std::printf(
       "%s: gap %d, submap %d%s: %zu pairs matched (%d rejected by the mapper's checks)\n"
       "  translation error RMS %.4f m, median %.4f m; heading RMS %.4f rad, median %.4f rad\n"
-      "  mean error (bias) x %.4f m, y %.4f m, heading %.4f rad\n",
+      "  mean error (bias) x %.4f m, y %.4f m, heading %.4f rad; heading error per radian "
+      "turned %.4f\n",
       path.c_str(), gap, submap, icp ? ", ICP polish" : "", et.size(), rejected, Rms(et),
-      Median(et), Rms(er), Median(er), bx / n, by / n, bt / n);
+      Median(et), Rms(er), Median(er), bx / n, by / n, bt / n, tt > 0 ? te / tt : 0.0);
   return 0;
 }
