@@ -69,6 +69,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   m.Get("fill_gap_m", &o.match.fill_gap_m, Optional(), NonNegative<double>());
   m.Get("reject_window_edge", &o.match.reject_window_edge, Optional());
   m.Get("field_resolution_m", &o.match.field.resolution_m, Optional(), InRange(0.01, 0.2));
+  m.Get("cubic_polish", &o.match.window.cubic_polish, Optional());
   m.Get("icp_polish", &o.match.window.icp_polish, Optional());
   m.Get("icp_pair_m", &o.match.window.icp_pair_m, Optional(), Positive<double>());
   ConfigReader oc = r.Section("odometry_calibration");
@@ -98,6 +99,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   l.Get("min_score", &o.loop.min_score, Optional(), InRange(0.0, 1.0));
   l.Get("min_inlier_fraction", &o.loop.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   l.Get("max_ambiguity_ratio", &o.loop.max_ambiguity_ratio, Optional(), InRange(0.0, 1.0));
+  l.Get("cubic_polish", &o.loop.window.cubic_polish, Optional());
   l.Get("field_cache_size", &o.loop.field_cache_size, Optional(), InRange(0, 1000));
   l.Get("num_threads", &o.loop.num_threads, Optional(), InRange(1, 64));
   return o;

@@ -124,6 +124,36 @@ double LikelihoodField::Interpolated(const Eigen::Vector2d& p) const {
          ay * ((1 - ax) * Fine(x0, y0 + 1) + ax * Fine(x0 + 1, y0 + 1));
 }
 
+namespace {
+// Catmull-Rom weights of the four samples around a point at fraction t past the second.
+inline void CubicWeights(double t, double w[4]) {
+  const double t2 = t * t, t3 = t2 * t;
+  w[0] = 0.5 * (-t3 + 2 * t2 - t);
+  w[1] = 0.5 * (3 * t3 - 5 * t2 + 2);
+  w[2] = 0.5 * (-3 * t3 + 4 * t2 + t);
+  w[3] = 0.5 * (t3 - t2);
+}
+}  // namespace
+
+double LikelihoodField::InterpolatedCubic(const Eigen::Vector2d& p) const {
+  if (w_ == 0) return 0;
+  const double fx = (p.x() - origin_.x()) / res_ - 0.5, fy = (p.y() - origin_.y()) / res_ - 0.5;
+  const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
+  double wx[4], wy[4];
+  CubicWeights(fx - x0, wx);
+  CubicWeights(fy - y0, wy);
+  double s = 0;
+  if (x0 >= 1 && y0 >= 1 && x0 + 2 < w_ && y0 + 2 < h_) {
+    const float* f = &fine_[static_cast<size_t>(y0 - 1) * w_ + (x0 - 1)];
+    for (int j = 0; j < 4; ++j, f += w_)
+      s += wy[j] * (wx[0] * f[0] + wx[1] * f[1] + wx[2] * f[2] + wx[3] * f[3]);
+    return s;
+  }
+  for (int j = 0; j < 4; ++j)
+    for (int i = 0; i < 4; ++i) s += wy[j] * wx[i] * Fine(x0 - 1 + i, y0 - 1 + j);
+  return s;
+}
+
 double ScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
                const Pose2& pose) {
   if (query.empty()) return 0;
@@ -196,9 +226,26 @@ struct PolishBox {
 // Moves that would leave `box` are not taken: without the bound the climb could follow a slope
 // far outside the searched window (seen on a sparse log: 0.35 rad off a 0.17 rad window, onto a
 // wrong optimum) and return an answer the search never vetted.
+namespace {
+// The mean Catmull-Rom interpolated likelihood (SearchWindow::cubic_polish).
+double CubicScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+                    const Pose2& pose) {
+  if (query.empty()) return 0;
+  const double c = std::cos(pose.theta), sn = std::sin(pose.theta);
+  double s = 0;
+  for (const auto& p : query)
+    s +=
+        field.InterpolatedCubic({pose.x + c * p.x() - sn * p.y(), pose.y + sn * p.x() + c * p.y()});
+  return s / static_cast<double>(query.size());
+}
+}  // namespace
+
 double HillClimb(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
-                 double sxy, double sth, const PolishBox& box, Pose2* pose) {
-  double score = ScoreAt(field, query, *pose);
+                 double sxy, double sth, const PolishBox& box, bool cubic, Pose2* pose) {
+  auto score_at = [&](const Pose2& p) {
+    return cubic ? CubicScoreAt(field, query, p) : ScoreAt(field, query, p);
+  };
+  double score = score_at(*pose);
   // Offsets from the guess are tracked unwrapped so the angle bound holds across +-pi.
   double ox = pose->x - box.guess.x, oy = pose->y - box.guess.y;
   double oth = WrapAngle(pose->theta - box.guess.theta);
@@ -211,7 +258,7 @@ double HillClimb(const LikelihoodField& field, const std::vector<Eigen::Vector2d
       for (const auto& m : moves) {
         if (!box.Contains(ox + m.x, oy + m.y, oth + m.theta)) continue;
         const Pose2 cand(pose->x + m.x, pose->y + m.y, WrapAngle(pose->theta + m.theta));
-        const double s = ScoreAt(field, query, cand);
+        const double s = score_at(cand);
         if (s > score) {
           score = s;
           *pose = cand;
@@ -436,12 +483,14 @@ MatchResult MatchScan(const LikelihoodField& field, const std::vector<Eigen::Vec
   const PolishBox box{guess, nx * res + res, ny * res + res, na * astep + astep};
   for (const Start& st : starts) {
     Pose2 p(guess.x + st.x * res, guess.y + st.y * res, WrapAngle(guess.theta + st.a * astep));
-    const double s = HillClimb(field, query, res / 2, astep / 2, box, &p);
+    const double s = HillClimb(field, query, res / 2, astep / 2, box, win.cubic_polish, &p);
     if (s > score) {
       score = s;
       pose = p;
     }
   }
+  // The score the thresholds are set for: bilinear, as in the search.
+  if (win.cubic_polish) score = ScoreAt(field, query, pose);
   if (win.icp_polish) {
     const Pose2 icp = RefinePointToLine(field.points(), query, pose, win.icp_pair_m);
     const Pose2 moved = pose.Between(icp);

@@ -9,6 +9,7 @@
 //   --gap N: scans between the pair (1: consecutive; 6: about a keyframe step), default 6
 //   --submap K: the previous K scans (N apart) form the submap, default 3 (as the mapper)
 //   --icp: point-to-line ICP polish after the correlative search
+//   --cubic: the polish on the bicubic field (SearchWindow::cubic_polish)
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -28,6 +29,7 @@ namespace {
 int Usage() {
   std::fprintf(stderr,
                "usage: omni-match-reference LOG [--truth FILE] [--gap N] [--submap K] [--icp]\n"
+               "       [--cubic]\n"
                "  The keyframe matcher against submaps at a corrected log's poses: its error\n"
                "  relative to the log's own relative poses (RMS, median, mean). With --truth,\n"
                "  LOG is an LCM log (omni-sim's sim.lcmlog) and FILE its true poses by scan\n"
@@ -56,11 +58,14 @@ int main(int argc, char** argv) {
   const std::string path = argv[1];
   int gap = 6, submap = 3;
   std::string truth_path;
+  bool cubic = false;
   bool icp = false;
   for (int i = 2; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--truth" && i + 1 < argc) {
       truth_path = argv[++i];
+    } else if (a == "--cubic") {
+      cubic = true;
     } else if (a == "--gap" && i + 1 < argc) {
       gap = std::atoi(argv[++i]);
     } else if (a == "--submap" && i + 1 < argc) {
@@ -152,6 +157,7 @@ int main(int argc, char** argv) {
     SearchWindow w = mapper.window;
     w.min_score = mapper.min_score;
     w.icp_polish = icp;
+    w.cubic_polish = cubic;
     w.icp_pair_m = 0.1;
     if (field.empty() || sub.back().points.empty()) {
       ++rejected;
@@ -183,7 +189,8 @@ int main(int argc, char** argv) {
       "  translation error RMS %.4f m, median %.4f m; heading RMS %.4f rad, median %.4f rad\n"
       "  mean error (bias) x %.4f m, y %.4f m, heading %.4f rad; heading error per radian "
       "turned %.4f\n",
-      path.c_str(), gap, submap, icp ? ", ICP polish" : "", et.size(), rejected, Rms(et),
-      Median(et), Rms(er), Median(er), bx / n, by / n, bt / n, tt > 0 ? te / tt : 0.0);
+      path.c_str(), gap, submap, icp ? ", ICP polish" : (cubic ? ", bicubic polish" : ""),
+      et.size(), rejected, Rms(et), Median(et), Rms(er), Median(er), bx / n, by / n, bt / n,
+      tt > 0 ? te / tt : 0.0);
   return 0;
 }

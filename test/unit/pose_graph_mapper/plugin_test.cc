@@ -240,6 +240,51 @@ TEST(PoseGraphPlugins, KeyframePluginSyntheticFactor) {
   EXPECT_NEAR(g[0].delta.theta, truth.theta, 0.05 * kDeg);
 }
 
+// The bicubic polish: the interpolant passes through the field's samples and reproduces a
+// linear ramp exactly, and on a room a few mrad off the field's axes (the simulator's firmware
+// base drives like that) it removes the heading bias the bilinear polish leaves.
+TEST(PoseGraphPlugins, CubicPolishRemovesTheBilinearHeadingBias) {
+  const LikelihoodField field(Room(), {});
+  const double res = field.resolution();
+  const Eigen::Vector2d centre(0.5 * res, 0.5 * res);  // of cell (0, 0) relative to origin
+  for (const Eigen::Vector2d& p : {Eigen::Vector2d(2.9, -1.2), Eigen::Vector2d(1.4, 0.5)}) {
+    // Sample points: cell centres.
+    const Eigen::Vector2d c = res * ((p - field.origin() - centre) / res).array().round().matrix() +
+                              field.origin() + centre;
+    EXPECT_NEAR(field.InterpolatedCubic(c), field.Interpolated(c), 1e-6);
+  }
+  // Between samples the two differ (the cubic follows the Gaussian's curvature).
+  const Eigen::Vector2d wall(3.0 + 0.3 * res, 0.0);
+  EXPECT_GT(std::abs(field.InterpolatedCubic(wall) - field.Interpolated(wall)), 1e-4);
+
+  // Keyframes turned by 3 mrad in a world frame whose walls are the room's: the submap and the
+  // scan are both a little off the field's axes.
+  const Pose2 truth(0.21, -0.04, 0.003);
+  std::vector<Keyframe> kfs(2);
+  kfs[0].estimate = Pose2(0, 0, 0.004);
+  kfs[0].points = Transformed(Room(), kfs[0].estimate.Inverse());
+  kfs[1].utime = 100;
+  kfs[1].estimate = kfs[0].estimate * Pose2(0.18, -0.02, 0.0);  // odometry guess
+  kfs[1].points = Transformed(Room(), (kfs[0].estimate * truth).Inverse());
+  double err_xy[2], err_theta[2];
+  for (int cubic = 0; cubic < 2; ++cubic) {
+    KeyframeMatchOptions o;
+    o.window.cubic_polish = cubic == 1;
+    KeyframeMatchPlugin plugin(o);
+    const auto f = plugin.OnKeyframe(kfs);
+    ASSERT_EQ(f.size(), 1u);
+    err_xy[cubic] = std::hypot(f[0].delta.x - truth.x, f[0].delta.y - truth.y);
+    err_theta[cubic] = std::abs(WrapAngle(f[0].delta.theta - truth.theta));
+  }
+  const std::string both =
+      "bilinear " + std::to_string(err_xy[0]) + " m " + std::to_string(err_theta[0]) +
+      " rad, bicubic " + std::to_string(err_xy[1]) + " m " + std::to_string(err_theta[1]) + " rad";
+  EXPECT_LT(err_xy[1], 0.005) << both;
+  EXPECT_LT(err_theta[1], 0.2e-3) << both;
+  EXPECT_LT(err_xy[1], err_xy[0]) << both;
+  EXPECT_LT(err_theta[1], err_theta[0]) << both;
+}
+
 // The truth lies outside the window (0.5 m off in x, window +-0.3 m): the answer stays inside
 // the window (the polish is bounded to it, plus one step), the optimum is flagged as on the
 // window's edge, and the keyframe plugin told to drop such matches gives no factor.
