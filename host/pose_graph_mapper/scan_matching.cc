@@ -154,14 +154,23 @@ double LikelihoodField::InterpolatedCubic(const Eigen::Vector2d& p) const {
   return s;
 }
 
-double ScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
-               const Pose2& pose) {
+namespace {
+// The mean of one of the field's interpolants over the query placed at `pose`.
+template <double (LikelihoodField::*Interp)(const Eigen::Vector2d&) const>
+double MeanAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+              const Pose2& pose) {
   if (query.empty()) return 0;
   const double c = std::cos(pose.theta), sn = std::sin(pose.theta);
   double s = 0;
   for (const auto& p : query)
-    s += field.Interpolated({pose.x + c * p.x() - sn * p.y(), pose.y + sn * p.x() + c * p.y()});
+    s += (field.*Interp)({pose.x + c * p.x() - sn * p.y(), pose.y + sn * p.x() + c * p.y()});
   return s / static_cast<double>(query.size());
+}
+}  // namespace
+
+double ScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
+               const Pose2& pose) {
+  return MeanAt<&LikelihoodField::Interpolated>(field, query, pose);
 }
 
 Pose2 RefinePointToLine(const std::vector<Eigen::Vector2d>& reference,
@@ -226,24 +235,13 @@ struct PolishBox {
 // Moves that would leave `box` are not taken: without the bound the climb could follow a slope
 // far outside the searched window (seen on a sparse log: 0.35 rad off a 0.17 rad window, onto a
 // wrong optimum) and return an answer the search never vetted.
-namespace {
-// The mean Catmull-Rom interpolated likelihood (SearchWindow::cubic_polish).
-double CubicScoreAt(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
-                    const Pose2& pose) {
-  if (query.empty()) return 0;
-  const double c = std::cos(pose.theta), sn = std::sin(pose.theta);
-  double s = 0;
-  for (const auto& p : query)
-    s +=
-        field.InterpolatedCubic({pose.x + c * p.x() - sn * p.y(), pose.y + sn * p.x() + c * p.y()});
-  return s / static_cast<double>(query.size());
-}
-}  // namespace
 
 double HillClimb(const LikelihoodField& field, const std::vector<Eigen::Vector2d>& query,
                  double sxy, double sth, const PolishBox& box, bool cubic, Pose2* pose) {
   auto score_at = [&](const Pose2& p) {
-    return cubic ? CubicScoreAt(field, query, p) : ScoreAt(field, query, p);
+    // SearchWindow::cubic_polish: the Catmull-Rom interpolant instead of the bilinear one.
+    return cubic ? MeanAt<&LikelihoodField::InterpolatedCubic>(field, query, p)
+                 : ScoreAt(field, query, p);
   };
   double score = score_at(*pose);
   // Offsets from the guess are tracked unwrapped so the angle bound holds across +-pi.
