@@ -7,8 +7,10 @@
 
 namespace omni::pgm {
 
-std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversionStats* stats) {
+std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversionStats* stats,
+                                          const Pose2* sweep) {
   ScanConversionStats local;
+  const double last_beam = scan.ranges_m.size() > 1 ? scan.ranges_m.size() - 1.0 : 1.0;
   std::vector<Eigen::Vector2d> out;
   out.reserve(scan.ranges_m.size());
   for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
@@ -23,7 +25,9 @@ std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversion
     }
     const double a =
         static_cast<double>(scan.angle_min_rad) + static_cast<double>(i) * scan.angle_increment_rad;
-    out.push_back(scan.laser_in_base.Transform({r * std::cos(a), r * std::sin(a)}));
+    const Eigen::Vector2d p = scan.laser_in_base.Transform({r * std::cos(a), r * std::sin(a)});
+    out.push_back(
+        sweep ? Interpolate(Pose2(), *sweep, static_cast<double>(i) / last_beam).Transform(p) : p);
     ++local.used;
   }
   if (stats) {

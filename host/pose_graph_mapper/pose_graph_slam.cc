@@ -203,8 +203,17 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
     ++c_.scans_time_backwards;
     return false;
   }
+  // The base's motion from the first beam to the last (a spinning lidar's sweep).
+  std::optional<Pose2> sweep;
+  if (scan.scan_time_s > 0) {
+    const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
+    if (have_odom_ && scan.utime >= odom_.oldest_utime() && t1 <= last_odom_utime_) {
+      if (auto m = Motion().Between(scan.utime, t1)) sweep = m->delta;
+    }
+    ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
+  }
   ScanConversionStats st;
-  std::vector<Eigen::Vector2d> points = ScanToPoints(scan, &st);
+  std::vector<Eigen::Vector2d> points = ScanToPoints(scan, &st, sweep ? &*sweep : nullptr);
   if (static_cast<int>(points.size()) < o_.min_beams) {
     ++c_.scans_too_few_beams;
     return false;

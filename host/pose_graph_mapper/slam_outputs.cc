@@ -73,6 +73,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
                "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld",
                ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced),
                ll(c.absolute_queued), ll(c.absolute_rejected), ll(c.absolute_invalid));
+  std::fprintf(f, ", \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld",
+               ll(c.sweeps_corrected), ll(c.sweeps_uncorrected));
   std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",
                ll(c.imu_in), ll(c.imu_rejected),
                ll(static_cast<int64_t>(slam.gyro_missing_steps())));

@@ -125,6 +125,7 @@ int main(int argc, char** argv) {
     if (in.range_min_m) s.min_range_m = *in.range_min_m;
     s.max_range_m = in.range_max_m;
     s.ranges_m = in.ranges_m;
+    s.scan_time_s = in.scan_time_s;
     // A CARMEN laser line carries the odometry pose at the scan.
     if (in.odom) slam.AddOdometry(s.utime, *in.odom);
     slam.AddScan(scans, s);

@@ -76,7 +76,7 @@ void Usage(std::FILE* f) {
       f,
       "usage: omni-sim --out DIR [--world FILE] [--seed N] [--laps N] [--duration S]\n"
       "                [--base firmware|ideal] [--slip A,B,C] [--slip-noise S]\n"
-      "                [--no-depth] [--depth-hz HZ]\n"
+      "                [--instant-scans] [--no-depth] [--depth-hz HZ]\n"
       "                [--live URL [--speed X]]\n"
       "  Simulates the omni base touring a world (built-in: a 20 x 14 m floor with an inner\n"
       "  room, alcoves, pillars and low obstacles) and writes DIR/sim.lcmlog (LIDAR_SCAN 10 Hz,\n"
@@ -90,6 +90,8 @@ void Usage(std::FILE* f) {
       "  --slip A,B,C   each wheel's mean slip, the fraction of rim motion lost at the ground\n"
       "                 (firmware base; default 0.026,0.010,0.020), redrawn every 5 ms with\n"
       "                 sigma --slip-noise (default 0.01)\n"
+      "  --instant-scans  every beam of a scan at one instant (default: over the lidar's 0.1 s\n"
+      "                 revolution as the base moves, as a spinning lidar measures them)\n"
       "  --world FILE   YAML `boxes: [[x0, y0, x1, y1, z0, z1], ...]` (the tour is built for\n"
       "                 the built-in world; other worlds must leave its path free)\n"
       "  --live URL     also publish on the bus at X times real time (default 1)\n");
@@ -139,6 +141,8 @@ int main(int argc, char** argv) {
       opt.laps = static_cast<int>(num(1, 100));
     } else if (a == "--duration") {
       opt.max_duration_s = num(0.1, 1e6);
+    } else if (a == "--instant-scans") {
+      opt.lidar_sweep = false;
     } else if (a == "--no-depth") {
       opt.depth = false;
     } else if (a == "--depth-hz") {

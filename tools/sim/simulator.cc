@@ -52,23 +52,24 @@ std::vector<Pose2> Simulator::BuiltInTour() {
   };
 }
 
-std::vector<float> Simulator::ScanRanges(const Pose2& base) {
+float Simulator::BeamRange(const Pose2& base, int i) {
   const Pose2 sensor = base * Pose2(o_.lidar_x_m, o_.lidar_y_m, o_.lidar_yaw_rad);
   std::normal_distribution<double> noise(0.0, o_.range_noise_m);
   std::uniform_real_distribution<double> u01(0.0, 1.0);
-  std::vector<float> ranges(static_cast<size_t>(o_.lidar_beams));
-  const double inc = 2 * kPi / o_.lidar_beams;
+  const double a = sensor.theta - kPi + i * (2 * kPi / o_.lidar_beams);
   const Vec3 origin{sensor.x, sensor.y, o_.lidar_height_m};
-  for (int i = 0; i < o_.lidar_beams; ++i) {
-    const double a = sensor.theta - kPi + i * inc;
-    const double t = world_.Cast(origin, {std::cos(a), std::sin(a), 0.0}, o_.range_max_m);
-    const double n = noise(rng_);
-    const bool dropout = u01(rng_) < o_.dropout_probability;
-    double r = std::numeric_limits<double>::quiet_NaN();
-    if (t >= o_.range_min_m && !dropout) r = std::max(o_.range_min_m, t + n);
-    if (r >= o_.range_max_m) r = std::numeric_limits<double>::quiet_NaN();
-    ranges[static_cast<size_t>(i)] = static_cast<float>(r);
-  }
+  const double t = world_.Cast(origin, {std::cos(a), std::sin(a), 0.0}, o_.range_max_m);
+  const double n = noise(rng_);
+  const bool dropout = u01(rng_) < o_.dropout_probability;
+  double r = std::numeric_limits<double>::quiet_NaN();
+  if (t >= o_.range_min_m && !dropout) r = std::max(o_.range_min_m, t + n);
+  if (r >= o_.range_max_m) r = std::numeric_limits<double>::quiet_NaN();
+  return static_cast<float>(r);
+}
+
+std::vector<float> Simulator::ScanRanges(const Pose2& base) {
+  std::vector<float> ranges(static_cast<size_t>(o_.lidar_beams));
+  for (int i = 0; i < o_.lidar_beams; ++i) ranges[static_cast<size_t>(i)] = BeamRange(base, i);
   return ranges;
 }
 
@@ -135,6 +136,14 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   size_t target = 1;
   int64_t seq_scan = 0, seq_odom = 0, seq_imu = 0, seq_depth = 0;
   double next_scan = 0, next_odom = 0, next_imu = 0, next_depth = 0;
+  // A lidar revolution in progress (lidar_sweep): beam i is measured at sweep_t0 + i *
+  // sweep_beam_s from the pose interpolated within the physics step.
+  const double sweep_beam_s = 1.0 / (o_.lidar_hz * o_.lidar_beams);
+  omni::laser_scan_t sweep{};
+  bool sweeping = false;
+  double sweep_t0 = 0;
+  Pose2 sweep_pose;
+  int sweep_next_beam = 0;
   kinematics::BodyTwist<double> measured{};
   int64_t utime = o_.start_utime;
   for (int64_t step = 0;; ++step) {
@@ -177,9 +186,9 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       ++st.odometry;
       next_odom += 1.0 / o_.odom_hz;
     }
-    if (t >= next_scan) {
+    if (t >= next_scan - 1e-9) {  // (next_scan accumulates rounding error)
       omni::laser_scan_t m{};
-      m.utime = utime;
+      m.utime = utime;  // the first beam's time
       m.seq = seq_scan;
       m.frame = "laser";
       m.sensor_x_m = o_.lidar_x_m;
@@ -187,16 +196,29 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       m.sensor_yaw_rad = o_.lidar_yaw_rad;
       m.angle_min_rad = static_cast<float>(-kPi);
       m.angle_increment_rad = static_cast<float>(2 * kPi / o_.lidar_beams);
-      m.scan_time_s = static_cast<float>(1.0 / o_.lidar_hz);
       m.range_min_m = static_cast<float>(o_.range_min_m);
       m.range_max_m = static_cast<float>(o_.range_max_m);
-      m.ranges_m = ScanRanges(pose);
-      m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
       m.num_intensities = 0;
-      sink(EncodeEvent("LIDAR_SCAN", utime, m));
-      if (truth) truth(seq_scan, utime, pose);
+      if (o_.lidar_sweep) {
+        // The beams are measured one after another over the revolution as the base moves; the
+        // scan is published when its last beam is in (below).
+        m.scan_time_s = static_cast<float>(sweep_beam_s * (o_.lidar_beams - 1));
+        m.ranges_m.assign(static_cast<size_t>(o_.lidar_beams), 0.f);
+        m.num_ranges = o_.lidar_beams;
+        sweep = m;
+        sweep_t0 = t;
+        sweep_pose = pose;
+        sweep_next_beam = 0;
+        sweeping = true;
+      } else {
+        m.scan_time_s = 0.f;  // every beam at one instant
+        m.ranges_m = ScanRanges(pose);
+        m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+        sink(EncodeEvent("LIDAR_SCAN", utime, m));
+        if (truth) truth(seq_scan, utime, pose);
+        ++st.scans;
+      }
       ++seq_scan;
-      ++st.scans;
       next_scan += 1.0 / o_.lidar_hz;
     }
     if (t >= next_imu) {
@@ -289,6 +311,25 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     imu_yaw = WrapAngle(imu_yaw + measured_gyro_ * dt);
     st.distance_m += std::hypot(next.x - pose.x, next.y - pose.y);
     st.rotation_rad += std::abs(true_omega) * dt;
+    if (sweeping) {
+      // Beams whose time falls in this step, from the pose between `pose` (t) and `next`.
+      for (; sweep_next_beam < o_.lidar_beams; ++sweep_next_beam) {
+        const double tb = sweep_t0 + sweep_next_beam * sweep_beam_s;
+        if (tb >= t + dt) break;
+        const double f = std::clamp((tb - t) / dt, 0.0, 1.0);
+        sweep.ranges_m[static_cast<size_t>(sweep_next_beam)] =
+            BeamRange(Interpolate(pose, next, f), sweep_next_beam);
+      }
+      if (sweep_next_beam == o_.lidar_beams) {
+        // Published when the revolution is complete (the event's time), stamped with its first
+        // beam's time, as the RPLidar driver does.
+        const int64_t done = o_.start_utime + static_cast<int64_t>(std::llround((t + dt) * 1e6));
+        sink(EncodeEvent("LIDAR_SCAN", done, sweep));
+        if (truth) truth(sweep.seq, sweep.utime, sweep_pose);
+        ++st.scans;
+        sweeping = false;
+      }
+    }
     pose = next;
     st.duration_s = t;
   }

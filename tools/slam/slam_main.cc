@@ -201,6 +201,7 @@ int main(int argc, char** argv) {
     if (in.range_min_m) s.range_min_m = *in.range_min_m;
     s.range_max_m = in.range_max_m;
     s.ranges_m = in.ranges_m;
+    s.scan_time_s = in.scan_time_s;
     s.odom = in.odom;
     report(slam.AddScan(s));
     return !(max_scans >= 0 && ++scans >= max_scans);
@@ -260,7 +261,7 @@ int main(int argc, char** argv) {
       "\"odom_jumps\": %lld, \"odom_invalid\": %lld, \"odom_out_of_order\": %lld, "
       "\"decode_errors\": %lld, \"resamplings\": %lld, \"match_failures\": %lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
-      "\"tile_refs\": %zu}\n",
+      "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld}\n",
       input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed),
       static_cast<long long>(c.scans_gated), static_cast<long long>(c.scans_too_few_beams),
@@ -270,7 +271,8 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.odom_out_of_order), static_cast<long long>(decode_errors),
       static_cast<long long>(c.resamplings), static_cast<long long>(c.match_failures),
       static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
-      slam.total_tile_refs());
+      slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
+      static_cast<long long>(c.sweeps_uncorrected));
   std::fclose(f);
   std::printf(
       "omni-slam rbpf: %lld scans (%lld updates), %d particles, %lld resamplings, %lld match "

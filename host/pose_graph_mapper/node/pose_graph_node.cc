@@ -24,24 +24,25 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
       clock_(clock),
       slam_(slam, batch, clock),
       heartbeat_(bus, "pose_graph_mapper", clock) {
-  bus_->Subscribe<omni::laser_scan_t>(
-      o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
-        if (m.seq >= 0) {
-          if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
-          last_seq_ = m.seq;
-        }
-        Item it;
-        it.kind = Kind::kScan;
-        it.utime = m.utime;
-        it.scan.utime = m.utime;
-        it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-        it.scan.angle_min_rad = m.angle_min_rad;
-        it.scan.angle_increment_rad = m.angle_increment_rad;
-        it.scan.min_range_m = m.range_min_m;
-        it.scan.max_range_m = m.range_max_m;
-        it.scan.ranges_m = m.ranges_m;
-        OnMessage(std::move(it));
-      });
+  bus_->Subscribe<omni::laser_scan_t>(o_.scan_channel, [this](const omni::laser_scan_t& m,
+                                                              int64_t) {
+    if (m.seq >= 0) {
+      if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
+      last_seq_ = m.seq;
+    }
+    Item it;
+    it.kind = Kind::kScan;
+    it.utime = m.utime;
+    it.scan.utime = m.utime;
+    it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+    it.scan.angle_min_rad = m.angle_min_rad;
+    it.scan.angle_increment_rad = m.angle_increment_rad;
+    it.scan.min_range_m = m.range_min_m;
+    it.scan.max_range_m = m.range_max_m;
+    it.scan.ranges_m = m.ranges_m;
+    it.scan.scan_time_s = std::isfinite(m.scan_time_s) && m.scan_time_s > 0 ? m.scan_time_s : 0.f;
+    OnMessage(std::move(it));
+  });
   bus_->Subscribe<omni::odometry_t>(o_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
     Item it;
     it.utime = m.utime;
@@ -85,6 +86,8 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
   heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
   heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
+  heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });
+  heartbeat_.AddCounter("sweeps_uncorrected", [&c] { return c.sweeps_uncorrected; });
   heartbeat_.AddCounter("odom_in", [&c] { return c.odom_in; });
   heartbeat_.AddCounter("odom_invalid", [&c] { return c.odom_invalid; });
   heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
@@ -170,7 +173,9 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
       queue_.pop_front();
       continue;
     }
-    const int64_t t = queue_.front().utime;
+    // Odometry up to the last beam, so a sweep can be corrected for the base's motion.
+    const int64_t t = queue_.front().utime +
+                      std::llround(static_cast<double>(queue_.front().scan.scan_time_s) * 1e6);
     // The scan is covered when odometry at or after its time was handed over, or is queued
     // behind it: then the odometry up to that one goes first, in arrival order.
     bool covered = handed_odom_utime_ >= t;

@@ -297,6 +297,21 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   points.reserve(scan.ranges_m.size());
   hit.reserve(scan.ranges_m.size());
   const double max_hit = std::min(opt_.max_hit_range_m, opt_.max_range_m);
+  // The base's motion from the first beam to the last (a spinning lidar's sweep).
+  std::optional<Pose2> sweep;
+  if (scan.scan_time_s > 0 && scan.ranges_m.size() > 1) {
+    const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
+    const auto a = RawOdometryAt(scan.utime);
+    const auto b = odom_buffer_.At(t1);
+    if (a && b) {
+      sweep = a->Between(*b);
+      ++counters_.sweeps_corrected;
+    } else {
+      ++counters_.sweeps_uncorrected;
+    }
+  }
+  const Pose2 sensor_inv = scan.sensor_in_base.Inverse();
+  const double last_beam = static_cast<double>(scan.ranges_m.size() - 1);
   for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
     const float r = scan.ranges_m[i];
     const double a = static_cast<double>(scan.angle_min_rad) +
@@ -311,7 +326,14 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
       range = opt_.max_free_range_m;  // no return: free space up to max_free_range_m
     }
     if (range <= 0) continue;
-    points.emplace_back(range * std::cos(a), range * std::sin(a));
+    Eigen::Vector2d p(range * std::cos(a), range * std::sin(a));
+    if (sweep) {
+      // Measured from where the sensor was at its time in the sweep: into the base frame there,
+      // back to the base frame at the first beam, and into the sensor frame again.
+      const Pose2 at = Interpolate(Pose2(), *sweep, static_cast<double>(i) / last_beam);
+      p = sensor_inv.Transform(at.Transform(scan.sensor_in_base.Transform(p)));
+    }
+    points.push_back(p);
     hit.push_back(is_hit ? 1 : 0);
   }
   const MatchScan mscan =

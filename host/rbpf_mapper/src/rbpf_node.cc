@@ -31,6 +31,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
         s.range_min_m = m.range_min_m;
         s.range_max_m = m.range_max_m;
         s.ranges_m = m.ranges_m;
+        s.scan_time_s = std::isfinite(m.scan_time_s) && m.scan_time_s > 0 ? m.scan_time_s : 0.f;
         OnScan(s, m.seq);
       });
   bus_->Subscribe<omni::odometry_t>(opt_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
@@ -64,6 +65,8 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("match_failures", [&c] { return c.match_failures; });
   heartbeat_.AddCounter("match_searches", [&c] { return c.match_searches; });
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
+  heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });
+  heartbeat_.AddCounter("sweeps_uncorrected", [&c] { return c.sweeps_uncorrected; });
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(pending_.size()); });
@@ -105,7 +108,9 @@ int RbpfNode::Drain(bool all, int max_scans) {
   int done = 0;
   while (!pending_.empty() && done < max_scans) {
     const ScanInput& s = pending_.front();
-    const bool odom_ready = newest_odom_utime_ != INT64_MIN && newest_odom_utime_ >= s.utime;
+    // Odometry up to the last beam, so a sweep can be corrected for the base's motion.
+    const int64_t last_beam = s.utime + std::llround(static_cast<double>(s.scan_time_s) * 1e6);
+    const bool odom_ready = newest_odom_utime_ != INT64_MIN && newest_odom_utime_ >= last_beam;
     const bool stale = newest_msg_utime_ - s.utime > gap;
     if (!all && !odom_ready && !stale) break;
     Process(s);

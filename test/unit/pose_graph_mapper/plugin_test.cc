@@ -68,6 +68,46 @@ TEST(PoseGraphPlugins, ScanToPointsSkipsAndCountsBadBeams) {
   EXPECT_TRUE(ScanToPoints(s, &st).empty());
 }
 
+// A spinning lidar's sweep: beam i is measured at fraction i / (n - 1) of the base's motion.
+// Ranges to a circular wall (radius 5 m around a point off the base's origin) measured that way
+// give the true end points (in the base frame at the first beam) when ScanToPoints undoes the
+// motion, and points centimetres off when it does not.
+TEST(PoseGraphPlugins, ScanToPointsUndoesTheSweep) {
+  const double radius = 5.0;
+  const Eigen::Vector2d centre(0.7, -0.4);
+  for (const Pose2& motion : {Pose2(0.04, 0.01, 0.0), Pose2(0.0, 0.0, 0.08)}) {
+    LaserScan2 scan;
+    scan.laser_in_base = Pose2(0.1, 0.0, 0.0);
+    scan.angle_min_rad = static_cast<float>(-M_PI);
+    scan.angle_increment_rad = static_cast<float>(2 * M_PI / 360);
+    scan.max_range_m = 20;
+    scan.scan_time_s = 0.1f;
+    std::vector<Eigen::Vector2d> truth;
+    for (int i = 0; i < 360; ++i) {
+      // Where the laser was when it measured beam i, and the ray it cast.
+      const Pose2 laser =
+          Interpolate(Pose2(), motion, i / 359.0) * scan.laser_in_base *
+          Pose2(0, 0, static_cast<double>(scan.angle_min_rad) + i * scan.angle_increment_rad);
+      const Eigen::Vector2d p = Eigen::Vector2d(laser.x, laser.y) - centre;
+      const Eigen::Vector2d d(std::cos(laser.theta), std::sin(laser.theta));
+      const double b = p.dot(d);
+      const float r = static_cast<float>(-b + std::sqrt(b * b - p.squaredNorm() + radius * radius));
+      scan.ranges_m.push_back(r);
+      truth.push_back(laser.Transform({r, 0.0}));
+    }
+    auto worst = [&](const std::vector<Eigen::Vector2d>& pts) {
+      double w = 0;
+      for (size_t i = 0; i < pts.size(); ++i) w = std::max(w, (pts[i] - truth[i]).norm());
+      return w;
+    };
+    ScanConversionStats st;
+    const auto corrected = ScanToPoints(scan, &st, &motion);
+    ASSERT_EQ(corrected.size(), 360u);
+    EXPECT_LT(worst(corrected), 1e-5) << motion.x << " " << motion.theta;  // float ranges
+    EXPECT_GT(worst(ScanToPoints(scan, nullptr)), 0.02) << motion.x << " " << motion.theta;
+  }
+}
+
 TEST(PoseGraphPlugins, FactorInformationAndEdge) {
   RelativePoseFactor f;
   f.delta = Pose2(1, 2, 0.3);

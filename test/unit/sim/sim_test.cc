@@ -182,12 +182,15 @@ TEST_P(SimulatorTour, DrivesTheBuiltInTourWithoutTouchingAnything) {
     EXPECT_NEAR(count["WHEEL_ODOM"], dur * o.odom_hz, 2);
     EXPECT_EQ(count.count("WHEEL_ENCODERS"), 0u);
   }
-  // Every scan decodes and sees walls in most directions.
+  // Every scan decodes and sees walls in most directions. A sweep (the default) takes the
+  // revolution and is published when it ends; the message is stamped with its first beam.
   int scans = 0;
   for (const auto& e : rec.events) {
     if (e.channel != "LIDAR_SCAN") continue;
     omni::laser_scan_t m;
     ASSERT_GE(m.decode(e.payload.data(), 0, static_cast<int>(e.payload.size())), 0);
+    ASSERT_NEAR(m.scan_time_s, 0.1 * 359 / 360, 1e-6);
+    ASSERT_GE(e.utime, m.utime + std::llround(m.scan_time_s * 1e6));
     int valid = 0;
     for (float r : m.ranges_m) valid += std::isfinite(r);
     ASSERT_GT(valid, 200) << "scan " << scans;

@@ -22,6 +22,7 @@ struct SlamScan {
   std::optional<float> range_min_m;  // absent: the log does not say (CARMEN)
   float range_max_m = 0;
   std::vector<float> ranges_m;
+  float scan_time_s = 0;      // first to last beam (a spinning lidar's sweep); 0: one instant
   std::optional<Pose2> odom;  // the base's odometry pose at the scan, when the line carries it
 };
 

@@ -30,6 +30,9 @@ struct LaserScan2 {
   float max_range_m = 0;  // readings >= max_range are "no return" and skipped
   std::vector<float> ranges_m;
   Pose2 laser_in_base;  // mounting pose of the laser on the robot base
+  // First to last beam (a spinning lidar's sweep); > 0: the mapper corrects each end point for
+  // the base's motion during the sweep when odometry covers it. 0: every beam at `utime`.
+  float scan_time_s = 0;
 };
 
 // Why beams were dropped when converting a scan to points.
@@ -39,9 +42,12 @@ struct ScanConversionStats {
   int64_t out_of_range = 0;  // below min_range or at/after max_range
 };
 
-// Beam end points in the robot-base frame. Non-finite and out-of-range beams are skipped and
-// counted in `stats` (accumulated, may be null).
-std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversionStats* stats);
+// Beam end points in the robot-base frame at the first beam's time. Non-finite and
+// out-of-range beams are skipped and counted in `stats` (accumulated, may be null). `sweep`: the
+// base's motion from the first beam to the last (beam i measured at fraction i / (n - 1) of it),
+// undone point by point; null: every beam at one instant.
+std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversionStats* stats,
+                                          const Pose2* sweep = nullptr);
 
 struct Keyframe {
   int64_t utime = 0;

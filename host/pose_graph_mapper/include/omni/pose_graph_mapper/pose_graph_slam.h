@@ -138,7 +138,9 @@ Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, B
 struct SlamCounters {
   int64_t scans_in = 0, scans_used = 0;
   int64_t scans_time_backwards = 0, scans_too_few_beams = 0, scans_no_odom = 0;
-  int64_t invalid_beams = 0;  // NaN/inf or out-of-range beams skipped inside used scans
+  int64_t invalid_beams = 0;       // NaN/inf or out-of-range beams skipped inside used scans
+  int64_t sweeps_corrected = 0;    // scans corrected for the base's motion during their sweep
+  int64_t sweeps_uncorrected = 0;  // scans with a sweep but no odometry over all of it
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
   int64_t keyframes = 0;
   int64_t scan_match_factors = 0, scan_match_failures = 0;

@@ -79,8 +79,10 @@ struct RbpfOptions {
 
 struct RbpfCounters {
   int64_t scans_in = 0;
-  int64_t scans_processed = 0;  // particle filter updates
-  int64_t scans_gated = 0;      // not enough motion since the last update (pose from odometry)
+  int64_t scans_processed = 0;     // particle filter updates
+  int64_t sweeps_corrected = 0;    // updates whose scan was corrected for the sweep's motion
+  int64_t sweeps_uncorrected = 0;  // ... that had a sweep but no odometry over all of it
+  int64_t scans_gated = 0;         // not enough motion since the last update (pose from odometry)
   int64_t scans_too_few_beams = 0;
   int64_t scans_time_backwards = 0;
   int64_t scans_no_odom = 0;
@@ -106,6 +108,9 @@ struct ScanInput {
   float range_min_m = 0;
   float range_max_m = 0;  // readings at or above: no return
   std::vector<float> ranges_m;
+  // First to last beam. > 0 (a spinning lidar): each end point is corrected for the base's
+  // motion during the sweep, from odometry, when odometry covers the last beam's time.
+  float scan_time_s = 0;
   std::optional<Pose2> odom;  // the base's odometry pose at this scan, when the source has it
 };
 

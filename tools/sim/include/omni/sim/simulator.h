@@ -68,6 +68,11 @@ struct SimOptions {
   double range_min_m = 0.15, range_max_m = 12.0;
   double range_noise_m = 0.01;
   double dropout_probability = 0.01;
+  // true: the beams are measured one after another over the revolution (1 / lidar_hz) while
+  // the base moves, as a spinning lidar does, and the scan is published when the revolution
+  // ends (scan_time_s says how long it took; the mappers undo the motion from odometry);
+  // false: every beam at the scan's instant (scan_time_s 0).
+  bool lidar_sweep = true;
   // Odometry and IMU.
   double odom_hz = 50;
   double imu_hz = 100;
@@ -115,6 +120,8 @@ class Simulator {
   // Sensor models, public for tests: ranges of one scan from `base` (true pose), and one depth
   // image in millimetres (0 = no reading).
   std::vector<float> ScanRanges(const Pose2& base);
+  // One beam's range (with noise and dropouts) from `base`.
+  float BeamRange(const Pose2& base, int beam);
   std::vector<uint16_t> DepthImage(const Pose2& base);
 
  private:
