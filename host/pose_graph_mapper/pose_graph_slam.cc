@@ -248,6 +248,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   last_scan_motion_covariance_ = make_kf ? Eigen::Matrix3d::Zero() : motion.covariance;
   if (make_kf) {
     NewKeyframe(scan, t, motion, std::move(points));
+    kf_scans_.back().sweep = sweep;
     scans_.push_back({scan_index, scan.utime, static_cast<int>(keyframes_.size()) - 1, Pose2()});
   } else {
     scans_.push_back(
@@ -271,7 +272,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   }
   kf.points = std::move(points);
   keyframes_.push_back(std::move(kf));
-  kf_scans_.push_back({scan});
+  kf_scans_.push_back({scan, std::nullopt});
   kf_odom_.push_back(k == 0 ? Pose2() : motion.delta);
   kf_by_utime_[utime] = k;
   nodes_.push_back({utime, k, Pose2()});
@@ -622,8 +623,22 @@ io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
   io::LogOddsGrid grid(options);
   for (size_t i = 0; i < keyframes_.size(); ++i) {
     const LaserScan2& s = kf_scans_[i].scan;
-    grid.IntegrateScan(keyframes_[i].estimate * s.laser_in_base, s.ranges_m, s.angle_min_rad,
-                       s.angle_increment_rad, s.max_range_m);
+    const std::optional<Pose2>& sweep = kf_scans_[i].sweep;
+    if (!sweep || s.ranges_m.size() < 2) {
+      grid.IntegrateScan(keyframes_[i].estimate * s.laser_in_base, s.ranges_m, s.angle_min_rad,
+                         s.angle_increment_rad, s.max_range_m);
+      continue;
+    }
+    // A sweep: each beam from where the laser was when it measured it (as ScanToPoints).
+    const double last = static_cast<double>(s.ranges_m.size() - 1);
+    for (size_t b = 0; b < s.ranges_m.size(); ++b) {
+      const Pose2 laser = keyframes_[i].estimate *
+                          Interpolate(Pose2(), *sweep, static_cast<double>(b) / last) *
+                          s.laser_in_base;
+      const float angle = static_cast<float>(static_cast<double>(s.angle_min_rad) +
+                                             static_cast<double>(b) * s.angle_increment_rad);
+      grid.IntegrateScan(laser, {s.ranges_m[b]}, angle, s.angle_increment_rad, s.max_range_m);
+    }
   }
   return grid.ToGridMap();
 }

@@ -96,8 +96,10 @@ TEST(SimPipeline, MappersBeatTheDriftingOdometryOnTheSimulatedTour) {
   ASSERT_TRUE(rbpf_map.ok() && pg_map.ok());
   const auto er = eval::CompareMaps(*truth_map, *rbpf_map);
   const auto ep = eval::CompareMaps(*truth_map, *pg_map);
-  EXPECT_GT(er.precision, 0.95);
-  EXPECT_GT(ep.precision, 0.95);
+  // Walls only where the world has them: a map rendered from the scans without undoing the
+  // lidar's sweep smears them (pose graph 0.96).
+  EXPECT_GT(er.precision, 0.99);
+  EXPECT_GT(ep.precision, 0.99);
   EXPECT_LT(std::abs(er.dx_m) + std::abs(er.dy_m), 0.1);
   r = testing::Run(testing::Bin("map_fusion") + cfg + "map_fusion.yaml --fuse " + dir +
                    "/pg/map.yaml " + dir + "/rbpf/map.yaml --out " + dir + "/fusion");

@@ -230,6 +230,7 @@ class PoseGraphSlam {
  private:
   struct KeyframeScan {
     LaserScan2 scan;  // kept for the map
+    std::optional<Pose2> sweep;  // the base's motion over the lidar's sweep, when undone
   };
   // A graph vertex: a keyframe (keyframe >= 0; its estimate lives in keyframes_) or a pose
   // node created by splicing (keyframe == -1).
