@@ -481,6 +481,60 @@ TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
   EXPECT_TRUE(differs_from_match);
 }
 
+// A spinning lidar's sweep: the base turns at 0.8 rad/s in the off-axis room while each scan's
+// beams are measured over 0.1 s (0.08 rad of turn). Told the sweep's duration, the filter undoes
+// the turn from odometry and keeps the heading; told nothing, the distorted scans pull it off,
+// against exact odometry.
+TEST(RbpfSlam, UndoesTheLidarSweepFromOdometry) {
+  const Room room;
+  const double omega = 0.8, sweep_s = 0.1;
+  const Pose2 mount(0.1, 0.0, 0.0);
+  auto truth_at = [&](double t) { return Pose2(0.2, -0.1, omega * t); };
+  double err[2];
+  for (int told = 0; told < 2; ++told) {
+    RbpfOptions o;
+    o.particles = 4;
+    o.threads = 1;
+    RbpfSlam slam(o);
+    const int64_t t0 = 1700000000000000;
+    for (int k = 0; k <= 400; ++k)  // odometry at 100 Hz for 4 s: exact
+      slam.AddOdometry(t0 + k * 10000, truth_at(k * 0.01));
+    for (int scan = 0; scan < 30; ++scan) {
+      const double ts = scan * 0.12;
+      ScanInput s;
+      s.utime = t0 + std::llround(ts * 1e6);
+      s.sensor_in_base = mount;
+      s.angle_min_rad = static_cast<float>(-M_PI);
+      s.angle_increment_rad = static_cast<float>(2 * M_PI / 360);
+      s.range_max_m = 30.f;
+      s.scan_time_s = told ? static_cast<float>(sweep_s * 359 / 360) : 0.f;
+      std::vector<Eigen::Vector2d> pts;
+      std::vector<uint8_t> hit;
+      for (int b = 0; b < 360; ++b) {
+        // Beam b from where the laser is at its time; its range as the laser saw it.
+        const Pose2 laser = truth_at(ts + sweep_s * b / 360.0) * mount;
+        room.Scan(laser, &pts, &hit);
+        s.ranges_m.push_back(static_cast<float>(pts[static_cast<size_t>(b)].norm()));
+      }
+      slam.AddScan(s);
+    }
+    // The filter's frame starts at the first scan's pose (heading 0 here, as the truth's).
+    const auto traj = slam.BestTrajectory();
+    ASSERT_EQ(traj.size(), 30u);
+    double worst = 0;
+    for (size_t k = 0; k < traj.size(); ++k)
+      worst = std::max(worst, std::abs(WrapAngle(traj[k].pose.theta - truth_at(k * 0.12).theta)));
+    err[told] = worst;
+    if (told) {
+      EXPECT_GT(slam.counters().sweeps_corrected, 5);
+      EXPECT_EQ(slam.counters().sweeps_uncorrected, 0);
+    }
+  }
+  // Measured: 1.5 mrad undone, 33 mrad not (worst scan).
+  EXPECT_LT(err[1], 0.005) << "sweep undone " << err[1] << " rad, not undone " << err[0];
+  EXPECT_GT(err[0], 0.02) << "sweep undone " << err[1] << " rad, not undone " << err[0];
+}
+
 ScanInput SyntheticScan(int64_t utime, const Pose2& odom) {
   // A robot in a 10 m x 10 m square room centred on the origin, 180 beams.
   ScanInput s;
