@@ -208,7 +208,11 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   if (scan.scan_time_s > 0) {
     const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
     if (have_odom_ && scan.utime >= odom_.oldest_utime() && t1 <= last_odom_utime_) {
-      if (auto m = Motion().Between(scan.utime, t1)) sweep = m->delta;
+      auto m = Motion().Between(scan.utime, t1);
+      // An odometry jump inside the sweep is not motion: the scan is then used as it is.
+      if (m && std::hypot(m->delta.x, m->delta.y) <= o_.max_odom_jump_m &&
+          std::abs(m->delta.theta) <= o_.max_odom_jump_rad)
+        sweep = m->delta;
     }
     ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
   }

@@ -303,8 +303,11 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
     const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
     const auto a = RawOdometryAt(scan.utime);
     const auto b = odom_buffer_.At(t1);
-    if (a && b) {
-      sweep = a->Between(*b);
+    // An odometry jump inside the sweep is not motion: the scan is then used as it is.
+    const std::optional<Pose2> m = a && b ? std::optional<Pose2>(a->Between(*b)) : std::nullopt;
+    if (m && std::hypot(m->x, m->y) <= opt_.max_odom_jump_m &&
+        std::abs(m->theta) <= opt_.max_odom_jump_rad) {
+      sweep = m;
       ++counters_.sweeps_corrected;
     } else {
       ++counters_.sweeps_uncorrected;
