@@ -67,40 +67,61 @@ int LogOddsGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<float
   EnsureContains(sx, sy);
   int used = 0;
   for (size_t i = 0; i < ranges.size(); ++i) {
-    const float r = ranges[i];
-    bool hit = std::isfinite(r) && r > 0.f && r < max_range && r <= opt_.max_hit_range_m;
-    float len = r;
-    if (!hit) {
-      if (opt_.max_free_range_m <= 0.f) continue;
-      len = opt_.max_free_range_m;
-    }
     const double a = sensor_pose.theta + angle_min + static_cast<double>(i) * angle_inc;
-    const double ex = sensor_pose.x + len * std::cos(a);
-    const double ey = sensor_pose.y + len * std::sin(a);
-    const int64_t tx = static_cast<int64_t>(std::floor(ex / res));
-    const int64_t ty = static_cast<int64_t>(std::floor(ey / res));
-    EnsureContains(tx, ty);
-    // Bresenham from the sensor cell to the end cell; every cell before the end is free.
-    int64_t x = sx, y = sy;
-    const int64_t dx = std::abs(tx - sx), dy = -std::abs(ty - sy);
-    const int64_t stx = sx < tx ? 1 : -1, sty = sy < ty ? 1 : -1;
-    int64_t err = dx + dy;
-    while (!(x == tx && y == ty)) {
-      Update(x, y, opt_.miss_log_odds);
-      const int64_t e2 = 2 * err;
-      if (e2 >= dy) {
-        err += dy;
-        x += stx;
-      }
-      if (e2 <= dx) {
-        err += dx;
-        y += sty;
-      }
-    }
-    if (hit) Update(tx, ty, opt_.hit_log_odds);
-    ++used;
+    used += IntegrateBeam(sensor_pose, sx, sy, a, ranges[i], max_range) ? 1 : 0;
   }
   return used;
+}
+
+int LogOddsGrid::IntegrateScan(const std::function<Pose2(size_t)>& sensor_pose_of_beam,
+                               const std::vector<float>& ranges, float angle_min, float angle_inc,
+                               float max_range) {
+  const double res = opt_.resolution_m;
+  int used = 0;
+  for (size_t i = 0; i < ranges.size(); ++i) {
+    const Pose2 sensor = sensor_pose_of_beam(i);
+    const int64_t sx = static_cast<int64_t>(std::floor(sensor.x / res));
+    const int64_t sy = static_cast<int64_t>(std::floor(sensor.y / res));
+    EnsureContains(sx, sy);
+    const double a = sensor.theta + angle_min + static_cast<double>(i) * angle_inc;
+    used += IntegrateBeam(sensor, sx, sy, a, ranges[i], max_range) ? 1 : 0;
+  }
+  return used;
+}
+
+bool LogOddsGrid::IntegrateBeam(const Pose2& sensor, int64_t sx, int64_t sy, double a, float r,
+                                float max_range) {
+  const double res = opt_.resolution_m;
+  const bool hit = std::isfinite(r) && r > 0.f && r < max_range && r <= opt_.max_hit_range_m;
+  float len = r;
+  if (!hit) {
+    if (opt_.max_free_range_m <= 0.f) return false;
+    len = opt_.max_free_range_m;
+  }
+  const double ex = sensor.x + len * std::cos(a);
+  const double ey = sensor.y + len * std::sin(a);
+  const int64_t tx = static_cast<int64_t>(std::floor(ex / res));
+  const int64_t ty = static_cast<int64_t>(std::floor(ey / res));
+  EnsureContains(tx, ty);
+  // Bresenham from the sensor cell to the end cell; every cell before the end is free.
+  int64_t x = sx, y = sy;
+  const int64_t dx = std::abs(tx - sx), dy = -std::abs(ty - sy);
+  const int64_t stx = sx < tx ? 1 : -1, sty = sy < ty ? 1 : -1;
+  int64_t err = dx + dy;
+  while (!(x == tx && y == ty)) {
+    Update(x, y, opt_.miss_log_odds);
+    const int64_t e2 = 2 * err;
+    if (e2 >= dy) {
+      err += dy;
+      x += stx;
+    }
+    if (e2 <= dx) {
+      err += dx;
+      y += sty;
+    }
+  }
+  if (hit) Update(tx, ty, opt_.hit_log_odds);
+  return true;
 }
 
 GridMap LogOddsGrid::ToGridMap() const {

@@ -214,7 +214,6 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
           std::abs(m->delta.theta) <= o_.max_odom_jump_rad)
         sweep = m->delta;
     }
-    ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
   }
   ScanConversionStats st;
   std::vector<Eigen::Vector2d> points = ScanToPoints(scan, &st, sweep ? &*sweep : nullptr);
@@ -246,6 +245,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   last_scan_utime_ = scan.utime;
   ++c_.scans_used;
   c_.invalid_beams += st.not_finite + st.out_of_range;
+  if (scan.scan_time_s > 0) ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
   const bool make_kf = keyframes_.empty() ||
                        std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
                        std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
@@ -635,14 +635,12 @@ io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
     }
     // A sweep: each beam from where the laser was when it measured it (as ScanToPoints).
     const double last = static_cast<double>(s.ranges_m.size() - 1);
-    for (size_t b = 0; b < s.ranges_m.size(); ++b) {
-      const Pose2 laser = keyframes_[i].estimate *
-                          Interpolate(Pose2(), *sweep, static_cast<double>(b) / last) *
-                          s.laser_in_base;
-      const float angle = static_cast<float>(static_cast<double>(s.angle_min_rad) +
-                                             static_cast<double>(b) * s.angle_increment_rad);
-      grid.IntegrateScan(laser, {s.ranges_m[b]}, angle, s.angle_increment_rad, s.max_range_m);
-    }
+    const Pose2& kf = keyframes_[i].estimate;
+    grid.IntegrateScan(
+        [&](size_t b) {
+          return kf * Interpolate(Pose2(), *sweep, static_cast<double>(b) / last) * s.laser_in_base;
+        },
+        s.ranges_m, s.angle_min_rad, s.angle_increment_rad, s.max_range_m);
   }
   return grid.ToGridMap();
 }

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,11 @@ class LogOddsGrid {
   // max_range is "no return". Returns the number of beams used.
   int IntegrateScan(const Pose2& sensor_pose, const std::vector<float>& ranges_m,
                     float angle_min_rad, float angle_increment_rad, float max_range_m);
+  // The same for a sensor that moved during the scan (a spinning lidar's sweep): beam i is
+  // taken from sensor_pose_of_beam(i).
+  int IntegrateScan(const std::function<Pose2(size_t)>& sensor_pose_of_beam,
+                    const std::vector<float>& ranges_m, float angle_min_rad,
+                    float angle_increment_rad, float max_range_m);
 
   // Occupancy in percent with -1 for never-observed cells, cropped to the observed area.
   GridMap ToGridMap() const;
@@ -56,6 +62,10 @@ class LogOddsGrid {
 
  private:
   void EnsureContains(int64_t cx, int64_t cy);
+  // One beam at map angle `a` from `sensor`, whose cell (sx, sy) the grid already contains;
+  // false when the beam marks nothing.
+  bool IntegrateBeam(const Pose2& sensor, int64_t sx, int64_t sy, double a, float r,
+                     float max_range);
   void Update(int64_t cx, int64_t cy, float delta);
 
   LogOddsOptions opt_;

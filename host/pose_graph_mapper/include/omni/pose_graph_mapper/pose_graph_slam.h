@@ -139,8 +139,8 @@ struct SlamCounters {
   int64_t scans_in = 0, scans_used = 0;
   int64_t scans_time_backwards = 0, scans_too_few_beams = 0, scans_no_odom = 0;
   int64_t invalid_beams = 0;       // NaN/inf or out-of-range beams skipped inside used scans
-  int64_t sweeps_corrected = 0;    // scans corrected for the base's motion during their sweep
-  int64_t sweeps_uncorrected = 0;  // scans with a sweep but no odometry over all of it
+  int64_t sweeps_corrected = 0;    // used scans corrected for the base's motion in their sweep
+  int64_t sweeps_uncorrected = 0;  // used scans with a sweep but no (jump-free) odometry over it
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
   int64_t keyframes = 0;
   int64_t scan_match_factors = 0, scan_match_failures = 0;
@@ -229,7 +229,7 @@ class PoseGraphSlam {
 
  private:
   struct KeyframeScan {
-    LaserScan2 scan;  // kept for the map
+    LaserScan2 scan;             // kept for the map
     std::optional<Pose2> sweep;  // the base's motion over the lidar's sweep, when undone
   };
   // A graph vertex: a keyframe (keyframe >= 0; its estimate lives in keyframes_) or a pose
