@@ -22,12 +22,23 @@ firmware::Params FirmwareFor(double center_to_wheel_m, double wheel_radius_m) {
   return p;
 }
 
-base_bridge::BaseBridgeOptions BridgeFor(double center_to_wheel_m, double wheel_radius_m) {
-  base_bridge::BaseBridgeOptions o;
+base_bridge::BaseBridgeOptions BridgeFor(base_bridge::BaseBridgeOptions o, double center_to_wheel_m,
+                                         double wheel_radius_m) {
+  const firmware::sim::PlantParams plant = PlantFor(center_to_wheel_m, wheel_radius_m);
   o.can_url = "sim:in-process";
   o.center_to_wheel_m = center_to_wheel_m;
   o.wheel_radius_m = wheel_radius_m;
-  // The shipped config/base_bridge.yaml limits (the struct's defaults are more conservative).
+  o.alpha_rad = plant.alpha_rad;
+  o.ticks_per_rev = plant.ticks_per_rev;
+  return o;
+}
+
+}  // namespace
+
+base_bridge::BaseBridgeOptions FirmwareBase::ShippedBridgeOptions() {
+  // config/base_bridge.yaml's limits (the struct's defaults are more conservative); the rest
+  // of that file is the struct's defaults.
+  base_bridge::BaseBridgeOptions o;
   o.max_vx_m_s = 1.2;
   o.max_vy_m_s = 1.2;
   o.max_omega_rad_s = 3.0;
@@ -36,10 +47,9 @@ base_bridge::BaseBridgeOptions BridgeFor(double center_to_wheel_m, double wheel_
   return o;
 }
 
-}  // namespace
-
-FirmwareBase::FirmwareBase(double center_to_wheel_m, double wheel_radius_m)
-    : bo_(BridgeFor(center_to_wheel_m, wheel_radius_m)),
+FirmwareBase::FirmwareBase(double center_to_wheel_m, double wheel_radius_m,
+                           const base_bridge::BaseBridgeOptions& bridge)
+    : bo_(BridgeFor(bridge, center_to_wheel_m, wheel_radius_m)),
       plant_(PlantFor(center_to_wheel_m, wheel_radius_m)),
       hal_(&plant_),
       fw_(&hal_, FirmwareFor(center_to_wheel_m, wheel_radius_m)),

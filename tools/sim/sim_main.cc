@@ -2,8 +2,10 @@
 // what its sensors would put on the bus (LIDAR_SCAN, WHEEL_ODOM, IMU, DEPTH) to an LCM log, or
 // publishes it live, plus the true trajectory for the evaluator.
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -13,14 +15,21 @@
 #include <thread>
 #include <vector>
 
+#include "omni/base_bridge/base_bridge.h"
+#include "omni/base_bridge/messages.h"
+#include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
 #include "omni/common/time.h"
+#include "omni/firmware/firmware.h"
 #include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
 #include "omni/sim/simulator.h"
 
 namespace {
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop = true; }
 
 // The world as an occupancy grid at 5 cm in the frame whose origin is `origin` (a world pose):
 // occupied where a box that stands in the robot's way (from 3 cm to 2 m above the floor, so the
@@ -77,7 +86,8 @@ void Usage(std::FILE* f) {
       "usage: omni-sim --out DIR [--world FILE] [--seed N] [--laps N] [--duration S]\n"
       "                [--base firmware|ideal] [--slip A,B,C] [--slip-noise S]\n"
       "                [--instant-scans] [--no-depth] [--depth-hz HZ]\n"
-      "                [--live URL [--speed X]]\n"
+      "                [--live URL [--speed X]] [--drive tour|bus] [--cmd-channel NAME]\n"
+      "                [--bridge-config FILE]\n"
       "  Simulates the omni base touring a world (built-in: a 20 x 14 m floor with an inner\n"
       "  room, alcoves, pillars and low obstacles) and writes DIR/sim.lcmlog (LIDAR_SCAN 10 Hz,\n"
       "  WHEEL_ODOM from slipping wheel encoders, IMU 100 Hz, DEPTH 320x240 at 5 Hz) and\n"
@@ -94,7 +104,16 @@ void Usage(std::FILE* f) {
       "                 revolution as the base moves, as a spinning lidar measures them)\n"
       "  --world FILE   YAML `boxes: [[x0, y0, x1, y1, z0, z1], ...]` (the tour is built for\n"
       "                 the built-in world; other worlds must leave its path free)\n"
-      "  --live URL     also publish on the bus at X times real time (default 1)\n");
+      "  --live URL     also publish on the bus at X times real time (default 1)\n"
+      "  --drive tour   (default) the built-in tour's waypoint follower drives the base\n"
+      "  --drive bus    BASE_CMD (base_cmd_t) from the --live bus drives it, as on the robot:\n"
+      "                 a twist holds for the bridge's command timeout, e-stop and clear\n"
+      "                 faults work; runs until --duration or SIGINT/SIGTERM (`omni drive`\n"
+      "                 sends commands; received commands are not logged)\n"
+      "  --cmd-channel NAME  channel of --drive bus (default: the bridge config's, BASE_CMD)\n"
+      "  --bridge-config FILE  the base bridge's YAML (config/base_bridge.yaml form): its\n"
+      "                 limits, timing, covariances and channels; geometry stays the sim's\n"
+      "                 (default: the values config/base_bridge.yaml ships)\n");
 }
 
 bool ParseNumber(const std::string& v, double* out) {
@@ -106,7 +125,7 @@ bool ParseNumber(const std::string& v, double* out) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string out_dir, world_path, live_url;
+  std::string out_dir, world_path, live_url, drive = "tour", cmd_channel, bridge_config;
   double speed = 1.0;
   omni::sim::SimOptions opt;
   for (int i = 1; i < argc; ++i) {
@@ -182,6 +201,17 @@ int main(int argc, char** argv) {
       live_url = val();
     } else if (a == "--speed") {
       speed = num(0.01, 1000);
+    } else if (a == "--drive") {
+      drive = val();
+      if (drive != "tour" && drive != "bus") {
+        std::fprintf(stderr, "omni-sim: --drive expects 'tour' or 'bus', got '%s'\n",
+                     drive.c_str());
+        return 2;
+      }
+    } else if (a == "--cmd-channel") {
+      cmd_channel = val();
+    } else if (a == "--bridge-config") {
+      bridge_config = val();
     } else {
       std::fprintf(stderr, "omni-sim: unknown option '%s'\n", a.c_str());
       Usage(stderr);
@@ -193,6 +223,21 @@ int main(int argc, char** argv) {
     Usage(stderr);
     return 2;
   }
+  if (drive == "bus" && live_url.empty()) {
+    std::fprintf(stderr, "omni-sim: --drive bus needs --live URL (the bus the commands come on)\n");
+    return 2;
+  }
+  if (!bridge_config.empty()) {
+    auto b = omni::base_bridge::LoadBaseBridgeOptions(bridge_config);
+    if (!b.ok()) {
+      std::fprintf(stderr, "omni-sim: %s\n", b.error().message.c_str());
+      return 1;
+    }
+    opt.bridge = *b;
+  }
+  if (cmd_channel.empty())
+    cmd_channel =
+        opt.bridge ? opt.bridge->cmd_channel : omni::base_bridge::BaseBridgeOptions().cmd_channel;
   omni::sim::World world = omni::sim::World::BuiltIn();
   if (!world_path.empty()) {
     auto w = omni::sim::World::Load(world_path);
@@ -237,6 +282,25 @@ int main(int argc, char** argv) {
   std::vector<omni::io::TrajectoryEntry> truth;
   const std::vector<omni::sim::Box> boxes = world.boxes();
   omni::sim::Simulator sim(std::move(world), opt);
+  // --drive bus: BASE_CMD from the bus, received as simulated time catches up with the wall
+  // clock (the run is paced to it), handed to the base at the step it arrived in.
+  std::vector<omni::base_bridge::Command> inbox;
+  if (drive == "bus") {
+    bus->Subscribe<omni::base_cmd_t>(cmd_channel, [&](const omni::base_cmd_t& m, int64_t) {
+      inbox.push_back(omni::base_bridge::FromMessage(m));
+    });
+    std::signal(SIGINT, OnSignal);
+    std::signal(SIGTERM, OnSignal);
+    sim.set_command_source([&](int64_t utime, std::vector<omni::base_bridge::Command>* cmds) {
+      const double sim_s = static_cast<double>(utime - opt.start_utime) * 1e-6;
+      std::this_thread::sleep_until(wall_start + std::chrono::duration<double>(sim_s / speed));
+      while (bus->HandleTimeout(0) > 0) {
+      }
+      cmds->insert(cmds->end(), inbox.begin(), inbox.end());
+      inbox.clear();
+      return !g_stop;
+    });
+  }
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {
         truth.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(utime), p));
@@ -257,9 +321,21 @@ int main(int argc, char** argv) {
   std::printf(
       "omni-sim: %.1f s simulated (%s), %.1f m driven, %.1f rad turned: %lld scans, %lld "
       "odometry, %lld IMU, %lld depth frames -> %s/{sim.lcmlog,truth.txt,truth_map.*}\n",
-      st.duration_s, st.tour_finished ? "tour finished" : "stopped by --duration", st.distance_m,
-      st.rotation_rad, static_cast<long long>(st.scans), static_cast<long long>(st.odometry),
-      static_cast<long long>(st.imu), static_cast<long long>(st.depth_frames), out_dir.c_str());
+      st.duration_s,
+      st.tour_finished ? "tour finished"
+      : st.stopped     ? "stopped by a signal"
+                       : "stopped by --duration",
+      st.distance_m, st.rotation_rad, static_cast<long long>(st.scans),
+      static_cast<long long>(st.odometry), static_cast<long long>(st.imu),
+      static_cast<long long>(st.depth_frames), out_dir.c_str());
+  if (drive == "bus") {
+    const int64_t bad_commands = bus->counters().decode_errors;
+    std::printf(
+        "omni-sim: driven from %s on the bus: %lld commands, %lld refused by the base, "
+        "%lld undecodable messages\n",
+        cmd_channel.c_str(), static_cast<long long>(st.commands),
+        static_cast<long long>(st.commands_rejected), static_cast<long long>(bad_commands));
+  }
   if (opt.base == omni::sim::SimOptions::Base::kFirmware) {
     static const char* kStates[] = {"BOOT", "IDLE", "RUNNING", "STOPPING", "FAULT", "ESTOP"};
     const char* state =
@@ -270,7 +346,9 @@ int main(int argc, char** argv) {
         static_cast<long long>(st.can_frames), static_cast<long long>(st.encoders),
         static_cast<long long>(st.base_status), state, st.firmware_faults, st.watchdog_trips,
         st.base_problem.empty() ? "ok" : st.base_problem.c_str());
-    if (!st.base_problem.empty() || st.firmware_faults != 0) {
+    // The watchdog and bad-command bits are warnings (a watchdog stop after the last command
+    // is the base doing its job); latched faults and an unhealthy bridge are not.
+    if (!st.base_problem.empty() || (st.firmware_faults & omni::firmware::kLatchedFaults) != 0) {
       std::fprintf(stderr, "omni-sim: the simulated base ended unhealthy (see above)\n");
       return 1;
     }

@@ -115,7 +115,9 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   const bool firmware = o_.base == SimOptions::Base::kFirmware;
   std::unique_ptr<FirmwareBase> base;
   if (firmware) {
-    base = std::make_unique<FirmwareBase>(o_.center_to_wheel_m, o_.wheel_radius_m);
+    base = std::make_unique<FirmwareBase>(
+        o_.center_to_wheel_m, o_.wheel_radius_m,
+        o_.bridge ? *o_.bridge : FirmwareBase::ShippedBridgeOptions());
     if (!base->booted(&st.base_problem)) return st;
   }
   auto base_sink = [&](const SimEvent& e) {
@@ -133,6 +135,15 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   }
   double imu_yaw = pose.theta;
   double vx_w = 0, vy_w = 0;  // commanded world velocity
+  // Driven from outside (set_command_source): the commands of this step, and for the ideal
+  // base the twist it holds, since when, and whether it is e-stopped.
+  const bool external = static_cast<bool>(command_source_);
+  const base_bridge::BaseBridgeOptions limits =
+      o_.bridge ? *o_.bridge : FirmwareBase::ShippedBridgeOptions();
+  std::vector<base_bridge::Command> arrived;
+  kinematics::BodyTwist<double> held{};
+  int64_t held_since = 0;
+  bool estopped = false;
   size_t target = 1;
   int64_t seq_scan = 0, seq_odom = 0, seq_imu = 0, seq_depth = 0;
   double next_scan = 0, next_odom = 0, next_imu = 0, next_depth = 0;
@@ -150,15 +161,21 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     const double t = static_cast<double>(step) * dt;
     utime = o_.start_utime + static_cast<int64_t>(std::llround(t * 1e6));
     if (o_.max_duration_s > 0 && t > o_.max_duration_s) break;
-    // The next waypoint not yet reached.
-    while (target < route.size()) {
+    arrived.clear();
+    if (external && !command_source_(utime, &arrived)) {
+      st.stopped = true;
+      break;
+    }
+    st.commands += static_cast<int64_t>(arrived.size());
+    // The next waypoint not yet reached (the tour's follower only).
+    while (!external && target < route.size()) {
       const Pose2& goal = route[target];
       if (std::hypot(goal.x - pose.x, goal.y - pose.y) >= o_.waypoint_tolerance_m ||
           std::abs(WrapAngle(goal.theta - pose.theta)) >= 0.1)
         break;
       ++target;
     }
-    if (target >= route.size()) {
+    if (!external && target >= route.size()) {
       st.tour_finished = true;
       break;
     }
@@ -268,23 +285,47 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       next_depth += 1.0 / o_.depth_hz;
     }
 
-    // Waypoint follower: holonomic, slowing into each waypoint, acceleration-limited.
-    const Pose2& goal = route[target];
-    const double ex = goal.x - pose.x, ey = goal.y - pose.y;
-    const double dist = std::hypot(ex, ey);
-    const double heading_err = WrapAngle(goal.theta - pose.theta);
-    const double speed = dist > 1e-9 ? std::min(o_.max_speed_m_s, 0.6 * dist + 0.05) : 0.0;
-    const double want_x = dist > 1e-9 ? speed * ex / dist : 0.0;
-    const double want_y = dist > 1e-9 ? speed * ey / dist : 0.0;
-    const double dvx = want_x - vx_w, dvy = want_y - vy_w, dv = std::hypot(dvx, dvy);
-    const double dv_max = o_.max_accel_m_s2 * dt;
-    const double k = dv > dv_max ? dv_max / dv : 1.0;
-    vx_w += k * dvx;
-    vy_w += k * dvy;
-    const double omega =
-        std::clamp(2.0 * heading_err, -o_.max_yaw_rate_rad_s, o_.max_yaw_rate_rad_s);
-    const auto cmd =
-        kinematics::WorldToBody(pose.theta, kinematics::WorldVelocity<double>{vx_w, vy_w, omega});
+    kinematics::BodyTwist<double> cmd{};
+    if (!external) {
+      // Waypoint follower: holonomic, slowing into each waypoint, acceleration-limited.
+      const Pose2& goal = route[target];
+      const double ex = goal.x - pose.x, ey = goal.y - pose.y;
+      const double dist = std::hypot(ex, ey);
+      const double heading_err = WrapAngle(goal.theta - pose.theta);
+      const double speed = dist > 1e-9 ? std::min(o_.max_speed_m_s, 0.6 * dist + 0.05) : 0.0;
+      const double want_x = dist > 1e-9 ? speed * ex / dist : 0.0;
+      const double want_y = dist > 1e-9 ? speed * ey / dist : 0.0;
+      const double dvx = want_x - vx_w, dvy = want_y - vy_w, dv = std::hypot(dvx, dvy);
+      const double dv_max = o_.max_accel_m_s2 * dt;
+      const double k = dv > dv_max ? dv_max / dv : 1.0;
+      vx_w += k * dvx;
+      vy_w += k * dvy;
+      const double omega =
+          std::clamp(2.0 * heading_err, -o_.max_yaw_rate_rad_s, o_.max_yaw_rate_rad_s);
+      cmd =
+          kinematics::WorldToBody(pose.theta, kinematics::WorldVelocity<double>{vx_w, vy_w, omega});
+    } else if (!firmware) {
+      // The ideal base takes outside commands as the bridge would: twists clamped to its
+      // limits and held for its command timeout, an e-stop until faults are cleared; the
+      // bridge's acceleration ramp is left out (the ideal base has no dynamics either).
+      for (const auto& c : arrived) {
+        if (c.mode == base_bridge::Command::kEstop) {
+          estopped = true;
+        } else if (c.mode == base_bridge::Command::kClearFaults) {
+          estopped = false;
+        } else if (c.mode != base_bridge::Command::kTwist || !std::isfinite(c.vx_m_s) ||
+                   !std::isfinite(c.vy_m_s) || !std::isfinite(c.omega_rad_s)) {
+          ++st.commands_rejected;
+        } else {
+          held = {std::clamp(c.vx_m_s, -limits.max_vx_m_s, limits.max_vx_m_s),
+                  std::clamp(c.vy_m_s, -limits.max_vy_m_s, limits.max_vy_m_s),
+                  std::clamp(c.omega_rad_s, -limits.max_omega_rad_s, limits.max_omega_rad_s)};
+          held_since = utime;
+        }
+      }
+      const bool fresh = static_cast<double>(utime - held_since) * 1e-6 <= limits.command_timeout_s;
+      if (!estopped && fresh && held_since != 0) cmd = held;
+    }
     Pose2 next;
     double true_omega = cmd.omega_rad_s;
     if (firmware) {
@@ -292,7 +333,12 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
       // its own fraction this step, which its encoder does not see.
       for (int i = 0; i < 3; ++i)
         base->SetSlip(i, std::clamp(o_.wheel_slip[i] + o_.wheel_slip_noise * n01(rng_), 0.0, 0.5));
-      base->Advance(&cmd, utime, dt, base_sink);
+      if (external) {
+        for (const auto& c : arrived) base->OnCommand(c, utime);
+        base->Advance(nullptr, utime, dt, base_sink);
+      } else {
+        base->Advance(&cmd, utime, dt, base_sink);
+      }
       next = start * base->pose();
       true_omega = WrapAngle(next.theta - pose.theta) / dt;
     } else {
@@ -342,6 +388,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     st.firmware_faults = base->firmware().fault_bits();
     st.watchdog_trips = base->firmware().counters().watchdog_trips;
     st.base_problem = base->Problem(utime);
+    if (external) st.commands_rejected = base->bridge().counters().commands_rejected;
   }
   return st;
 }

@@ -17,16 +17,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
       bridge_(options),
       heartbeat_(bus, "base_bridge", clock) {
   bus_->Subscribe<omni::base_cmd_t>(o_.cmd_channel, [this](const omni::base_cmd_t& m, int64_t) {
-    Command c;
-    c.mode = static_cast<Command::Mode>(m.mode);
-    if (m.mode != omni::base_cmd_t::MODE_TWIST && m.mode != omni::base_cmd_t::MODE_ESTOP &&
-        m.mode != omni::base_cmd_t::MODE_CLEAR_FAULTS) {
-      c.mode = static_cast<Command::Mode>(-1);
-    }
-    c.vx_m_s = m.vx_m_s;
-    c.vy_m_s = m.vy_m_s;
-    c.omega_rad_s = m.omega_rad_s;
-    bridge_.OnCommand(c, clock_->NowUtime());
+    bridge_.OnCommand(FromMessage(m), clock_->NowUtime());
   });
   const Counters* c = &bridge_.counters();
   heartbeat_.AddCounter("commands_clamped", [c] { return c->commands_clamped; });

@@ -50,4 +50,16 @@ omni::base_status_t ToMessage(const BaseStatus& s, const Counters& c) {
   return m;
 }
 
+Command FromMessage(const omni::base_cmd_t& m) {
+  Command c;
+  c.mode = static_cast<Command::Mode>(m.mode);
+  if (m.mode != omni::base_cmd_t::MODE_TWIST && m.mode != omni::base_cmd_t::MODE_ESTOP &&
+      m.mode != omni::base_cmd_t::MODE_CLEAR_FAULTS)
+    c.mode = static_cast<Command::Mode>(-1);
+  c.vx_m_s = m.vx_m_s;
+  c.vy_m_s = m.vy_m_s;
+  c.omega_rad_s = m.omega_rad_s;
+  return c;
+}
+
 }  // namespace omni::base_bridge

@@ -18,6 +18,7 @@
 #include "../tools/run.h"
 #include "omni/eval/eval.h"
 #include "omni/io/grid.h"
+#include "omni/io/trajectory_io.h"
 
 namespace omni {
 namespace {
@@ -172,6 +173,47 @@ TEST(SimPipeline, LiveModePublishesOnTheBus) {
   const int ms = std::stoi(r.output.substr(at + 13));
   EXPECT_GT(ms, 1800) << r.output;
   EXPECT_LT(ms, 10000) << r.output;
+}
+
+// --drive bus: the simulated base is driven by BASE_CMD from another process (omni-drive, as a
+// planner or a teleop would), over UDP in a private network namespace; it moves as commanded,
+// stops when the commands stop, and counts what it received.
+TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
+  {
+    const auto r = testing::Run(testing::Bin("omni-sim") + " --out " + ::testing::TempDir() +
+                                "/sim_nolive --drive bus");
+    EXPECT_EQ(r.exit_code, 2) << r.output;
+    EXPECT_NE(r.output.find("--drive bus needs --live URL"), std::string::npos) << r.output;
+  }
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = ::testing::TempDir() + "/sim_drive";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0'\n"
+      << testing::Bin("omni-sim") << " --out " << dir
+      << " --no-depth --duration 5 --drive bus --live \"$LCM_DEFAULT_URL\" & s=$!\n"
+      << "sleep 1\n"
+      << testing::Bin("omni-drive") << " --vx 0.3 --duration 2 || exit 4\n"
+      << "wait $s\n";
+  }
+  const auto r = testing::Run("timeout 60 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("sent 40 twists"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("driven from BASE_CMD on the bus: 41 commands, 0 refused"),
+            std::string::npos)
+      << r.output;
+  auto truth = io::ReadTrajectory(dir + "/truth.txt");
+  ASSERT_TRUE(truth.ok()) << truth.error().message;
+  ASSERT_GE(truth->entries.size(), 45u);
+  const Pose2 first = truth->entries.front().pose2();
+  const Pose2 last = truth->entries.back().pose2();
+  // 2 s at 0.3 m/s straight ahead (the process start-up and the bus add jitter, not distance).
+  EXPECT_NEAR(last.x - first.x, 0.6, 0.15) << r.output;
+  EXPECT_NEAR(last.y - first.y, 0.0, 0.05) << r.output;
 }
 
 }  // namespace

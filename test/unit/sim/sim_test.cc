@@ -3,6 +3,7 @@
 // drifting from the truth the way slipping wheels or noisy encoders make it), the firmware base
 // on its own (odometry through the bridge, slip, the watchdog stop), determinism by seed, and
 // world-file errors.
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -271,6 +272,154 @@ TEST(FirmwareBase, OdometryThroughTheBridgeSlipAndTheWatchdogStop) {
     EXPECT_GT(std::abs(base.pose().theta), 0.01);
     EXPECT_GT(std::hypot(odom.x_m - base.pose().x, odom.y_m - base.pose().y), 0.02);
   }
+}
+
+// Driven from outside (BASE_CMD from the bus in omni-sim --drive bus): a schedule of commands
+// by simulated time, handed to the simulator as they fall due; the run ends at `end_s`.
+struct Scheduled {
+  double at_s;
+  base_bridge::Command cmd;
+};
+
+Recorded RunDriven(SimOptions o, const std::vector<Scheduled>& schedule, double end_s) {
+  o.depth = false;
+  o.wheel_slip_noise = 0;
+  Simulator sim(World::BuiltIn(), o);
+  size_t next = 0;
+  sim.set_command_source([&](int64_t utime, std::vector<base_bridge::Command>* cmds) {
+    const double t = static_cast<double>(utime - o.start_utime) * 1e-6;
+    for (; next < schedule.size() && schedule[next].at_s <= t; ++next)
+      cmds->push_back(schedule[next].cmd);
+    return t < end_s;
+  });
+  Recorded rec;
+  rec.stats = sim.Run([&](const SimEvent& e) { rec.events.push_back(e); },
+                      [&](int64_t, int64_t utime, const Pose2& p) {
+                        rec.truth.push_back(p);
+                        rec.truth_utime.push_back(utime);
+                      });
+  return rec;
+}
+
+// A twist every 50 ms (20 Hz, as `omni drive` sends them) over [from_s, to_s).
+void Twists(std::vector<Scheduled>* s, double from_s, double to_s, double vx, double vy,
+            double omega) {
+  for (double t = from_s; t < to_s - 1e-9; t += 0.05) {
+    base_bridge::Command c;
+    c.vx_m_s = vx;
+    c.vy_m_s = vy;
+    c.omega_rad_s = omega;
+    s->push_back({t, c});
+  }
+}
+
+base_bridge::Command Mode(base_bridge::Command::Mode m) {
+  base_bridge::Command c;
+  c.mode = m;
+  return c;
+}
+
+// The pose at the scan closest to simulated time t (scans every 0.1 s from t = 0).
+Pose2 At(const Recorded& r, double t) {
+  const size_t i = std::min(r.truth.size() - 1, static_cast<size_t>(std::lround(t * 10)));
+  return r.truth[i];
+}
+
+class SimulatorDriven : public ::testing::TestWithParam<SimOptions::Base> {};
+
+// Commands move the base as a robot's would, and it stops by itself when they stop: 0.3 m/s
+// ahead for 2 s, then silence; the base starts at the tour's first pose facing +x.
+TEST_P(SimulatorDriven, MovesWhereTheCommandsSayAndStopsWhenTheyStop) {
+  SimOptions o;
+  o.base = GetParam();
+  std::vector<Scheduled> s;
+  Twists(&s, 1.0, 3.0, 0.3, 0.0, 0.0);
+  const Recorded r = RunDriven(o, s, 6.0);
+  EXPECT_TRUE(r.stats.stopped);
+  EXPECT_FALSE(r.stats.tour_finished);
+  EXPECT_EQ(r.stats.commands, 40);
+  EXPECT_EQ(r.stats.commands_rejected, 0);
+  ASSERT_EQ(r.truth.size(), 60u);
+  const Pose2 start = At(r, 0), before = At(r, 0.9), end = At(r, 5.9);
+  EXPECT_LT(std::hypot(before.x - start.x, before.y - start.y), 1e-6);  // nothing commanded
+  // 2 s at 0.3 m/s, plus what the bridge's timeout (0.3 s) and ramps add and the slip takes.
+  EXPECT_NEAR(end.x - start.x, 0.6, 0.12);
+  EXPECT_NEAR(end.y - start.y, 0.0, 0.03);
+  EXPECT_NEAR(end.theta, start.theta, 0.03);
+  // Stopped within a second of the last command (its timeout, the ramp, the watchdog).
+  const Pose2 stopped = At(r, 4.0);
+  EXPECT_LT(std::hypot(end.x - stopped.x, end.y - stopped.y), 1e-3);
+  if (o.base == SimOptions::Base::kFirmware) {
+    EXPECT_EQ(r.stats.firmware_state, static_cast<int>(firmware::State::kIdle));
+    EXPECT_EQ(r.stats.firmware_faults & firmware::kLatchedFaults, 0u);
+    EXPECT_EQ(r.stats.watchdog_trips, 1u);
+    EXPECT_EQ(r.stats.base_problem, "");
+  }
+}
+
+// An e-stop holds the base whatever twists follow, until faults are cleared; commands the base
+// cannot take (an unknown mode, a NaN speed) are refused and counted, and change nothing.
+TEST_P(SimulatorDriven, EstopHoldsUntilClearedAndBadCommandsAreRefused) {
+  SimOptions o;
+  o.base = GetParam();
+  std::vector<Scheduled> s;
+  base_bridge::Command nan_twist;
+  nan_twist.vx_m_s = std::nan("");
+  s.push_back({0.5, nan_twist});
+  s.push_back({0.5, Mode(static_cast<base_bridge::Command::Mode>(7))});
+  s.push_back({0.6, Mode(base_bridge::Command::kEstop)});
+  Twists(&s, 1.0, 2.0, 0.0, 0.3, 0.0);  // ignored: e-stopped
+  s.push_back({2.5, Mode(base_bridge::Command::kClearFaults)});
+  Twists(&s, 3.0, 4.0, 0.0, 0.3, 0.0);  // sideways, as only an omni base can
+  std::sort(s.begin(), s.end(),
+            [](const Scheduled& a, const Scheduled& b) { return a.at_s < b.at_s; });
+  const Recorded r = RunDriven(o, s, 6.0);
+  EXPECT_EQ(r.stats.commands_rejected, 2);
+  const Pose2 start = At(r, 0), cleared = At(r, 2.9), end = At(r, 5.9);
+  EXPECT_LT(std::hypot(cleared.x - start.x, cleared.y - start.y), 1e-3);
+  EXPECT_NEAR(end.y - start.y, 0.3, 0.08);
+  EXPECT_NEAR(end.x - start.x, 0.0, 0.03);
+  if (o.base == SimOptions::Base::kFirmware) {
+    EXPECT_EQ(r.stats.firmware_faults & firmware::kLatchedFaults, 0u);
+    EXPECT_EQ(r.stats.base_problem, "");
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Bases, SimulatorDriven,
+                         ::testing::Values(SimOptions::Base::kFirmware, SimOptions::Base::kIdeal),
+                         [](const ::testing::TestParamInfo<SimOptions::Base>& i) {
+                           return i.param == SimOptions::Base::kFirmware ? "Firmware" : "Ideal";
+                         });
+
+// The simulated bridge runs with the limits, timing, covariances and channels the shipped
+// config/base_bridge.yaml gives the robot's bridge (the geometry is the simulated base's).
+TEST(FirmwareBase, ShippedBridgeOptionsAreThoseOfTheShippedConfig) {
+  auto shipped = base_bridge::LoadBaseBridgeOptions(OMNI_SOURCE_DIR "/config/base_bridge.yaml");
+  ASSERT_TRUE(shipped.ok()) << shipped.error().message;
+  const base_bridge::BaseBridgeOptions a = FirmwareBase::ShippedBridgeOptions(), &b = *shipped;
+  EXPECT_EQ(a.node_id, b.node_id);
+  EXPECT_EQ(a.feedback_period_s, b.feedback_period_s);
+  EXPECT_EQ(a.max_vx_m_s, b.max_vx_m_s);
+  EXPECT_EQ(a.max_vy_m_s, b.max_vy_m_s);
+  EXPECT_EQ(a.max_omega_rad_s, b.max_omega_rad_s);
+  EXPECT_EQ(a.max_linear_accel_m_s2, b.max_linear_accel_m_s2);
+  EXPECT_EQ(a.max_angular_accel_rad_s2, b.max_angular_accel_rad_s2);
+  EXPECT_EQ(a.send_rate_hz, b.send_rate_hz);
+  EXPECT_EQ(a.command_timeout_s, b.command_timeout_s);
+  EXPECT_EQ(a.firmware_heartbeat_period_s, b.firmware_heartbeat_period_s);
+  EXPECT_EQ(a.missed_heartbeats_for_silent, b.missed_heartbeats_for_silent);
+  EXPECT_EQ(a.reconnect_period_s, b.reconnect_period_s);
+  EXPECT_EQ(a.status_rate_hz, b.status_rate_hz);
+  EXPECT_EQ(a.odom_var_xy_per_m, b.odom_var_xy_per_m);
+  EXPECT_EQ(a.odom_var_yaw_per_rad, b.odom_var_yaw_per_rad);
+  EXPECT_EQ(a.twist_var_linear, b.twist_var_linear);
+  EXPECT_EQ(a.twist_var_angular, b.twist_var_angular);
+  EXPECT_EQ(a.odom_frame, b.odom_frame);
+  EXPECT_EQ(a.base_frame, b.base_frame);
+  EXPECT_EQ(a.cmd_channel, b.cmd_channel);
+  EXPECT_EQ(a.odom_channel, b.odom_channel);
+  EXPECT_EQ(a.encoders_channel, b.encoders_channel);
+  EXPECT_EQ(a.status_channel, b.status_channel);
 }
 
 TEST(Simulator, SameSeedSameBytesOtherSeedOtherNoise) {

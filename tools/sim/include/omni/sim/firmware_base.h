@@ -33,11 +33,24 @@ struct FirmwareBaseStats {
 
 class FirmwareBase {
  public:
-  // Boots the firmware with the simulated base's geometry (plant and bridge share it).
-  FirmwareBase(double center_to_wheel_m, double wheel_radius_m);
+  // The bridge's limits, timing, odometry covariances and channels as config/base_bridge.yaml
+  // ships them (a test checks that they agree), for a base of the given geometry.
+  static base_bridge::BaseBridgeOptions ShippedBridgeOptions();
+
+  // Boots the firmware with the simulated base's geometry. The bridge runs with `bridge`'s
+  // limits, timing, covariances and channels; its geometry (and encoder resolution) is always
+  // the plant's, whatever `bridge` says, since those describe the simulated base, not a robot.
+  FirmwareBase(double center_to_wheel_m, double wheel_radius_m,
+               const base_bridge::BaseBridgeOptions& bridge = ShippedBridgeOptions());
 
   // False (with the reason) if the firmware refused its parameters at boot.
   bool booted(std::string* why) const;
+
+  // A command from the host (BASE_CMD: twist, e-stop, clear faults) arriving at now_us, for a
+  // caller that drives the base itself; Advance(nullptr, ...) then steps without a new one.
+  void OnCommand(const base_bridge::Command& cmd, int64_t now_us) {
+    bridge_.OnCommand(cmd, now_us);
+  }
 
   // Advances dt_s of simulated time from now_us with the host's twist command issued at now_us
   // (nullptr: no command, as when the planner goes quiet; the bridge then ramps down and stops

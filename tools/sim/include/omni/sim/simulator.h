@@ -28,10 +28,12 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "omni/base_bridge/base_bridge.h"
 #include "omni/common/geometry.h"
 #include "omni/common/kinematics.h"
 #include "omni/sim/event.h"
@@ -88,12 +90,19 @@ struct SimOptions {
   double cam_tilt_rad = 0.0;  // positive looks down
   double depth_min_m = 0.4, depth_max_m = 8.0;
   double depth_noise_per_m2 = 0.0012;  // sigma = k * z^2 (Kinect v1 order of magnitude)
+  // The base bridge's limits, timing, covariances and channels (nullopt: as
+  // config/base_bridge.yaml ships them); its geometry is always the simulated base's. The
+  // ideal base applies the same speed limits and command timeout to outside commands.
+  std::optional<base_bridge::BaseBridgeOptions> bridge;
 };
 
 struct SimStats {
   int64_t scans = 0, odometry = 0, imu = 0, depth_frames = 0;
   double duration_s = 0, distance_m = 0, rotation_rad = 0;
   bool tour_finished = false;
+  bool stopped = false;  // the command source ended the run
+  // Commands from the command source, and those the base refused (unknown mode, non-finite).
+  int64_t commands = 0, commands_rejected = 0;
   // Firmware base only: what crossed the simulated CAN bus, the other bridge messages, and
   // the base's state at the end (firmware state and fault bits as in base_status_t, the
   // bridge's health text, "" when all is well).
@@ -112,8 +121,20 @@ class Simulator {
   static std::vector<Pose2> BuiltInTour();
   void set_tour(std::vector<Pose2> waypoints) { tour_ = std::move(waypoints); }
 
-  // Runs to the end of the tour (or max_duration_s), handing every message to `sink` in time
-  // order; `truth` gets the true base pose at every scan (scan index, utime, pose).
+  // Driving the base from outside instead of the tour's follower (BASE_CMD from the bus, a
+  // test): called at every physics step, before it, with the simulated time; appends the
+  // commands that arrived since the last call to *commands, oldest first, and returns false to
+  // end the run. The base starts at the tour's first pose and does what the commands say, as
+  // the robot's would: a twist is held for the bridge's command timeout, then the base ramps to
+  // a stop (the firmware base also parks its motors when the bridge goes quiet); an e-stop
+  // holds it until a clear-faults command.
+  using CommandSource =
+      std::function<bool(int64_t utime, std::vector<base_bridge::Command>* commands)>;
+  void set_command_source(CommandSource source) { command_source_ = std::move(source); }
+
+  // Runs to the end of the tour (or max_duration_s, or until the command source ends it), handing
+  // every message to `sink` in time order; `truth` gets the true base pose at every scan (scan
+  // index, utime, pose).
   SimStats Run(const std::function<void(const SimEvent&)>& sink,
                const std::function<void(int64_t, int64_t, const Pose2&)>& truth);
 
@@ -128,6 +149,7 @@ class Simulator {
   World world_;
   SimOptions o_;
   std::vector<Pose2> tour_;
+  CommandSource command_source_;
   std::mt19937_64 rng_;
   double measured_gyro_ = 0;  // last gyro z reading, rad/s
 };
