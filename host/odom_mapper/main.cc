@@ -9,6 +9,7 @@
 #include "omni/bus/channels.h"
 #include "omni/bus/convert.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
@@ -25,7 +26,8 @@ void Usage(std::FILE* f) {
                "  Maps LIDAR_SCAN at the WHEEL_ODOM pose of each scan (no correction), publishes\n"
                "  GRID_ODOM and HEARTBEAT, and on SIGINT/SIGTERM (or after S seconds without\n"
                "  messages once data has arrived) writes DIR/odom_map.{pgm,yaml,png},\n"
-               "  DIR/odom_trajectory.{txt,png} (default DIR: out).\n");
+               "  DIR/odom_trajectory.{txt,png} (default DIR: out); while mapping, on a MAP_SAVE\n"
+               "  request (omni save-map) too.\n");
 }
 
 }  // namespace
@@ -114,6 +116,32 @@ int main(int argc, char** argv) {
   hb.AddCounter("odom_out_of_order", [&] { return c.odom_out_of_order; });
   hb.AddCounter("odom_invalid", [&] { return c.odom_invalid; });
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
+  // DIR/odom_map.{pgm,yaml,png} and DIR/odom_trajectory.{txt,png}, at exit and on a MAP_SAVE
+  // request while mapping.
+  auto write_maps = [&](const std::string& dir) -> omni::Status {
+    const auto map = mapper.Map();
+    if (map.width == 0)
+      return omni::MakeError(omni::ErrorCode::kNotFound, "no scan was mapped yet");
+    const std::string base = dir + "/odom_map";
+    omni::Status s = omni::io::WriteMapServer(map, base);
+    if (s.ok()) s = omni::io::WritePng(base + ".png", omni::io::RenderGrid(map, {}, 1));
+    omni::io::Polyline line;
+    std::vector<omni::io::TrajectoryEntry> entries;
+    for (size_t i = 0; i < mapper.trajectory().size(); ++i) {
+      const auto& m = mapper.trajectory()[i];
+      line.poses.push_back(m.base_pose);
+      const int64_t index = m.seq >= 0 ? m.seq : static_cast<int64_t>(i);
+      entries.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(m.utime), m.base_pose));
+    }
+    if (s.ok())
+      s = omni::io::WritePng(dir + "/odom_trajectory.png", omni::io::RenderGrid(map, {line}, 2));
+    if (s.ok())
+      s = omni::io::WriteTrajectory2D(
+          dir + "/odom_trajectory.txt", entries,
+          "scan_seq timestamp x y theta (raw wheel odometry at each mapped scan)");
+    return s;
+  };
+  omni::bus::MapSaveService saver(&bus, "odom_mapper", out_dir, &clock, &hb);
   omni::bus::InstallStopSignals();
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << ")";
@@ -125,6 +153,7 @@ int main(int argc, char** argv) {
       bus, loop, [] { return 0; },
       [&] {
         hb.Tick();
+        saver.Serve(write_maps);
         const int64_t now = omni::MonotonicMicros();
         if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
             c.scans_mapped > 0) {
@@ -146,23 +175,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
-  const std::string base = out_dir + "/odom_map";
-  omni::Status s = omni::io::WriteMapServer(map, base);
-  if (s.ok()) s = omni::io::WritePng(base + ".png", omni::io::RenderGrid(map, {}, 1));
-  omni::io::Polyline line;
-  std::vector<omni::io::TrajectoryEntry> entries;
-  for (size_t i = 0; i < mapper.trajectory().size(); ++i) {
-    const auto& m = mapper.trajectory()[i];
-    line.poses.push_back(m.base_pose);
-    const int64_t index = m.seq >= 0 ? m.seq : static_cast<int64_t>(i);
-    entries.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(m.utime), m.base_pose));
-  }
-  if (s.ok())
-    s = omni::io::WritePng(out_dir + "/odom_trajectory.png", omni::io::RenderGrid(map, {line}, 2));
-  if (s.ok())
-    s = omni::io::WriteTrajectory2D(
-        out_dir + "/odom_trajectory.txt", entries,
-        "scan_seq timestamp x y theta (raw wheel odometry at each mapped scan)");
+  const omni::Status s = write_maps(out_dir);
   if (!s.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", s.message().c_str());
     return 1;
@@ -176,6 +189,6 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.scans_lost), static_cast<long long>(c.scans_no_pose),
       static_cast<long long>(c.scans_too_few_beams), static_cast<long long>(c.invalid_beams),
       static_cast<long long>(bus.counters().decode_errors.load()), map.width, map.height,
-      map.resolution_m, base.c_str(), out_dir.c_str());
+      map.resolution_m, (out_dir + "/odom_map").c_str(), out_dir.c_str());
   return 0;
 }

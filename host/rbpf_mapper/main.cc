@@ -7,6 +7,7 @@
 #include <string>
 
 #include "omni/bus/bus.h"
+#include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
 #include "omni/common/config.h"
 #include "omni/common/log.h"
@@ -22,7 +23,8 @@ void Usage(std::FILE* f) {
                "  RBPF SLAM on the bus: LIDAR_SCAN + WHEEL_ODOM (+ IMU with use_imu) ->\n"
                "  POSE_RBPF at every scan, GRID_RBPF every grid_publish_interval_s, HEARTBEAT.\n"
                "  On SIGINT/SIGTERM, when a file:// log ends, or S seconds after the last\n"
-               "  message, writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt (default out).\n");
+               "  message, writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt (default out);\n"
+               "  while mapping, on a MAP_SAVE request (omni save-map) too.\n");
 }
 
 }  // namespace
@@ -94,10 +96,15 @@ int main(int argc, char** argv) {
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << "), " << opt.particles << " particles";
   node.set_deferred(true);
+  omni::bus::MapSaveService saver(&bus, "rbpf_mapper", out_dir, &clock, &node.heartbeat());
   omni::bus::NodeLoopOptions loop;
   loop.idle_exit_s = idle_exit_s;
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
-      bus, loop, [&] { return node.ProcessReady(1); }, [&] { node.Tick(); });
+      bus, loop, [&] { return node.ProcessReady(1); },
+      [&] {
+        node.Tick();
+        saver.Serve([&](const std::string& dir) { return node.SaveMaps(dir); });
+      });
   LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); writing the map";
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   const omni::Status s = node.WriteOutputs(out_dir);

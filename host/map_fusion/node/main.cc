@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "omni/bus/bus.h"
+#include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
@@ -26,7 +27,8 @@ void Usage(std::FILE* f) {
       "  On the bus: fuses the latest GRID_PG, GRID_RBPF and GRID_OCTO (config: grid_channels)\n"
       "  every fuse_interval_s when one changed, publishes GRID_FUSED and HEARTBEAT, and on\n"
       "  SIGINT/SIGTERM (or after S idle seconds) writes DIR/fused_map.{pgm,yaml,png} and\n"
-      "  DIR/fusion.json (alignment and vote counts per map).\n"
+      "  DIR/fusion.json (alignment and vote counts per map); on a MAP_SAVE request (omni\n"
+      "  save-map) fuses and writes them while running.\n"
       "  --fuse: the same on ROS map_server files (e.g. the mappers' map.yaml); --base N: the\n"
       "  N-th file (1-based) is the base, the others are aligned onto it (default: the first).\n");
 }
@@ -132,10 +134,15 @@ int main(int argc, char** argv) {
   std::string chans;
   for (const auto& c : opt.grid_channels) chans += (chans.empty() ? "" : " + ") + c;
   LOG_INFO << "listening on " << chans << " (bus " << (url.empty() ? "default" : url) << ")";
+  omni::bus::MapSaveService saver(&bus, "map_fusion", out_dir, &clock, &node.heartbeat());
   omni::bus::NodeLoopOptions loop;
   loop.idle_exit_s = idle_exit_s;
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
-      bus, loop, [] { return 0; }, [&] { node.Tick(); });
+      bus, loop, [] { return 0; },
+      [&] {
+        node.Tick();
+        saver.Serve([&](const std::string& dir) { return node.WriteOutputs(dir); });
+      });
   LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); fusing and writing the map";
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   node.heartbeat().Tick(true);

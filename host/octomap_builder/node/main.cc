@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <string>
 
+#include "omni/bus/map_save.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/octomap_builder/depth_io.h"
@@ -25,9 +26,9 @@ void Usage(std::FILE* f) {
       "  mount from the config), into an OctoMap; publishes OCTOMAP and GRID_OCTO and a\n"
       "  HEARTBEAT with frame counters; writes DIR/map.{bt,ot}, DIR/grid.{pgm,yaml,png},\n"
       "  DIR/view.png (with color.enabled also DIR/map_color.ot, a ColorOcTree coloured from\n"
-      "  the RGB frames, and DIR/view_color.png) every save interval and on SIGINT/SIGTERM (or\n"
-      "  after S seconds\n"
-      "  without messages once data has arrived). Default config:\n"
+      "  the RGB frames, and DIR/view_color.png) every save interval, on a MAP_SAVE request\n"
+      "  (omni save-map) and on SIGINT/SIGTERM (or after S seconds without messages once data\n"
+      "  has arrived). Default config:\n"
       "  config/octomap_builder.yaml; DIR overrides output.dir.\n");
 }
 
@@ -79,6 +80,8 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnCloudRequest);
+  omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
+                                  &node.heartbeat());
   LOG_INFO << "listening on " << opt->depth_channel << " + " << opt->PoseChannel()
            << (opt->color ? " + " + opt->color_channel : std::string());
   int64_t last_msg_us = 0;
@@ -91,6 +94,7 @@ int main(int argc, char** argv) {
     const int64_t now = omni::MonotonicMicros();
     if (r > 0) last_msg_us = now;
     node.Tick(now);
+    saver.Serve([&](const std::string& dir) { return node.SaveOutputs(dir); });
     if (g_write_cloud) {
       g_write_cloud = 0;
       if (!opt->keep_cloud) {

@@ -176,33 +176,29 @@ bool OctomapNode::PublishGrid() {
   return bus_->Publish(options_.grid_channel, msg);
 }
 
-Status OctomapNode::SaveOutputs() {
+Status OctomapNode::SaveOutputs(const std::string& dir) const {
   std::error_code ec;
-  std::filesystem::create_directories(options_.out_dir, ec);
-  if (ec)
-    return MakeError(ErrorCode::kIo, "cannot create " + options_.out_dir + ": " + ec.message());
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return MakeError(ErrorCode::kIo, "cannot create " + dir + ": " + ec.message());
   const octomap::OcTree& tree = pipeline_.builder().tree();
-  if (Status s = SaveTree(tree, options_.out_dir + "/map"); !s.ok()) return s;
+  if (Status s = SaveTree(tree, dir + "/map"); !s.ok()) return s;
   auto grid = ProjectToGrid(tree, options_.grid);
   if (!grid.ok()) return grid.error();
   if (grid->width > 0) {
-    if (Status s = io::WriteMapServer(*grid, options_.out_dir + "/grid"); !s.ok()) return s;
-    if (Status s = io::WritePng(options_.out_dir + "/grid.png", io::RenderGrid(*grid)); !s.ok())
-      return s;
+    if (Status s = io::WriteMapServer(*grid, dir + "/grid"); !s.ok()) return s;
+    if (Status s = io::WritePng(dir + "/grid.png", io::RenderGrid(*grid)); !s.ok()) return s;
   }
-  if (Status s =
-          io::WritePng(options_.out_dir + "/view.png", RenderTopView(tree, options_.grid.up));
-      !s.ok())
+  if (Status s = io::WritePng(dir + "/view.png", RenderTopView(tree, options_.grid.up)); !s.ok())
     return s;
   if (const octomap::ColorOcTree* color = pipeline_.builder().color_tree()) {
-    if (Status s = SaveColorTree(*color, options_.out_dir + "/map_color.ot"); !s.ok()) return s;
-    if (Status s = io::WritePng(options_.out_dir + "/view_color.png",
-                                RenderTopViewColor(*color, options_.grid.up));
+    if (Status s = SaveColorTree(*color, dir + "/map_color.ot"); !s.ok()) return s;
+    if (Status s =
+            io::WritePng(dir + "/view_color.png", RenderTopViewColor(*color, options_.grid.up));
         !s.ok())
       return s;
   }
   if (options_.keep_cloud)
-    return WritePcd(options_.out_dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true);
+    return WritePcd(dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true);
   return Status::Ok();
 }
 

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "omni/bus/bus.h"
+#include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
 #include "omni/common/log.h"
 #include "omni/common/time.h"
@@ -24,7 +25,7 @@ void Usage(std::FILE* f) {
       "  TRAJECTORY_PG and GRID_PG at the intervals of the config's `node` section, HEARTBEAT.\n"
       "  On SIGINT/SIGTERM, when a file:// log ends, or S seconds after the last message,\n"
       "  writes DIR/trajectory.txt, map.{pgm,yaml,png}, map_trajectory.png, graph.g2o and\n"
-      "  stats.json (default DIR: out).\n"
+      "  stats.json (default DIR: out); while mapping, on a MAP_SAVE request (omni save-map) too.\n"
       "  --config FILE   config/pose_graph_mapper.yaml form; default: built-in defaults\n");
 }
 
@@ -102,18 +103,26 @@ int main(int argc, char** argv) {
            << (url.empty() ? "default" : url) << "), window of " << slam_opt.window_size
            << " keyframes";
   node.set_deferred(true);
+  auto run_info = [&] {
+    omni::pgm::SlamRunInfo info;
+    info.system = "pose_graph_mapper";
+    info.input = url.empty() ? "bus (default url)" : url;
+    info.window_size = slam_opt.window_size;
+    info.wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
+    return info;
+  };
+  omni::bus::MapSaveService saver(&bus, "pose_graph_mapper", out_dir, &clock, &node.heartbeat());
   omni::bus::NodeLoopOptions loop;
   loop.idle_exit_s = idle_exit_s;
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
-      bus, loop, [&] { return node.ProcessReady(1); }, [&] { node.Tick(); });
+      bus, loop, [&] { return node.ProcessReady(1); },
+      [&] {
+        node.Tick();
+        saver.Serve([&](const std::string& dir) { return node.SaveMaps(dir, run_info()); });
+      });
   LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); optimising and writing the map";
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
-  omni::pgm::SlamRunInfo info;
-  info.system = "pose_graph_mapper";
-  info.input = url.empty() ? "bus (default url)" : url;
-  info.window_size = slam_opt.window_size;
-  info.wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
-  const omni::Status s = node.WriteOutputs(out_dir, info);
+  const omni::Status s = node.WriteOutputs(out_dir, run_info());
   if (!s.ok()) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", s.message().c_str());
     return 1;

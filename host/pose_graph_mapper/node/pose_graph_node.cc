@@ -290,6 +290,10 @@ Status PoseGraphNode::WriteOutputs(const std::string& dir, SlamRunInfo info) {
   PublishTrajectory();
   PublishGrid();
   heartbeat_.Tick(true);
+  return SaveMaps(dir, std::move(info));
+}
+
+Status PoseGraphNode::SaveMaps(const std::string& dir, SlamRunInfo info) const {
   info.grid_resolution_m = o_.grid_resolution_m;
   info.decode_errors = bus_->counters().decode_errors.load();
   info.extra.emplace_back("scans_lost", scans_lost_);

@@ -186,6 +186,10 @@ Status RbpfNode::WriteOutputs(const std::string& dir) {
   Flush();
   PublishGrid();
   heartbeat_.Tick(true);
+  return SaveMaps(dir);
+}
+
+Status RbpfNode::SaveMaps(const std::string& dir) const {
   const io::GridMap map = slam_.BestMap();
   if (map.width == 0)
     return MakeError(ErrorCode::kNotFound, "no scan was mapped: nothing to write to " + dir);

@@ -216,5 +216,60 @@ TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
   EXPECT_NEAR(last.y - first.y, 0.0, 0.05) << r.output;
 }
 
+// Map saving on request: while the simulator's log is replayed into the mappers over UDP (in a
+// private network namespace), `omni-save-map` asks every mapper for its maps; each answers and
+// its files are there while it keeps mapping, and it still writes its own at the end. A request
+// for a process that is not there gets no answer (exit 3).
+TEST(SimPipeline, MappersSaveTheirMapsOnRequestWhileMapping) {
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = ::testing::TempDir() + "/sim_save";
+  std::filesystem::remove_all(dir);
+  Simulate(dir, "--duration 12 --no-depth");
+  const std::string cfg = " --config " OMNI_SOURCE_DIR "/config/";
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304'\n"
+      << testing::Bin("rbpf_mapper") << cfg << "rbpf_mapper.yaml --out " << dir
+      << "/rbpf --idle-exit 2 &\n"
+      << testing::Bin("pose_graph_mapper") << cfg << "pose_graph_mapper.yaml --out " << dir
+      << "/pg --idle-exit 2 &\n"
+      << testing::Bin("odom_mapper") << cfg << "odom_mapper.yaml --out " << dir
+      << "/odom --idle-exit 2 &\n"
+      << "sleep 0.5\n"
+      << testing::Bin("omni-replay") << " " << dir << "/sim.lcmlog --speed 2 >/dev/null & r=$!\n"
+      << "sleep 3\n"
+      << testing::Bin("omni-save-map") << " --dir " << dir << "/mid --wait 20; echo \"all: $?\"\n"
+      << testing::Bin("omni-save-map") << " --process nobody --wait 0.5; echo \"nobody: $?\"\n"
+      << "wait\n";
+  }
+  const auto r = testing::Run("timeout 120 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("all: 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nobody: 3"), std::string::npos) << r.output;
+  for (const char* p : {"rbpf_mapper", "pose_graph_mapper", "odom_mapper"})
+    EXPECT_NE(r.output.find(std::string(p) + ": saved: maps written to " + dir + "/mid/" + p),
+              std::string::npos)
+        << p << ": " << r.output;
+  // Mid-run maps: part of the run, so fewer trajectory lines than at the end.
+  auto lines = [](const std::string& path) {
+    std::ifstream f(path);
+    int n = 0;
+    for (std::string l; std::getline(f, l);) n += !l.empty() && l[0] != '#';
+    return n;
+  };
+  for (const char* m : {"/mid/rbpf_mapper/map.yaml", "/mid/pose_graph_mapper/map.yaml",
+                        "/mid/pose_graph_mapper/graph.g2o", "/mid/odom_mapper/odom_map.yaml",
+                        "/rbpf/map.yaml", "/pg/map.yaml", "/odom/odom_map.yaml"})
+    EXPECT_TRUE(std::filesystem::exists(dir + m)) << m << "\n" << r.output;
+  const int mid = lines(dir + "/mid/pose_graph_mapper/trajectory.txt");
+  const int end = lines(dir + "/pg/trajectory.txt");
+  EXPECT_GT(mid, 10);
+  EXPECT_LT(mid, end);
+  EXPECT_EQ(end, 120) << "every scan of the 12 s log, after the mid-run save";
+  EXPECT_LT(lines(dir + "/mid/rbpf_mapper/trajectory.txt"), lines(dir + "/rbpf/trajectory.txt"));
+}
+
 }  // namespace
 }  // namespace omni

@@ -2,12 +2,18 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <set>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
 #include "omni/bus/heartbeat.h"
+#include "omni/bus/map_save.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/map_save_reply_t.hpp"
+#include "omni/map_save_request_t.hpp"
 #include "omni/pose2d_t.hpp"
 
 namespace omni::bus {
@@ -88,6 +94,105 @@ TEST(Bus, HeartbeatCarriesCounters) {
   EXPECT_GT(got[1].rss_mb, 0.f);
 }
 
+// A map save request reaches the processes it names (or all), each writes where it was asked
+// (its --out by default; DIR/<process> when every mapper is asked) and answers with the request's
+// number; a folder that cannot be made and a failed write are answered as failures and counted.
+TEST(MapSave, RequestsAreServedAnsweredAndCounted) {
+  auto bus = Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok());
+  ManualClock clock(5'000'000);
+  Heartbeat hb(bus->get(), "rbpf_mapper", &clock);
+  const std::string tmp = ::testing::TempDir() + "/map_save_test";
+  std::filesystem::remove_all(tmp);
+  MapSaveService rbpf(bus->get(), "rbpf_mapper", tmp + "/out/rbpf", &clock, &hb);
+  MapSaveService pg(bus->get(), "pose_graph_mapper", tmp + "/out/pg", &clock);
+  std::vector<omni::map_save_reply_t> replies;
+  (*bus)->Subscribe<omni::map_save_reply_t>(
+      kMapSaveReplyChannel,
+      [&](const omni::map_save_reply_t& m, int64_t) { replies.push_back(m); });
+  std::vector<std::string> rbpf_dirs, pg_dirs;
+  Status pg_result = Status::Ok();
+  auto serve = [&] {
+    Pump(**bus);
+    rbpf.Serve([&](const std::string& d) {
+      rbpf_dirs.push_back(d);
+      return Status::Ok();
+    });
+    pg.Serve([&](const std::string& d) {
+      pg_dirs.push_back(d);
+      return pg_result;
+    });
+    Pump(**bus);
+  };
+  auto request = [&](int64_t seq, const std::string& process, const std::string& dir) {
+    omni::map_save_request_t r{};
+    r.seq = seq;
+    r.process = process;
+    r.directory = dir;
+    ASSERT_TRUE((*bus)->Publish(kMapSaveChannel, r));
+  };
+  // One process, its own folder.
+  request(1, "rbpf_mapper", tmp + "/a");
+  serve();
+  ASSERT_EQ(replies.size(), 1u);
+  EXPECT_EQ(replies[0].seq, 1);
+  EXPECT_EQ(replies[0].process, "rbpf_mapper");
+  EXPECT_TRUE(replies[0].ok);
+  EXPECT_EQ(replies[0].directory, tmp + "/a");
+  EXPECT_EQ(replies[0].utime, 5'000'000);
+  EXPECT_TRUE(std::filesystem::is_directory(tmp + "/a")) << "the folder is made first";
+  EXPECT_TRUE(pg_dirs.empty());
+  // Every mapper: each in its own subfolder; the pose graph's write fails.
+  pg_result = MakeError(ErrorCode::kIo, "disk full");
+  request(2, "", tmp + "/all");
+  serve();
+  ASSERT_EQ(replies.size(), 3u);
+  ASSERT_EQ(rbpf_dirs.size(), 2u);
+  EXPECT_EQ(rbpf_dirs[1], tmp + "/all/rbpf_mapper");
+  ASSERT_EQ(pg_dirs.size(), 1u);
+  EXPECT_EQ(pg_dirs[0], tmp + "/all/pose_graph_mapper");
+  for (size_t i = 1; i < 3; ++i) {
+    EXPECT_EQ(replies[i].seq, 2);
+    EXPECT_EQ(replies[i].ok, replies[i].process == "rbpf_mapper") << replies[i].process;
+    if (!replies[i].ok) {
+      EXPECT_EQ(replies[i].message, "disk full");
+    }
+  }
+  // No folder: the process's default (its --out); a folder that cannot be made is an error
+  // before anything is written.
+  pg_result = Status::Ok();
+  request(3, "pose_graph_mapper", "");
+  request(4, "rbpf_mapper", "/proc/omni-cannot-be-made");
+  serve();
+  ASSERT_EQ(replies.size(), 5u);
+  ASSERT_EQ(pg_dirs.size(), 2u);
+  EXPECT_EQ(pg_dirs[1], tmp + "/out/pg");
+  EXPECT_EQ(rbpf_dirs.size(), 2u) << "nothing written where the folder could not be made";
+  for (size_t i = 3; i < 5; ++i) {
+    EXPECT_EQ(replies[i].ok, replies[i].seq == 3) << replies[i].seq;
+    if (replies[i].seq == 4) {
+      EXPECT_NE(replies[i].message.find("cannot create folder"), std::string::npos)
+          << replies[i].message;
+    }
+  }
+  EXPECT_EQ(rbpf.saved(), 2);
+  EXPECT_EQ(rbpf.failed(), 1);
+  EXPECT_EQ(pg.saved(), 1);
+  EXPECT_EQ(pg.failed(), 1);
+  // The counters ride on the heartbeat.
+  std::vector<omni::heartbeat_t> beats;
+  (*bus)->Subscribe<omni::heartbeat_t>(
+      "HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) { beats.push_back(m); });
+  ASSERT_TRUE(hb.Tick(true));
+  Pump(**bus);
+  ASSERT_EQ(beats.size(), 1u);
+  std::map<std::string, int64_t> counters;
+  for (int i = 0; i < beats[0].num_counters; ++i)
+    counters[beats[0].counter_names[i]] = beats[0].counter_values[i];
+  EXPECT_EQ(counters["maps_saved"], 2);
+  EXPECT_EQ(counters["map_save_errors"], 1);
+}
+
 TEST(Bus, JavaJarHoldsEveryType) {
   const std::string jar = std::string(OMNI_BINARY_DIR) + "/omni_lcmtypes.jar";
   ASSERT_TRUE(std::filesystem::exists(jar)) << jar;
@@ -95,7 +200,7 @@ TEST(Bus, JavaJarHoldsEveryType) {
   for (const auto& e :
        std::filesystem::directory_iterator(std::string(OMNI_SOURCE_DIR) + "/common/lcmtypes"))
     if (e.path().extension() == ".lcm") types.insert(e.path().stem().string());
-  ASSERT_GE(types.size(), 13u);
+  ASSERT_GE(types.size(), 15u);
   FILE* p = popen(("jar tf '" + jar + "'").c_str(), "r");
   ASSERT_NE(p, nullptr);
   std::set<std::string> classes;

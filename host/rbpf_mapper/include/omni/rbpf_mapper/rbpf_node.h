@@ -40,6 +40,9 @@ class RbpfNode {
   int64_t max_pending_seen() const { return max_pending_seen_; }
   // Publishes the final grid and writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
   Status WriteOutputs(const std::string& dir);
+  // The same files, now, from the best particle as it stands (a map save request while
+  // mapping: nothing is flushed, the filter goes on).
+  Status SaveMaps(const std::string& dir) const;
   const RbpfSlam& slam() const { return slam_; }
   int64_t poses_published() const { return poses_published_; }
   int64_t grids_published() const { return grids_published_; }

@@ -40,7 +40,9 @@ class OctomapNode {
   bool PublishGrid();
   // Writes out_dir/map.{bt,ot}, out_dir/grid.{pgm,yaml,png}, out_dir/view.png, with the colour
   // option out_dir/map_color.ot and out_dir/view_color.png, and with keep_cloud out_dir/map.pcd.
-  Status SaveOutputs();
+  Status SaveOutputs() const { return SaveOutputs(options_.out_dir); }
+  // The same files in `dir` (a map save request while mapping).
+  Status SaveOutputs(const std::string& dir) const;
 
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }

@@ -54,6 +54,9 @@ class PoseGraphNode {
   // Flush, publish the final grid and trajectory, write DIR/{trajectory.txt, map.*, graph.g2o,
   // stats.json}.
   Status WriteOutputs(const std::string& dir, SlamRunInfo info);
+  // The same files, now, at the current optimised estimate (a map save request while mapping:
+  // nothing is flushed and no final optimisation runs; the mapper goes on).
+  Status SaveMaps(const std::string& dir, SlamRunInfo info) const;
 
   const PoseGraphSlam& slam() const { return slam_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }

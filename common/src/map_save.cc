@@ -1,0 +1,59 @@
+#include "omni/bus/map_save.h"
+
+#include <filesystem>
+#include <utility>
+
+#include "omni/common/log.h"
+#include "omni/map_save_reply_t.hpp"
+#include "omni/map_save_request_t.hpp"
+
+namespace omni::bus {
+
+MapSaveService::MapSaveService(Bus* bus, std::string process, std::string default_dir,
+                               const Clock* clock, Heartbeat* heartbeat)
+    : bus_(bus), process_(std::move(process)), default_dir_(std::move(default_dir)), clock_(clock) {
+  bus_->Subscribe<omni::map_save_request_t>(
+      kMapSaveChannel, [this](const omni::map_save_request_t& m, int64_t) {
+        if (!m.process.empty() && m.process != process_) return;  // another process's
+        std::string dir = default_dir_;
+        if (!m.directory.empty())
+          dir = m.process.empty() ? m.directory + "/" + process_ : m.directory;
+        pending_.push_back({m.seq, std::move(dir)});
+      });
+  if (heartbeat != nullptr) {
+    heartbeat->AddCounter("maps_saved", [this] { return saved_; });
+    heartbeat->AddCounter("map_save_errors", [this] { return failed_; });
+  }
+}
+
+int MapSaveService::Serve(const WriteFn& write) {
+  const std::vector<Request> requests = std::move(pending_);
+  pending_.clear();
+  for (const Request& r : requests) {
+    omni::map_save_reply_t reply{};
+    reply.seq = r.seq;
+    reply.process = process_;
+    reply.directory = r.directory;
+    std::error_code ec;
+    std::filesystem::create_directories(r.directory, ec);
+    Status s;
+    if (ec)
+      s = MakeError(ErrorCode::kIo, "cannot create folder '" + r.directory + "': " + ec.message());
+    else
+      s = write(r.directory);
+    reply.utime = clock_->NowUtime();
+    reply.ok = s.ok();
+    reply.message = s.ok() ? "maps written to " + r.directory : s.message();
+    if (s.ok()) {
+      ++saved_;
+      LOG_INFO << "map save request " << r.seq << ": written to " << r.directory;
+    } else {
+      ++failed_;
+      LOG_WARN << "map save request " << r.seq << " failed: " << s.message();
+    }
+    bus_->Publish(kMapSaveReplyChannel, reply);
+  }
+  return static_cast<int>(requests.size());
+}
+
+}  // namespace omni::bus
