@@ -102,6 +102,7 @@ int main(int argc, char** argv) {
     s.angle_min_rad = m.angle_min_rad;
     s.angle_increment_rad = m.angle_increment_rad;
     s.range_max_m = m.range_max_m;
+    s.scan_time_s = m.scan_time_s;
     s.ranges_m = m.ranges_m;
     if (!mapper.AddScan(s)) ++bus.counters().drops;
   });
@@ -115,6 +116,8 @@ int main(int argc, char** argv) {
   hb.AddCounter("scans_lost", [&] { return c.scans_lost; });
   hb.AddCounter("odom_out_of_order", [&] { return c.odom_out_of_order; });
   hb.AddCounter("odom_invalid", [&] { return c.odom_invalid; });
+  hb.AddCounter("sweeps_corrected", [&] { return c.sweeps_corrected; });
+  hb.AddCounter("sweeps_uncorrected", [&] { return c.sweeps_uncorrected; });
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
   // DIR/odom_map.{pgm,yaml,png} and DIR/odom_trajectory.{txt,png}, at exit and on a MAP_SAVE
   // request while mapping.

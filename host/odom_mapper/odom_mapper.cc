@@ -71,9 +71,34 @@ bool OdomMapper::AddScan(const Scan& scan) {
     ++counters_.scans_no_pose;
     return false;
   }
-  const Pose2 sensor = *pose * scan.sensor_in_base;
-  grid_.IntegrateScan(sensor, ranges, scan.angle_min_rad, scan.angle_increment_rad,
-                      scan.range_max_m);
+  // A sweep: beam i at utime + i / (n - 1) * scan_time_s, from the odometry pose of that time
+  // (the odometry is there up to about the end of the sweep when the scan arrives; a beam up to
+  // one odometry period past the newest sample takes the newest).
+  const size_t n = ranges.size();
+  std::vector<Pose2> beam_pose;
+  if (scan.scan_time_s > 0 && std::isfinite(scan.scan_time_s) && n > 1) {
+    constexpr int64_t kSlackUs = 20000;
+    beam_pose.reserve(n);
+    for (size_t i = 0; i < n; ++i) {
+      const int64_t t = scan.utime + static_cast<int64_t>(std::llround(scan.scan_time_s * 1e6 *
+                                                                       static_cast<double>(i) /
+                                                                       static_cast<double>(n - 1)));
+      const auto p = odom_.At(t, kSlackUs);
+      if (!p) {
+        beam_pose.clear();
+        break;
+      }
+      beam_pose.push_back(*p * scan.sensor_in_base);
+    }
+    ++(beam_pose.empty() ? counters_.sweeps_uncorrected : counters_.sweeps_corrected);
+  }
+  if (beam_pose.empty()) {
+    grid_.IntegrateScan(*pose * scan.sensor_in_base, ranges, scan.angle_min_rad,
+                        scan.angle_increment_rad, scan.range_max_m);
+  } else {
+    grid_.IntegrateScan([&](size_t i) { return beam_pose[i]; }, ranges, scan.angle_min_rad,
+                        scan.angle_increment_rad, scan.range_max_m);
+  }
   trajectory_.push_back({scan.utime, scan.seq, *pose});
   ++counters_.scans_mapped;
   return true;

@@ -37,6 +37,9 @@ struct OdomMapperCounters {
   int64_t odom_out_of_order = 0;  // older than the newest odometry: rejected
   int64_t odom_invalid = 0;       // non-finite pose
   int64_t scans_lost = 0;         // gaps in the driver's scan sequence numbers
+  // A spinning lidar's scans (scan_time_s > 0): each beam placed at the odometry pose of its own
+  // time, or (no odometry over the whole sweep) the scan mapped at its first beam's pose.
+  int64_t sweeps_corrected = 0, sweeps_uncorrected = 0;
 };
 
 struct Scan {
@@ -46,6 +49,9 @@ struct Scan {
   float angle_min_rad = 0;
   float angle_increment_rad = 0;
   float range_max_m = 0;
+  // Time from the first beam (utime) to the last: a spinning lidar measures its beams one
+  // after another while the base moves (0: every beam at utime).
+  float scan_time_s = 0;
   std::vector<float> ranges_m;
 };
 
