@@ -3,9 +3,14 @@
 //
 //   omni-drive [--lcm-url URL] [--channel NAME] --vx 0.2 [--vy 0] [--omega 0] [--duration 2]
 //   omni-drive [--lcm-url URL] --estop | --clear-faults | --stop
+//   omni-drive [--lcm-url URL] --keys        (keyboard teleop, omni/base_bridge/teleop.h)
 //
 // A twist is repeated at --rate (the bridge stops the base when commands go stale, after its
 // command_timeout_s, 0.3 s as shipped), then one zero twist ends the motion.
+#include <poll.h>
+#include <termios.h>
+#include <unistd.h>
+
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -15,6 +20,7 @@
 #include <string>
 #include <thread>
 
+#include "omni/base_bridge/teleop.h"
 #include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
 #include "omni/common/time.h"
@@ -30,10 +36,13 @@ int Usage(int code) {
       "usage: omni-drive [--lcm-url URL] [--channel NAME] [--vx M_S] [--vy M_S] [--omega RAD_S]\n"
       "                  [--duration S] [--rate HZ]\n"
       "       omni-drive [--lcm-url URL] [--channel NAME] --estop | --clear-faults | --stop\n"
+      "       omni-drive [--lcm-url URL] [--channel NAME] --keys [--rate HZ]\n"
       "  Publishes base_cmd_t on NAME (default BASE_CMD): the body twist (x forward, y left,\n"
       "  counter-clockwise; default 0) every 1/HZ s (default 20) for S s (default 1), then a zero\n"
       "  twist; or one e-stop (motors off until --clear-faults), clear-faults or zero twist.\n"
-      "  The base bridge clamps the twist to its limits; Ctrl-C stops early (zero twist sent).\n");
+      "  The base bridge clamps the twist to its limits; Ctrl-C stops early (zero twist sent).\n"
+      "  --keys: keyboard teleop; the current twist is sent at HZ until you quit:\n  %s",
+      omni::base_bridge::TeleopHelp());
   return code;
 }
 
@@ -43,13 +52,83 @@ bool ParseNumber(const std::string& v, double* out) {
   return !v.empty() && *end == '\0' && std::isfinite(*out);
 }
 
+// Keyboard teleop: the terminal in raw mode (restored on the way out), keys change the twist,
+// which is sent every 1 / rate_hz s; stdin that is not a terminal (a pipe) is read as it is,
+// and its end quits.
+template <typename Send>
+int Teleop(const Send& send, double rate_hz, const std::string& channel) {
+  const bool tty = isatty(STDIN_FILENO) != 0;
+  termios saved{};
+  if (tty && tcgetattr(STDIN_FILENO, &saved) == 0) {
+    termios raw = saved;
+    raw.c_lflag &= static_cast<tcflag_t>(~(ICANON | ECHO | ISIG));
+    raw.c_cc[VMIN] = 0;
+    raw.c_cc[VTIME] = 0;
+    tcsetattr(STDIN_FILENO, TCSANOW, &raw);
+  }
+  std::fprintf(stderr, "omni-drive: teleop on %s\n%s", channel.c_str(),
+               omni::base_bridge::TeleopHelp());
+  const omni::base_bridge::TeleopOptions opt;
+  omni::base_bridge::TeleopTwist twist;
+  const auto period = std::chrono::duration<double>(1.0 / rate_hz);
+  auto next = std::chrono::steady_clock::now();
+  int64_t sent = 0;
+  bool quit = false;
+  while (!quit && !g_stop) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= next) {
+      send(omni::base_cmd_t::MODE_TWIST, twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s);
+      ++sent;
+      next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
+      continue;
+    }
+    pollfd p{STDIN_FILENO, POLLIN, 0};
+    const int ms = static_cast<int>(
+                       std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count()) +
+                   1;
+    if (poll(&p, 1, ms) <= 0 || (p.revents & (POLLIN | POLLHUP)) == 0) continue;
+    char buf[64];
+    const ssize_t n = read(STDIN_FILENO, buf, sizeof(buf));
+    if (n <= 0) {  // end of input
+      quit = true;
+      break;
+    }
+    for (ssize_t i = 0; i < n && !quit; ++i) {
+      switch (omni::base_bridge::ApplyTeleopKey(buf[i], opt, &twist)) {
+        case omni::base_bridge::TeleopAction::kEstop:
+          send(omni::base_cmd_t::MODE_ESTOP, 0, 0, 0);
+          std::fprintf(stderr, "\r\x1b[Ke-stop sent (c clears faults)\n");
+          break;
+        case omni::base_bridge::TeleopAction::kClearFaults:
+          send(omni::base_cmd_t::MODE_CLEAR_FAULTS, 0, 0, 0);
+          std::fprintf(stderr, "\r\x1b[Kclear-faults sent\n");
+          break;
+        case omni::base_bridge::TeleopAction::kQuit:
+          quit = true;
+          break;
+        case omni::base_bridge::TeleopAction::kTwist:
+          std::fprintf(stderr, "\r\x1b[Kvx %+.2f m/s  vy %+.2f m/s  omega %+.2f rad/s",
+                       twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s);
+          break;
+        case omni::base_bridge::TeleopAction::kNone:
+          break;
+      }
+    }
+  }
+  send(omni::base_cmd_t::MODE_TWIST, 0, 0, 0);
+  if (tty) tcsetattr(STDIN_FILENO, TCSANOW, &saved);
+  std::printf("\nomni-drive: teleop ended, %lld twists sent, then a zero twist\n",
+              static_cast<long long>(sent));
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string lcm_url, channel = "BASE_CMD";
   double vx = 0, vy = 0, omega = 0, duration_s = 1.0, rate_hz = 20;
   int8_t mode = omni::base_cmd_t::MODE_TWIST;
-  bool twist_given = false, single = false;
+  bool twist_given = false, single = false, keys = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto val = [&]() -> std::string {
@@ -95,13 +174,19 @@ int main(int argc, char** argv) {
       single = true;
     } else if (a == "--stop") {
       single = true;
+    } else if (a == "--keys") {
+      keys = true;
     } else {
       std::fprintf(stderr, "omni-drive: unknown option '%s'\n", a.c_str());
       return Usage(2);
     }
   }
-  if (single && twist_given) {
-    std::fprintf(stderr, "omni-drive: --estop, --clear-faults and --stop take no twist\n");
+  if ((single || keys) && twist_given) {
+    std::fprintf(stderr, "omni-drive: --estop, --clear-faults, --stop and --keys take no twist\n");
+    return 2;
+  }
+  if (single && keys) {
+    std::fprintf(stderr, "omni-drive: --keys is not one command; leave out --estop etc.\n");
     return 2;
   }
   auto bus = omni::bus::Bus::Create(lcm_url);
@@ -134,6 +219,7 @@ int main(int argc, char** argv) {
                 channel.c_str());
     return 0;
   }
+  if (keys) return Teleop(send, rate_hz, channel);
   const auto start = std::chrono::steady_clock::now();
   const auto period = std::chrono::duration<double>(1.0 / rate_hz);
   int64_t n = 0;

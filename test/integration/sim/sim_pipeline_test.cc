@@ -176,8 +176,8 @@ TEST(SimPipeline, LiveModePublishesOnTheBus) {
 }
 
 // --drive bus: the simulated base is driven by BASE_CMD from another process (omni-drive, as a
-// planner or a teleop would), over UDP in a private network namespace; it moves as commanded,
-// stops when the commands stop, and counts what it received.
+// planner would, then its keyboard teleop fed through a pipe), over UDP in a private network
+// namespace; it moves as commanded, stops when the commands stop, and counts what it received.
 TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
   {
     const auto r = testing::Run(testing::Bin("omni-sim") + " --out " + ::testing::TempDir() +
@@ -195,24 +195,29 @@ TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
     s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
       << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0'\n"
       << testing::Bin("omni-sim") << " --out " << dir
-      << " --no-depth --duration 5 --drive bus --live \"$LCM_DEFAULT_URL\" & s=$!\n"
+      << " --no-depth --duration 7 --drive bus --live \"$LCM_DEFAULT_URL\" & s=$!\n"
       << "sleep 1\n"
       << testing::Bin("omni-drive") << " --vx 0.3 --duration 2 || exit 4\n"
+      << "(printf 'wwxy'; sleep 1.5; printf ' '; sleep 0.3) | " << testing::Bin("omni-drive")
+      << " --keys || exit 5\n"
       << "wait $s\n";
   }
   const auto r = testing::Run("timeout 60 unshare -n bash " + dir + "/run.sh");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("sent 40 twists"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("driven from BASE_CMD on the bus: 41 commands, 0 refused"),
-            std::string::npos)
+  EXPECT_NE(r.output.find("teleop ended"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("vx +0.20 m/s"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("on the bus: "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(" commands, 0 refused by the base, 0 undecodable"), std::string::npos)
       << r.output;
   auto truth = io::ReadTrajectory(dir + "/truth.txt");
   ASSERT_TRUE(truth.ok()) << truth.error().message;
-  ASSERT_GE(truth->entries.size(), 45u);
+  ASSERT_GE(truth->entries.size(), 65u);
   const Pose2 first = truth->entries.front().pose2();
   const Pose2 last = truth->entries.back().pose2();
-  // 2 s at 0.3 m/s straight ahead (the process start-up and the bus add jitter, not distance).
-  EXPECT_NEAR(last.x - first.x, 0.6, 0.15) << r.output;
+  // 2 s at 0.3 m/s straight ahead, then about 1.8 s at 0.2 m/s from the keys (the process
+  // start-up and the bus add jitter, not distance).
+  EXPECT_NEAR(last.x - first.x, 0.9, 0.2) << r.output;
   EXPECT_NEAR(last.y - first.y, 0.0, 0.05) << r.output;
 }
 
