@@ -35,6 +35,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
   r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
   r.Get("max_scan_odom_gap_s", &o.max_scan_odom_gap_s, Optional(), NonNegative<double>());
+  r.Get("absolute_max_wait_s", &o.absolute_max_wait_s, Optional(), InRange(0.0, 3600.0));
   ConfigReader n = r.Section("odometry_noise");
   n.Get("xy_var_per_m", &o.odometry_noise.xy_var_per_m, Optional(), NonNegative<double>());
   n.Get("xy_var_per_rad", &o.odometry_noise.xy_var_per_rad, Optional(), NonNegative<double>());
@@ -246,9 +247,15 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   ++c_.scans_used;
   c_.invalid_beams += st.not_finite + st.out_of_range;
   if (scan.scan_time_s > 0) ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
-  const bool make_kf = keyframes_.empty() ||
-                       std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
-                       std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
+  const bool moved = keyframes_.empty() ||
+                     std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
+                     std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
+  // A fix that has waited its time window for a keyframe at or after it gets one now.
+  const bool fix_waiting = !absolute_queue_.empty() && absolute_queue_.begin()->first <= t &&
+                           static_cast<double>(scan.utime - absolute_queue_.begin()->first) >=
+                               o_.absolute_max_wait_s * 1e6;
+  const bool make_kf = moved || fix_waiting;
+  if (make_kf && !moved) ++c_.keyframes_for_absolute;
   last_scan_motion_covariance_ = make_kf ? Eigen::Matrix3d::Zero() : motion.covariance;
   if (make_kf) {
     NewKeyframe(scan, t, motion, std::move(points));

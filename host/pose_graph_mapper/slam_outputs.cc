@@ -68,11 +68,13 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ll(c.covariance_failures), Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0),
       ll(c.global_optimizations), ll(c.global_failures), Percentile(glat, 0.5),
       Percentile(glat, 1.0));
-  std::fprintf(f,
-               ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "
-               "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld",
-               ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced),
-               ll(c.absolute_queued), ll(c.absolute_rejected), ll(c.absolute_invalid));
+  std::fprintf(
+      f,
+      ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "
+      "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld, "
+      "\"keyframes_for_absolute\": %lld",
+      ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced), ll(c.absolute_queued),
+      ll(c.absolute_rejected), ll(c.absolute_invalid), ll(c.keyframes_for_absolute));
   std::fprintf(f, ", \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld",
                ll(c.sweeps_corrected), ll(c.sweeps_uncorrected));
   std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",

@@ -236,8 +236,8 @@ TEST(PoseGraphSlam, AbsolutePoseBetweenKeyframesIsSplicedWithoutDoubleCounting) 
   };
   Eigen::Matrix3d ja, jb;
   ComposeJacobians(first.measurement, second.measurement, &ja, &jb);
-  const Eigen::Matrix3d cov = ja * covariance_of(first) * ja.transpose() +
-                              jb * covariance_of(second) * jb.transpose();
+  const Eigen::Matrix3d cov =
+      ja * covariance_of(first) * ja.transpose() + jb * covariance_of(second) * jb.transpose();
   const Eigen::Matrix3d old_cov = covariance_of(old_link);
   EXPECT_LT((cov.inverse() - old_cov.inverse()).norm(), 1e-4 * old_cov.inverse().norm())
       << "old:\n"
@@ -392,6 +392,49 @@ TEST(PoseGraphSlam, OdometryCalibrationFindsASystematicError) {
             0.5 * std::hypot(raw.x - want.x, raw.y - want.y));
   EXPECT_LT(std::abs(WrapAngle(motion.theta - want.theta)),
             0.5 * std::abs(WrapAngle(raw.theta - want.theta)));
+}
+
+// The measurement queue's time window: a fix taken while the base stands still waits for a
+// keyframe that motion would never bring; once it has waited absolute_max_wait_s, the next scan
+// becomes a keyframe and the fix is placed. Without the window (a long wait) it stays queued.
+TEST(PoseGraphSlam, AParkedRobotsFixIsPlacedAfterItsTimeWindow) {
+  for (const double wait_s : {1.0, 1000.0}) {
+    PoseGraphSlamOptions o;
+    o.absolute_max_wait_s = wait_s;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    Drive(&slam, 0, 20);
+    const int64_t keyframes = slam.counters().keyframes;
+    // Parked at scan 20's pose for 3 s, scans and odometry still coming at 10 Hz.
+    const Pose2 parked = DriveTruth(20);
+    const int64_t fix_at = DriveTime(25) + 30000;
+    for (int i = 21; i <= 50; ++i) {
+      slam.AddOdometry(DriveTime(i), parked);
+      if (i == 26) {
+        EXPECT_EQ(slam.AddAbsolutePose(fix_at, DriveTruth(0).Between(parked),
+                                       100 * Eigen::Matrix3d::Identity()),
+                  AbsoluteOutcome::kQueued);
+      }
+      EXPECT_TRUE(slam.AddScan(i, BoxScan(DriveTime(i), parked)));
+    }
+    const SlamCounters& c = slam.counters();
+    if (wait_s == 1.0) {
+      // The scan 1 s after the fix (index 36) is made a keyframe; the fix is spliced into the
+      // interval before it; nothing else changes while the base stands still.
+      EXPECT_EQ(c.keyframes, keyframes + 1);
+      EXPECT_EQ(c.keyframes_for_absolute, 1);
+      EXPECT_EQ(slam.keyframes().back().utime, DriveTime(36));
+      EXPECT_EQ(slam.absolute_pending(), 0u);
+      EXPECT_EQ(c.absolute_spliced, 1);
+      EXPECT_EQ(slam.absolute_priors().size(), 1u);
+    } else {
+      EXPECT_EQ(c.keyframes, keyframes);
+      EXPECT_EQ(c.keyframes_for_absolute, 0);
+      EXPECT_EQ(slam.absolute_pending(), 1u);
+      EXPECT_EQ(c.absolute_spliced + c.absolute_attached, 0);
+    }
+    EXPECT_EQ(slam.Trajectory().size(), 51u);
+    EXPECT_EQ(c.window_failures, 0);
+  }
 }
 
 // (c) Each way an absolute pose can go is counted once: at a keyframe's time (attached), newer
