@@ -9,6 +9,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/node_loop.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
@@ -36,28 +37,16 @@ void Usage(std::FILE* f) {
 int main(int argc, char** argv) {
   std::string config_path, url;
   double duration_s = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "supervisor: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      Usage(stdout);
-      return 0;
-    } else if (a == "--config") {
-      config_path = val();
-    } else if (a == "--url") {
-      url = val();
-    } else if (a == "--duration-s") {
-      duration_s = std::atof(val().c_str());
+  omni::ArgReader args(argc, argv, "supervisor", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config_path = args.Value();
+    } else if (args.Is("--url")) {
+      url = args.Value();
+    } else if (args.Is("--duration-s")) {
+      duration_s = args.Number(0, 1e9);
     } else {
-      std::fprintf(stderr, "supervisor: unknown option '%s'\n", a.c_str());
-      Usage(stderr);
-      return 2;
+      args.Unknown();
     }
   }
   if (config_path.empty()) {

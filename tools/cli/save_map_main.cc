@@ -11,15 +11,16 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/map_save.h"
+#include "omni/common/cli.h"
 #include "omni/common/time.h"
 #include "omni/map_save_reply_t.hpp"
 #include "omni/map_save_request_t.hpp"
 
 namespace {
 
-int Usage(int code) {
+void Usage(std::FILE* f) {
   std::fprintf(
-      code == 0 ? stdout : stderr,
+      f,
       "usage: omni-save-map [--lcm-url URL] [--process NAME] [--dir DIR] [--wait S]\n"
       "  Asks the running mappers (rbpf_mapper, pose_graph_mapper, odom_mapper, map_fusion,\n"
       "  octomap_builder) to write their maps now, without stopping, and prints each answer.\n"
@@ -29,7 +30,6 @@ int Usage(int code) {
       "  --wait S        how long to wait for answers (default 10); stops early when the named\n"
       "                  process answered, or 2 s after the last answer from every mapper\n"
       "  Exit status: 0 all answers ok, 1 a mapper could not write, 3 nobody answered.\n");
-  return code;
 }
 
 }  // namespace
@@ -37,34 +37,18 @@ int Usage(int code) {
 int main(int argc, char** argv) {
   std::string lcm_url, process, dir;
   double wait_s = 10;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "omni-save-map: %s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--lcm-url") {
-      lcm_url = val();
-    } else if (a == "--process") {
-      process = val();
-    } else if (a == "--dir") {
-      dir = val();
-    } else if (a == "--wait") {
-      const std::string v = val();
-      char* end = nullptr;
-      wait_s = std::strtod(v.c_str(), &end);
-      if (v.empty() || *end != '\0' || !std::isfinite(wait_s) || wait_s <= 0 || wait_s > 3600) {
-        std::fprintf(stderr, "omni-save-map: --wait expects seconds in (0, 3600], got '%s'\n",
-                     v.c_str());
-        return 2;
-      }
+  omni::ArgReader args(argc, argv, "omni-save-map", Usage);
+  while (args.Next()) {
+    if (args.Is("--lcm-url")) {
+      lcm_url = args.Value();
+    } else if (args.Is("--process")) {
+      process = args.Value();
+    } else if (args.Is("--dir")) {
+      dir = args.Value();
+    } else if (args.Is("--wait")) {
+      wait_s = args.Number(0.01, 3600);
     } else {
-      std::fprintf(stderr, "omni-save-map: unknown option '%s'\n", a.c_str());
-      return Usage(2);
+      args.Unknown();
     }
   }
   auto bus = omni::bus::Bus::Create(lcm_url);

@@ -19,6 +19,7 @@
 #include "omni/base_bridge/messages.h"
 #include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
+#include "omni/common/cli.h"
 #include "omni/common/time.h"
 #include "omni/firmware/firmware.h"
 #include "omni/io/grid.h"
@@ -128,94 +129,63 @@ int main(int argc, char** argv) {
   std::string out_dir, world_path, live_url, drive = "tour", cmd_channel, bridge_config;
   double speed = 1.0;
   omni::sim::SimOptions opt;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "omni-sim: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    auto num = [&](double lo, double hi) {
-      const std::string v = val();
-      double x = 0;
-      if (!ParseNumber(v, &x) || x < lo || x > hi) {
-        std::fprintf(stderr, "omni-sim: %s expects a number in [%g, %g], got '%s'\n", a.c_str(), lo,
-                     hi, v.c_str());
-        std::exit(2);
-      }
-      return x;
-    };
-    if (a == "--help" || a == "-h") {
-      Usage(stdout);
-      return 0;
-    } else if (a == "--out") {
-      out_dir = val();
-    } else if (a == "--world") {
-      world_path = val();
-    } else if (a == "--seed") {
-      opt.seed = static_cast<uint64_t>(num(0, 1e15));
-    } else if (a == "--laps") {
-      opt.laps = static_cast<int>(num(1, 100));
-    } else if (a == "--duration") {
-      opt.max_duration_s = num(0.1, 1e6);
-    } else if (a == "--instant-scans") {
+  omni::ArgReader args(argc, argv, "omni-sim", Usage);
+  while (args.Next()) {
+    if (args.Is("--out")) {
+      out_dir = args.Value();
+    } else if (args.Is("--world")) {
+      world_path = args.Value();
+    } else if (args.Is("--seed")) {
+      opt.seed = static_cast<uint64_t>(args.Integer(0, 1000000000000000));
+    } else if (args.Is("--laps")) {
+      opt.laps = static_cast<int>(args.Integer(1, 100));
+    } else if (args.Is("--duration")) {
+      opt.max_duration_s = args.Number(0.1, 1e6);
+    } else if (args.Is("--instant-scans")) {
       opt.lidar_sweep = false;
-    } else if (a == "--no-depth") {
+    } else if (args.Is("--no-depth")) {
       opt.depth = false;
-    } else if (a == "--depth-hz") {
-      opt.depth_hz = num(0.1, 60);
-    } else if (a == "--base") {
-      const std::string v = val();
+    } else if (args.Is("--depth-hz")) {
+      opt.depth_hz = args.Number(0.1, 60);
+    } else if (args.Is("--base")) {
+      const std::string v = args.Value();
       if (v == "firmware") {
         opt.base = omni::sim::SimOptions::Base::kFirmware;
       } else if (v == "ideal") {
         opt.base = omni::sim::SimOptions::Base::kIdeal;
       } else {
-        std::fprintf(stderr, "omni-sim: --base expects 'firmware' or 'ideal', got '%s'\n",
-                     v.c_str());
-        return 2;
+        args.Fail("--base expects 'firmware' or 'ideal', got '" + v + "'");
       }
-    } else if (a == "--slip") {
+    } else if (args.Is("--slip")) {
       // Three comma-separated fractions in [0, 0.5): each wheel's mean slip (firmware base).
-      const std::string v = val();
+      const std::string v = args.Value();
       std::string rest = v;
       for (int w = 0; w < 3; ++w) {
         const size_t comma = rest.find(',');
         double x = 0;
         if ((w < 2) != (comma != std::string::npos) || !ParseNumber(rest.substr(0, comma), &x) ||
-            x < 0 || x >= 0.5) {
-          std::fprintf(stderr,
-                       "omni-sim: --slip expects three fractions in [0, 0.5) like "
-                       "0.026,0.010,0.020, got '%s'\n",
-                       v.c_str());
-          return 2;
-        }
+            x < 0 || x >= 0.5)
+          args.Fail("--slip expects three fractions in [0, 0.5) like 0.026,0.010,0.020, got '" + v +
+                    "'");
         opt.wheel_slip[w] = x;
         rest = comma == std::string::npos ? "" : rest.substr(comma + 1);
       }
-    } else if (a == "--slip-noise") {
-      opt.wheel_slip_noise = num(0, 0.2);
-    } else if (a == "--live") {
-      live_url = val();
-    } else if (a == "--speed") {
-      speed = num(0.01, 1000);
-    } else if (a == "--drive") {
-      drive = val();
-      if (drive != "tour" && drive != "bus") {
-        std::fprintf(stderr, "omni-sim: --drive expects 'tour' or 'bus', got '%s'\n",
-                     drive.c_str());
-        return 2;
-      }
-    } else if (a == "--cmd-channel") {
-      cmd_channel = val();
-    } else if (a == "--bridge-config") {
-      bridge_config = val();
+    } else if (args.Is("--slip-noise")) {
+      opt.wheel_slip_noise = args.Number(0, 0.2);
+    } else if (args.Is("--live")) {
+      live_url = args.Value();
+    } else if (args.Is("--speed")) {
+      speed = args.Number(0.01, 1000);
+    } else if (args.Is("--drive")) {
+      drive = args.Value();
+      if (drive != "tour" && drive != "bus")
+        args.Fail("--drive expects 'tour' or 'bus', got '" + drive + "'");
+    } else if (args.Is("--cmd-channel")) {
+      cmd_channel = args.Value();
+    } else if (args.Is("--bridge-config")) {
+      bridge_config = args.Value();
     } else {
-      std::fprintf(stderr, "omni-sim: unknown option '%s'\n", a.c_str());
-      Usage(stderr);
-      return 2;
+      args.Unknown();
     }
   }
   if (out_dir.empty()) {

@@ -23,6 +23,7 @@
 #include "omni/base_bridge/teleop.h"
 #include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
+#include "omni/common/cli.h"
 #include "omni/common/time.h"
 
 namespace {
@@ -30,9 +31,9 @@ namespace {
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
-int Usage(int code) {
+void Usage(std::FILE* f) {
   std::fprintf(
-      code == 0 ? stdout : stderr,
+      f,
       "usage: omni-drive [--lcm-url URL] [--channel NAME] [--vx M_S] [--vy M_S] [--omega RAD_S]\n"
       "                  [--duration S] [--rate HZ]\n"
       "       omni-drive [--lcm-url URL] [--channel NAME] --estop | --clear-faults | --stop\n"
@@ -43,13 +44,6 @@ int Usage(int code) {
       "  The base bridge clamps the twist to its limits; Ctrl-C stops early (zero twist sent).\n"
       "  --keys: keyboard teleop; the current twist is sent at HZ until you quit:\n  %s",
       omni::base_bridge::TeleopHelp());
-  return code;
-}
-
-bool ParseNumber(const std::string& v, double* out) {
-  char* end = nullptr;
-  *out = std::strtod(v.c_str(), &end);
-  return !v.empty() && *end == '\0' && std::isfinite(*out);
 }
 
 // Keyboard teleop: the terminal in raw mode (restored on the way out), keys change the twist,
@@ -129,66 +123,42 @@ int main(int argc, char** argv) {
   double vx = 0, vy = 0, omega = 0, duration_s = 1.0, rate_hz = 20;
   int8_t mode = omni::base_cmd_t::MODE_TWIST;
   bool twist_given = false, single = false, keys = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "omni-drive: %s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    auto num = [&](double lo, double hi) {
-      const std::string v = val();
-      double x = 0;
-      if (!ParseNumber(v, &x) || x < lo || x > hi) {
-        std::fprintf(stderr, "omni-drive: %s expects a number in [%g, %g], got '%s'\n", a.c_str(),
-                     lo, hi, v.c_str());
-        std::exit(2);
-      }
-      return x;
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--lcm-url") {
-      lcm_url = val();
-    } else if (a == "--channel") {
-      channel = val();
-    } else if (a == "--vx") {
-      vx = num(-10, 10);
+  omni::ArgReader args(argc, argv, "omni-drive", Usage);
+  while (args.Next()) {
+    if (args.Is("--lcm-url")) {
+      lcm_url = args.Value();
+    } else if (args.Is("--channel")) {
+      channel = args.Value();
+    } else if (args.Is("--vx")) {
+      vx = args.Number(-10, 10);
       twist_given = true;
-    } else if (a == "--vy") {
-      vy = num(-10, 10);
+    } else if (args.Is("--vy")) {
+      vy = args.Number(-10, 10);
       twist_given = true;
-    } else if (a == "--omega") {
-      omega = num(-20, 20);
+    } else if (args.Is("--omega")) {
+      omega = args.Number(-20, 20);
       twist_given = true;
-    } else if (a == "--duration") {
-      duration_s = num(0, 3600);
-    } else if (a == "--rate") {
-      rate_hz = num(1, 1000);
-    } else if (a == "--estop") {
+    } else if (args.Is("--duration")) {
+      duration_s = args.Number(0, 3600);
+    } else if (args.Is("--rate")) {
+      rate_hz = args.Number(1, 1000);
+    } else if (args.Is("--estop")) {
       mode = omni::base_cmd_t::MODE_ESTOP;
       single = true;
-    } else if (a == "--clear-faults") {
+    } else if (args.Is("--clear-faults")) {
       mode = omni::base_cmd_t::MODE_CLEAR_FAULTS;
       single = true;
-    } else if (a == "--stop") {
+    } else if (args.Is("--stop")) {
       single = true;
-    } else if (a == "--keys") {
+    } else if (args.Is("--keys")) {
       keys = true;
     } else {
-      std::fprintf(stderr, "omni-drive: unknown option '%s'\n", a.c_str());
-      return Usage(2);
+      args.Unknown();
     }
   }
-  if ((single || keys) && twist_given) {
-    std::fprintf(stderr, "omni-drive: --estop, --clear-faults, --stop and --keys take no twist\n");
-    return 2;
-  }
-  if (single && keys) {
-    std::fprintf(stderr, "omni-drive: --keys is not one command; leave out --estop etc.\n");
-    return 2;
-  }
+  if ((single || keys) && twist_given)
+    args.Fail("--estop, --clear-faults, --stop and --keys take no twist");
+  if (single && keys) args.Fail("--keys is not one command; leave out --estop etc.");
   auto bus = omni::bus::Bus::Create(lcm_url);
   if (!bus.ok()) {
     std::fprintf(stderr, "omni-drive: %s\n", bus.error().message.c_str());

@@ -8,49 +8,40 @@
 #include <string>
 
 #include "omni/base_bridge/base_bridge_node.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 
 namespace {
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
-int Usage(int code) {
+void Usage(std::FILE* f) {
   std::fprintf(
-      code == 0 ? stdout : stderr,
+      f,
       "usage: omni-base-bridge --config FILE [--can URL] [--lcm-url URL] [--duration-s S]\n"
       "Bridges BASE_CMD to the base firmware over CAN (URL socketcan:IF or shm:NAME)\n"
       "and publishes WHEEL_ODOM, WHEEL_ENCODERS, BASE_STATUS and HEARTBEAT.\n");
-  return code;
 }
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string config, can_url, lcm_url;
   double duration_s = -1;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--config")
-      config = next();
-    else if (a == "--can")
-      can_url = next();
-    else if (a == "--lcm-url")
-      lcm_url = next();
-    else if (a == "--duration-s")
-      duration_s = std::atof(next().c_str());
-    else {
-      std::fprintf(stderr, "unknown option %s\n", a.c_str());
-      return Usage(2);
+  omni::ArgReader args(argc, argv, "omni-base-bridge", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config = args.Value();
+    } else if (args.Is("--can")) {
+      can_url = args.Value();
+    } else if (args.Is("--lcm-url")) {
+      lcm_url = args.Value();
+    } else if (args.Is("--duration-s")) {
+      duration_s = args.Number(0, 1e9);
+    } else {
+      args.Unknown();
     }
   }
-  if (config.empty()) return Usage(2);
+  if (config.empty()) args.Fail("--config FILE is required (e.g. config/base_bridge.yaml)");
   omni::SetLogProcessName("base_bridge");
   auto opts = omni::base_bridge::LoadBaseBridgeOptions(config);
   if (!opts.ok()) {

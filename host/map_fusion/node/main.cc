@@ -10,6 +10,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/map_fusion/map_fusion_node.h"
@@ -46,36 +47,24 @@ int main(int argc, char** argv) {
   std::vector<std::string> files;
   bool offline = false;
   int base_index = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "map_fusion: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      Usage(stdout);
-      return 0;
-    } else if (a == "--config") {
-      config_path = val();
-    } else if (a == "--out") {
-      out_dir = val();
-    } else if (a == "--url") {
-      url = val();
-    } else if (a == "--idle-exit") {
-      idle_exit_s = std::atof(val().c_str());
-    } else if (a == "--base") {
-      base_index = std::atoi(val().c_str());
-    } else if (a == "--fuse") {
+  omni::ArgReader args(argc, argv, "map_fusion", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config_path = args.Value();
+    } else if (args.Is("--out")) {
+      out_dir = args.Value();
+    } else if (args.Is("--url")) {
+      url = args.Value();
+    } else if (args.Is("--idle-exit")) {
+      idle_exit_s = args.Number(0, 1e6);
+    } else if (args.Is("--base")) {
+      base_index = static_cast<int>(args.Integer(1, 1000));
+    } else if (args.Is("--fuse")) {
       offline = true;
-    } else if (offline && !a.empty() && a[0] != '-') {
-      files.push_back(a);
+    } else if (offline && !args.arg().empty() && args.arg()[0] != '-') {
+      files.push_back(args.arg());
     } else {
-      std::fprintf(stderr, "map_fusion: unknown option '%s'\n", a.c_str());
-      Usage(stderr);
-      return 2;
+      args.Unknown();
     }
   }
   omni::SetLogProcessName("map_fusion");

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "omni/bus/map_save.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/octomap_builder/depth_io.h"
@@ -37,30 +38,18 @@ void Usage(std::FILE* f) {
 int main(int argc, char** argv) {
   std::string config_path = "config/octomap_builder.yaml", out_dir, url;
   double idle_exit_s = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "octomap_builder: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      Usage(stdout);
-      return 0;
-    } else if (a == "--config") {
-      config_path = val();
-    } else if (a == "--out") {
-      out_dir = val();
-    } else if (a == "--url") {
-      url = val();
-    } else if (a == "--idle-exit") {
-      idle_exit_s = std::atof(val().c_str());
+  omni::ArgReader args(argc, argv, "octomap_builder", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config_path = args.Value();
+    } else if (args.Is("--out")) {
+      out_dir = args.Value();
+    } else if (args.Is("--url")) {
+      url = args.Value();
+    } else if (args.Is("--idle-exit")) {
+      idle_exit_s = args.Number(0, 1e6);
     } else {
-      std::fprintf(stderr, "octomap_builder: unknown option '%s'\n", a.c_str());
-      Usage(stderr);
-      return 2;
+      args.Unknown();
     }
   }
   omni::SetLogProcessName("octomap_builder");

@@ -10,6 +10,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/map_save.h"
 #include "omni/bus/node_loop.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
@@ -34,37 +35,18 @@ void Usage(std::FILE* f) {
 int main(int argc, char** argv) {
   std::string config_path, out_dir = "out", url;
   double idle_exit_s = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "pose_graph_mapper: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      Usage(stdout);
-      return 0;
-    } else if (a == "--config") {
-      config_path = val();
-    } else if (a == "--out") {
-      out_dir = val();
-    } else if (a == "--url") {
-      url = val();
-    } else if (a == "--idle-exit") {
-      const std::string v = val();
-      char* end = nullptr;
-      idle_exit_s = std::strtod(v.c_str(), &end);
-      if (v.empty() || *end != '\0' || !(idle_exit_s >= 0)) {
-        std::fprintf(stderr, "pose_graph_mapper: --idle-exit expects seconds, got '%s'\n",
-                     v.c_str());
-        return 2;
-      }
+  omni::ArgReader args(argc, argv, "pose_graph_mapper", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config_path = args.Value();
+    } else if (args.Is("--out")) {
+      out_dir = args.Value();
+    } else if (args.Is("--url")) {
+      url = args.Value();
+    } else if (args.Is("--idle-exit")) {
+      idle_exit_s = args.Number(0, 1e6);
     } else {
-      std::fprintf(stderr, "pose_graph_mapper: unknown option '%s'\n", a.c_str());
-      Usage(stderr);
-      return 2;
+      args.Unknown();
     }
   }
   omni::SetLogProcessName("pose_graph_mapper");

@@ -56,6 +56,40 @@ TEST(CliErrors, ShippedOdomMapperConfigLoads) {
   EXPECT_NE(r.output.find("no scan was mapped"), std::string::npos) << r.output;
 }
 
+// A number that does not parse is an error naming the program, the option and the value,
+// never read as 0 (which would mean "never idle-exit", seed 0, or the first map).
+TEST(CliErrors, BadNumbersOnTheCommandLineAreNamed) {
+  struct Case {
+    const char* bin;
+    const char* args;
+    const char* says;
+  };
+  for (const Case& c : {
+           Case{"rbpf_mapper", "--idle-exit 2s", "rbpf_mapper: --idle-exit expects a number"},
+           Case{"rbpf_mapper", "--seed one", "rbpf_mapper: --seed expects a whole number"},
+           Case{"pose_graph_mapper", "--idle-exit -1", "--idle-exit expects a number"},
+           Case{"odom_mapper", "--idle-exit", "odom_mapper: --idle-exit needs a value"},
+           Case{"octomap_builder", "--idle-exit nan", "--idle-exit expects a number"},
+           Case{"map_fusion", "--fuse a.yaml --base 0", "--base expects a whole number in [1, "},
+           Case{"supervisor", "--duration-s 1x", "supervisor: --duration-s expects a number"},
+           Case{"omni-base-bridge", "--config x.yaml --duration-s y", "--duration-s expects"},
+           Case{"omni-base-bridge", "--can can0", "--config FILE is required"},
+           Case{"omni-drive", "--vx fast", "omni-drive: --vx expects a number"},
+           Case{"omni-drive", "--keys --vx 1", "take no twist"},
+           Case{"omni-save-map", "--wait 0", "omni-save-map: --wait expects a number"},
+           Case{"omni-sim", "--out /tmp/x --seed 1.5", "omni-sim: --seed expects a whole number"},
+           Case{"rbpf_mapper", "--bogus", "rbpf_mapper: unknown option '--bogus'"},
+       }) {
+    const auto r = testing::Run(Bin(c.bin) + " " + c.args);
+    EXPECT_EQ(r.exit_code, 2) << c.bin << " " << c.args << ": " << r.output;
+    EXPECT_NE(r.output.find(c.says), std::string::npos)
+        << c.bin << " " << c.args << ": " << r.output;
+  }
+  const auto help = testing::Run(Bin("omni-drive") + " --help");
+  EXPECT_EQ(help.exit_code, 0);
+  EXPECT_NE(help.output.find("usage: omni-drive"), std::string::npos) << help.output;
+}
+
 TEST(CliErrors, CorruptLcmLog) {
   OMNI_REQUIRE_DATASET(src, "lcm/example.lcmlog");
   const std::string dir = testing::TempDir();
