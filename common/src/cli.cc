@@ -60,4 +60,19 @@ void ArgReader::Fail(const std::string& message) {
   std::exit(2);
 }
 
+bool ReadMapperArg(ArgReader& args, MapperArgs* a) {
+  if (args.Is("--config")) {
+    a->config = args.Value();
+  } else if (args.Is("--out")) {
+    a->out = args.Value();
+  } else if (args.Is("--url")) {
+    a->url = args.Value();
+  } else if (args.Is("--idle-exit")) {
+    a->idle_exit_s = args.Number(0, 1e6);
+  } else {
+    return false;
+  }
+  return true;
+}
+
 }  // namespace omni

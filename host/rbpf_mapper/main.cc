@@ -32,25 +32,19 @@ void Usage(std::FILE* f) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config_path, out_dir = "out", url;
-  double idle_exit_s = 0;
+  omni::MapperArgs m;
   long long seed = -1;
   omni::ArgReader args(argc, argv, "rbpf_mapper", Usage);
   while (args.Next()) {
-    if (args.Is("--config")) {
-      config_path = args.Value();
-    } else if (args.Is("--out")) {
-      out_dir = args.Value();
-    } else if (args.Is("--url")) {
-      url = args.Value();
-    } else if (args.Is("--idle-exit")) {
-      idle_exit_s = args.Number(0, 1e6);
-    } else if (args.Is("--seed")) {
+    if (omni::ReadMapperArg(args, &m)) continue;
+    if (args.Is("--seed")) {
       seed = args.Integer(0, std::numeric_limits<int64_t>::max());
     } else {
       args.Unknown();
     }
   }
+  std::string config_path = m.config, out_dir = m.out, url = m.url;
+  const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("rbpf_mapper");
   omni::rbpf::RbpfOptions opt;
   if (!config_path.empty()) {

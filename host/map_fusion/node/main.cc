@@ -42,22 +42,14 @@ int Fail(const std::string& msg) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config_path, out_dir = "out", url;
-  double idle_exit_s = 0;
+  omni::MapperArgs m;
   std::vector<std::string> files;
   bool offline = false;
   int base_index = 0;
   omni::ArgReader args(argc, argv, "map_fusion", Usage);
   while (args.Next()) {
-    if (args.Is("--config")) {
-      config_path = args.Value();
-    } else if (args.Is("--out")) {
-      out_dir = args.Value();
-    } else if (args.Is("--url")) {
-      url = args.Value();
-    } else if (args.Is("--idle-exit")) {
-      idle_exit_s = args.Number(0, 1e6);
-    } else if (args.Is("--base")) {
+    if (omni::ReadMapperArg(args, &m)) continue;
+    if (args.Is("--base")) {
       base_index = static_cast<int>(args.Integer(1, 1000));
     } else if (args.Is("--fuse")) {
       offline = true;
@@ -67,6 +59,8 @@ int main(int argc, char** argv) {
       args.Unknown();
     }
   }
+  std::string config_path = m.config, out_dir = m.out, url = m.url;
+  const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("map_fusion");
   omni::map_fusion::FusionOptions opt;
   if (!config_path.empty()) {

@@ -36,22 +36,16 @@ void Usage(std::FILE* f) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config_path = "config/octomap_builder.yaml", out_dir, url;
-  double idle_exit_s = 0;
+  omni::MapperArgs m;
+  m.config = "config/octomap_builder.yaml";
+  m.out = "";
   omni::ArgReader args(argc, argv, "octomap_builder", Usage);
   while (args.Next()) {
-    if (args.Is("--config")) {
-      config_path = args.Value();
-    } else if (args.Is("--out")) {
-      out_dir = args.Value();
-    } else if (args.Is("--url")) {
-      url = args.Value();
-    } else if (args.Is("--idle-exit")) {
-      idle_exit_s = args.Number(0, 1e6);
-    } else {
-      args.Unknown();
-    }
+    if (omni::ReadMapperArg(args, &m)) continue;
+    args.Unknown();
   }
+  std::string config_path = m.config, out_dir = m.out, url = m.url;
+  const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("octomap_builder");
   auto opt = omni::octo::OctomapBuilderOptions::LoadFile(config_path);
   if (!opt.ok()) {
