@@ -177,6 +177,34 @@ bool DecodeParamReply(const CanFrame& f, ParamReply* m) {
   m->value = GetF32(&f.data[4]);
   return true;
 }
+CanFrame EncodeSaveParams(uint8_t node, uint8_t action) {
+  CanFrame f = Make(node, kSaveParams);
+  f.data[0] = action;
+  return f;
+}
+CanFrame EncodeParamStoreStatus(uint8_t node, const ParamStoreStatus& m) {
+  CanFrame f = Make(node, kParamStoreStatus);
+  f.data[0] = m.action;
+  f.data[1] = m.result;
+  f.data[2] = m.boot_state;
+  f.data[3] = m.stored;
+  PutU32(&f.data[4], m.crc);
+  return f;
+}
+bool DecodeSaveParams(const CanFrame& f, uint8_t* action) {
+  if (!CheckLength(f)) return false;
+  *action = f.data[0];
+  return true;
+}
+bool DecodeParamStoreStatus(const CanFrame& f, ParamStoreStatus* m) {
+  if (!CheckLength(f)) return false;
+  m->action = f.data[0];
+  m->result = f.data[1];
+  m->boot_state = f.data[2];
+  m->stored = f.data[3];
+  m->crc = GetU32(&f.data[4]);
+  return true;
+}
 bool DecodeDiagnostics(const CanFrame& f, Diagnostics* m) {
   if (!CheckLength(f)) return false;
   m->rx_unknown = GetU16(&f.data[0]);

@@ -13,6 +13,7 @@ bool Finite(float v) { return v == v && v < 3.0e38f && v > -3.0e38f; }
 }  // namespace
 
 FwStatus Firmware::Init() {
+  LoadParamStore();
   uint16_t bad = 0;
   if (ValidateParams(params_, &bad) != FwStatus::kOk) return FwStatus::kInvalid;
   for (int w = 0; w < kNumWheels; ++w) {
@@ -125,6 +126,70 @@ void Firmware::HandleParam(const CanFrame& f, bool set) {
   Send(can::EncodeParamValue(params_.node_id, reply));
 }
 
+void Firmware::LoadParamStore() {
+  stored_count_ = 0;
+  stored_crc_ = 0;
+  if (!hal_->has_param_store()) {
+    store_state_ = ParamStoreState::kNoStore;
+    return;
+  }
+  uint8_t buf[kParamStoreMaxBytes] = {};
+  const uint32_t n = hal_->ParamStoreRead(buf, sizeof(buf));
+  int applied = 0;
+  const FwStatus s = DecodeParamStore(buf, n > sizeof(buf) ? 0 : n, &params_, &applied);
+  if (n == 0) {
+    store_state_ = ParamStoreState::kEmpty;
+  } else if (s != FwStatus::kOk) {
+    store_state_ = ParamStoreState::kCorrupt;  // compiled defaults; the host can re-save
+  } else {
+    store_state_ = ParamStoreState::kLoaded;
+    stored_count_ = static_cast<uint8_t>(applied);
+    stored_crc_ = Crc32(buf, n);
+  }
+}
+
+void Firmware::HandleSaveParams(uint8_t action) {
+  can::ParamStoreStatus st;
+  st.action = action;
+  st.boot_state = static_cast<uint8_t>(store_state_);
+  const bool motors_off =
+      state_ == State::kIdle || state_ == State::kFault || state_ == State::kEstop;
+  if (action > can::kStoreQuery) {
+    st.result = can::kStoreBadAction;
+    fault_bits_ |= kFaultBadCommand;
+  } else if (action == can::kStoreQuery) {
+    st.result = can::kStoreOk;
+  } else if (!hal_->has_param_store()) {
+    st.result = can::kStoreUnavailable;
+  } else if (!motors_off) {
+    st.result = can::kStoreRefusedMoving;
+    fault_bits_ |= kFaultBadCommand;
+  } else {
+    uint8_t buf[kParamStoreMaxBytes] = {};
+    const size_t len = action == can::kStoreSave ? EncodeParamStore(params_, buf, sizeof(buf)) : 0;
+    untimed_step_ = true;
+    const FwStatus w = hal_->ParamStoreWrite(buf, static_cast<uint32_t>(len));
+    // Read it back: only what is really there counts as stored.
+    uint8_t back[kParamStoreMaxBytes] = {};
+    const uint32_t n = hal_->ParamStoreRead(back, sizeof(back));
+    Params check = params_;
+    int applied = 0;
+    const bool same =
+        n == len && (len == 0 || (DecodeParamStore(back, n, &check, &applied) == FwStatus::kOk &&
+                                  Crc32(back, n) == Crc32(buf, len)));
+    if (w != FwStatus::kOk || !same) {
+      st.result = can::kStoreWriteFailed;
+    } else {
+      st.result = can::kStoreOk;
+      stored_count_ = static_cast<uint8_t>(applied);
+      stored_crc_ = len == 0 ? 0 : Crc32(buf, len);
+    }
+  }
+  st.stored = stored_count_;
+  st.crc = stored_crc_;
+  Send(can::EncodeParamStoreStatus(params_.node_id, st));
+}
+
 void Firmware::HandleFrame(const CanFrame& f) {
   if (can::NodeOf(f.id) != params_.node_id) return;  // another node's traffic: not ours
   ++counters_.rx_frames;
@@ -136,6 +201,7 @@ void Firmware::HandleFrame(const CanFrame& f) {
     case can::kSetWheelSpeeds:
     case can::kGetParam:
     case can::kSetParam:
+    case can::kSaveParams:
       break;
     default:
       ++counters_.rx_unknown;
@@ -183,6 +249,11 @@ void Firmware::HandleFrame(const CanFrame& f) {
     case can::kSetParam:
       HandleParam(f, /*set=*/true);
       break;
+    case can::kSaveParams: {
+      uint8_t action = 0;
+      if (can::DecodeSaveParams(f, &action)) HandleSaveParams(action);
+      break;
+    }
     default:
       break;
   }
@@ -281,7 +352,8 @@ void Firmware::Step() {
                      (state_ == State::kRunning && (uptime_ms_ / 250) % 2 == 0));
 
   const uint32_t took = hal_->MicrosNow() - t0;
-  if (took > counters_.max_step_us) counters_.max_step_us = took;
+  if (took > counters_.max_step_us && !untimed_step_) counters_.max_step_us = took;
+  untimed_step_ = false;
 }
 
 void Firmware::SendFeedback() {

@@ -3,9 +3,13 @@
 // inject and inspect them directly).
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <deque>
+#include <string>
+#include <vector>
 
 #include "omni/firmware/hal.h"
 #include "plant.h"
@@ -46,6 +50,37 @@ class HostHal final : public Hal {
   bool CanBusOff() override { return bus_off; }
   void SetStatusLed(bool on) override { led = on; }
 
+  // Parameter store: `param_store` in memory, or a file when UseParamStoreFile() named one (so
+  // omni-firmware-sim keeps its parameters across runs, as the board keeps them in flash).
+  bool has_param_store() const override { return param_store_enabled; }
+  uint32_t ParamStoreRead(uint8_t* buf, uint32_t cap) override {
+    if (!param_store_file_.empty()) {
+      param_store.clear();
+      if (std::FILE* f = std::fopen(param_store_file_.c_str(), "rb")) {
+        uint8_t b[512];
+        const size_t n = std::fread(b, 1, sizeof(b), f);
+        param_store.assign(b, b + n);
+        std::fclose(f);
+      }
+    }
+    const uint32_t n = static_cast<uint32_t>(std::min<size_t>(cap, param_store.size()));
+    for (uint32_t i = 0; i < n; ++i) buf[i] = param_store[i];
+    return n;
+  }
+  FwStatus ParamStoreWrite(const uint8_t* buf, uint32_t len) override {
+    ++param_store_writes;
+    if (fail_param_store_writes) return FwStatus::kHardware;
+    param_store.assign(buf, buf + len);
+    if (!param_store_file_.empty()) {
+      std::FILE* f = std::fopen(param_store_file_.c_str(), "wb");
+      if (f == nullptr) return FwStatus::kHardware;
+      const bool ok = std::fwrite(buf, 1, len, f) == len;
+      if (std::fclose(f) != 0 || !ok) return FwStatus::kHardware;
+    }
+    return FwStatus::kOk;
+  }
+  void UseParamStoreFile(std::string path) { param_store_file_ = std::move(path); }
+
   // Simulated time: when set, MicrosNow() reads *clock_us (a simulator that steps the firmware
   // in simulated time stays deterministic); nullptr: the steady clock.
   void UseClock(const int64_t* clock_us) { clock_us_ = clock_us; }
@@ -58,11 +93,16 @@ class HostHal final : public Hal {
   size_t tx_capacity = 1024;
   bool bus_off = false;
   bool led = false;
+  bool param_store_enabled = true;
+  bool fail_param_store_writes = false;  // test hook: the "flash" refuses writes
+  int param_store_writes = 0;
+  std::vector<uint8_t> param_store;
 
  private:
   Plant* plant_;
   float current_override_a_ = -1.f;
   const int64_t* clock_us_ = nullptr;
+  std::string param_store_file_;
 };
 
 }  // namespace omni::firmware::sim

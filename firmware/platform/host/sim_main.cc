@@ -2,7 +2,7 @@
 // to a CAN bus exactly as the board is (same frames, same timing) and publishes nothing else.
 //
 //   omni-firmware-sim --config config/firmware_sim.yaml [--can shm:NAME] [--slip a,b,c]
-//                     [--truth-out FILE] [--duration-s S]
+//                     [--truth-out FILE] [--duration-s S] [--param-store FILE]
 //
 // --truth-out writes, every 10 ms, CSV lines t_s,x_m,y_m,theta_rad,distance_m,cmd_x_m,
 // cmd_y_m,cmd_theta_rad: the plant's true pose, and the pose the firmware was commanded to
@@ -20,6 +20,7 @@
 
 #include "host_hal.h"
 #include "omni/can/can_bus.h"
+#include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/firmware/firmware.h"
 #include "plant.h"
@@ -30,13 +31,14 @@ namespace {
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
-int Usage(int code) {
-  std::fprintf(code == 0 ? stdout : stderr,
+void Usage(std::FILE* f) {
+  std::fprintf(f,
                "usage: omni-firmware-sim --config FILE [--can URL] [--slip s1,s2,s3]\n"
-               "                         [--truth-out FILE] [--duration-s S]\n"
+               "                         [--truth-out FILE] [--duration-s S] [--param-store FILE]\n"
                "Runs the base firmware against a simulated motor/wheel plant on a CAN bus\n"
-               "(URL shm:NAME for the user-space bus, socketcan:IF for a real interface).\n");
-  return code;
+               "(URL shm:NAME for the user-space bus, socketcan:IF for a real interface).\n"
+               "--param-store FILE: the board's parameter flash (SAVE_PARAMS writes it, the next\n"
+               "start reads it; default: in memory, empty at start).\n");
 }
 
 omni::firmware::CanFrame ToFw(const omni::can::Frame& f) {
@@ -60,32 +62,26 @@ int main(int argc, char** argv) {
   using namespace omni::firmware;
   std::string config, can_override, slip_arg, truth_path;
   double duration_s = -1.0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(Usage(2));
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") return Usage(0);
-    if (a == "--config")
-      config = next();
-    else if (a == "--can")
-      can_override = next();
-    else if (a == "--slip")
-      slip_arg = next();
-    else if (a == "--truth-out")
-      truth_path = next();
-    else if (a == "--duration-s")
-      duration_s = std::atof(next().c_str());
-    else {
-      std::fprintf(stderr, "unknown option %s\n", a.c_str());
-      return Usage(2);
+  std::string param_store;
+  omni::ArgReader args(argc, argv, "omni-firmware-sim", Usage);
+  while (args.Next()) {
+    if (args.Is("--config")) {
+      config = args.Value();
+    } else if (args.Is("--can")) {
+      can_override = args.Value();
+    } else if (args.Is("--slip")) {
+      slip_arg = args.Value();
+    } else if (args.Is("--truth-out")) {
+      truth_path = args.Value();
+    } else if (args.Is("--duration-s")) {
+      duration_s = args.Number(0, 1e9);
+    } else if (args.Is("--param-store")) {
+      param_store = args.Value();
+    } else {
+      args.Unknown();
     }
   }
-  if (config.empty()) return Usage(2);
+  if (config.empty()) args.Fail("--config FILE is required (e.g. config/firmware_sim.yaml)");
   omni::SetLogProcessName("firmware_sim");
   auto opts = sim::LoadSimOptions(config);
   if (!opts.ok()) {
@@ -101,9 +97,10 @@ int main(int argc, char** argv) {
         LOG_ERROR << "--slip needs three comma-separated values, got '" << slip_arg << "'";
         return 2;
       }
-      const double s = std::atof(item.c_str());
-      if (!(s >= 0.0 && s < 1.0)) {
-        LOG_ERROR << "--slip values must be in [0, 1), got " << s;
+      char* end = nullptr;
+      const double s = std::strtod(item.c_str(), &end);
+      if (item.empty() || *end != '\0' || !(s >= 0.0 && s < 1.0)) {
+        LOG_ERROR << "--slip values must be in [0, 1), got '" << item << "'";
         return 2;
       }
       opts->plant.slip[w] = s;
@@ -123,11 +120,18 @@ int main(int argc, char** argv) {
 
   sim::Plant plant(opts->plant);
   sim::HostHal hal(&plant);
+  if (!param_store.empty()) hal.UseParamStoreFile(param_store);
   Firmware fw(&hal, opts->firmware);
   if (fw.Init() != FwStatus::kOk) {
     LOG_ERROR << "firmware parameters rejected";
     return 1;
   }
+  static const char* kStore[] = {"empty: compiled defaults", "loaded", "corrupt: compiled defaults",
+                                 "none"};
+  LOG_INFO << "parameter store: " << kStore[static_cast<int>(fw.param_store_state()) & 3]
+           << (fw.param_store_state() == ParamStoreState::kLoaded
+                   ? " (" + std::to_string(fw.params_stored()) + " parameters)"
+                   : std::string());
   std::unique_ptr<omni::can::CanBus> bus;
   auto last_open = std::chrono::steady_clock::now() - std::chrono::seconds(1);
   auto try_open = [&]() {

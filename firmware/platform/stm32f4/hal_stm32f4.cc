@@ -1,5 +1,6 @@
 #include "hal_stm32f4.h"
 
+#include "omni/firmware/param_store.h"
 #include "regs.h"
 
 namespace omni::firmware::stm32 {
@@ -219,5 +220,86 @@ FwStatus Stm32Hal::CanWrite(const CanFrame& frame) {
 bool Stm32Hal::CanBusOff() { return (Reg(CAN_ESR) & (1u << 2)) != 0; }
 
 void Stm32Hal::SetStatusLed(bool on) { PinWrite(kGpioC, 13, !on); }  // LED to 3.3 V: low = on
+
+// --- Parameter store: flash sector 1 ------------------------------------------------------
+
+extern "C" const uint8_t _param_store[];  // linker script: ORIGIN(PARAMS)
+
+namespace {
+
+constexpr uint32_t kFlashBsy = 1u << 16;
+constexpr uint32_t kFlashErrors = 0xF2u;  // OPERR, WRPERR, PGAERR, PGPERR, PGSERR
+constexpr uint32_t kPsizeX32 = 2u << 8;
+
+// Runs from RAM (.data is copied there at reset; long_call reaches it from flash): erases
+// sector 1 and programs n words at dest. While the flash is busy the CPU must not fetch from
+// it, so this calls nothing, the caller has turned interrupts off, and the busy loops kick the
+// independent watchdog by hand. Returns the flash error flags (0: done).
+__attribute__((section(".data.ramfunc"), noinline, long_call)) uint32_t EraseAndProgram(
+    const uint32_t* words, uint32_t n, volatile uint32_t* dest) {
+  volatile uint32_t* const sr = reinterpret_cast<volatile uint32_t*>(FLASH_SR);
+  volatile uint32_t* const cr = reinterpret_cast<volatile uint32_t*>(FLASH_CR);
+  volatile uint32_t* const kick = reinterpret_cast<volatile uint32_t*>(IWDG_KR);
+  while (*sr & kFlashBsy) *kick = 0xAAAA;
+  *sr = kFlashErrors | 1u;                               // clear old flags (write 1)
+  *cr = kPsizeX32 | (1u << 3) | (1u << 1);               // SNB = 1, SER
+  *cr = kPsizeX32 | (1u << 3) | (1u << 1) | (1u << 16);  // STRT
+  while (*sr & kFlashBsy) *kick = 0xAAAA;
+  uint32_t err = *sr & kFlashErrors;
+  *cr = kPsizeX32;
+  for (uint32_t i = 0; i < n && err == 0; ++i) {
+    *cr = kPsizeX32 | 1u;  // PG
+    dest[i] = words[i];
+    while (*sr & kFlashBsy) *kick = 0xAAAA;
+    err = *sr & kFlashErrors;
+  }
+  *cr = kPsizeX32;
+  return err;
+}
+
+}  // namespace
+
+uint32_t Stm32Hal::ParamStoreRead(uint8_t* buf, uint32_t cap) {
+  const uint8_t* p = _param_store;
+  if (p[0] == 0xFF && p[1] == 0xFF && p[2] == 0xFF && p[3] == 0xFF) return 0;  // erased
+  uint32_t len = 16;  // not a record we know: enough for the decoder to say so
+  const uint32_t magic = static_cast<uint32_t>(p[0]) | (static_cast<uint32_t>(p[1]) << 8) |
+                         (static_cast<uint32_t>(p[2]) << 16) | (static_cast<uint32_t>(p[3]) << 24);
+  if (magic == kParamStoreMagic) len = 8u + 6u * (static_cast<uint32_t>(p[6]) | (p[7] << 8)) + 4u;
+  if (len > cap) len = cap;
+  for (uint32_t i = 0; i < len; ++i) buf[i] = p[i];
+  return len;
+}
+
+FwStatus Stm32Hal::ParamStoreWrite(const uint8_t* buf, uint32_t len) {
+  if (len > kParamStoreMaxBytes) return FwStatus::kInvalid;
+  uint32_t words[kParamStoreMaxBytes / 4];
+  const uint32_t n = (len + 3) / 4;
+  for (uint32_t i = 0; i < n; ++i) {
+    uint32_t w = 0xFFFFFFFFu;
+    for (uint32_t b = 0; b < 4; ++b)
+      if (4 * i + b < len) {
+        w &= ~(0xFFu << (8 * b));
+        w |= static_cast<uint32_t>(buf[4 * i + b]) << (8 * b);
+      }
+    words[i] = w;
+  }
+  if (Reg(FLASH_CR) & (1u << 31)) {  // LOCK: the unlock sequence
+    Reg(FLASH_KEYR) = 0x45670123u;
+    Reg(FLASH_KEYR) = 0xCDEF89ABu;
+  }
+  uint32_t primask = 0;
+  __asm volatile("mrs %0, primask\n cpsid i" : "=r"(primask)::"memory");
+  const uint32_t err = EraseAndProgram(
+      words, n, reinterpret_cast<volatile uint32_t*>(reinterpret_cast<uintptr_t>(_param_store)));
+  __asm volatile("msr primask, %0" ::"r"(primask) : "memory");
+  Reg(FLASH_CR) |= (1u << 31);  // lock again
+  // The data cache may hold the sector's old bytes: reset it (RM0090 3.5.2).
+  Reg(FLASH_ACR) &= ~(1u << 10);
+  Reg(FLASH_ACR) |= (1u << 12);
+  Reg(FLASH_ACR) &= ~(1u << 12);
+  Reg(FLASH_ACR) |= (1u << 10);
+  return err == 0 ? FwStatus::kOk : FwStatus::kHardware;
+}
 
 }  // namespace omni::firmware::stm32

@@ -37,6 +37,12 @@ class Stm32Hal final : public Hal {
   FwStatus CanWrite(const CanFrame& frame) override;
   bool CanBusOff() override;
   void SetStatusLed(bool on) override;
+  // Parameter store: flash sector 1 (16 KiB at 0x08004000, kept out of the image by the linker
+  // script). The erase (~250-500 ms) and the programming run from RAM with interrupts off,
+  // kicking the independent watchdog, so neither the flash stall nor the 50 ms watchdog hits.
+  bool has_param_store() const override { return true; }
+  uint32_t ParamStoreRead(uint8_t* buf, uint32_t cap) override;
+  FwStatus ParamStoreWrite(const uint8_t* buf, uint32_t len) override;
 };
 
 }  // namespace omni::firmware::stm32

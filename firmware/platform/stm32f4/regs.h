@@ -36,6 +36,7 @@ constexpr uint32_t RCC_AHB1ENR = kRcc + 0x30;
 constexpr uint32_t RCC_APB1ENR = kRcc + 0x40;
 constexpr uint32_t RCC_APB2ENR = kRcc + 0x44;
 constexpr uint32_t FLASH_ACR = kFlash + 0x00;
+constexpr uint32_t FLASH_KEYR = kFlash + 0x04, FLASH_SR = kFlash + 0x0C, FLASH_CR = kFlash + 0x10;
 
 // GPIO (offsets).
 constexpr uint32_t GPIO_MODER = 0x00, GPIO_OSPEEDR = 0x08, GPIO_PUPDR = 0x0C, GPIO_BSRR = 0x18,

@@ -29,6 +29,8 @@ enum Command : uint8_t {
   kBodyTwistFeedback = 0x0C,  // fw -> host, every feedback_period_ms
   kSetpointFeedback = 0x0D,   // fw -> host, every heartbeat_period_ms
   kDiagnostics = 0x0E,        // fw -> host, every 10 heartbeats
+  kSaveParams = 0x0F,         // host -> fw: store the parameters (or erase the store)
+  kParamStoreStatus = 0x10,   // fw -> host, reply to SAVE_PARAMS
 };
 
 inline constexpr uint16_t MakeId(uint8_t node, uint8_t cmd) {
@@ -77,6 +79,28 @@ struct ParamReply {
   uint8_t result = kParamOk;
   float value = 0.f;
 };
+// SAVE_PARAMS: what to do with the non-volatile parameter store (param_store.h). Refused
+// unless the motors are off (IDLE, FAULT or ESTOP): writing flash stalls the control loop.
+enum ParamStoreAction : uint8_t {
+  kStoreSave = 0,   // write every writable parameter; applied at the next boot
+  kStoreErase = 1,  // empty the store: the next boot uses the compiled defaults
+  kStoreQuery = 2,  // only report (PARAM_STORE_STATUS)
+};
+enum ParamStoreResult : uint8_t {
+  kStoreOk = 0,
+  kStoreRefusedMoving = 1,  // the motors are not off
+  kStoreWriteFailed = 2,    // the HAL's write failed (or read back differently)
+  kStoreUnavailable = 3,    // the board has no parameter store
+  kStoreBadAction = 4,
+};
+struct ParamStoreStatus {
+  uint8_t action = kStoreQuery;  // the request answered
+  uint8_t result = kStoreOk;
+  uint8_t boot_state = 0;  // ParamStoreState found at boot
+  uint8_t stored = 0;      // parameters in the store now (0: empty)
+  uint32_t crc = 0;        // CRC-32 of the stored record (0: empty)
+};
+
 struct Diagnostics {
   uint16_t rx_unknown = 0;     // frames for this node with an unknown command
   uint16_t rx_bad_length = 0;  // frames for this node with a wrong DLC
@@ -99,6 +123,8 @@ CanFrame EncodeCurrentFeedback(uint8_t node, const WheelTriple& m);
 CanFrame EncodeBodyTwistFeedback(uint8_t node, const BodyTwist& m);
 CanFrame EncodeSetpointFeedback(uint8_t node, const WheelTriple& m);
 CanFrame EncodeDiagnostics(uint8_t node, const Diagnostics& m);
+CanFrame EncodeSaveParams(uint8_t node, uint8_t action);
+CanFrame EncodeParamStoreStatus(uint8_t node, const ParamStoreStatus& m);
 
 // Decoders check the DLC (must be 8) and return false on a wrong length; the command must
 // already have been matched by the caller from the id.
@@ -110,6 +136,8 @@ CanFrame EncodeDiagnostics(uint8_t node, const Diagnostics& m);
 [[nodiscard]] bool DecodeParamRequest(const CanFrame& f, ParamRequest* m);  // get or set
 [[nodiscard]] bool DecodeParamReply(const CanFrame& f, ParamReply* m);
 [[nodiscard]] bool DecodeDiagnostics(const CanFrame& f, Diagnostics* m);
+[[nodiscard]] bool DecodeSaveParams(const CanFrame& f, uint8_t* action);
+[[nodiscard]] bool DecodeParamStoreStatus(const CanFrame& f, ParamStoreStatus* m);
 [[nodiscard]] bool CheckLength(const CanFrame& f);
 
 }  // namespace omni::firmware::can

@@ -24,6 +24,7 @@
 #include "omni/common/kinematics.h"
 #include "omni/firmware/can_protocol.h"
 #include "omni/firmware/hal.h"
+#include "omni/firmware/param_store.h"
 #include "omni/firmware/params.h"
 #include "omni/firmware/pid.h"
 #include "omni/firmware/quadrature.h"
@@ -79,7 +80,8 @@ class Firmware {
  public:
   Firmware(Hal* hal, const Params& params) : hal_(hal), params_(params) {}
 
-  // Validates the parameters, zeroes the encoders, disables the motors, enters IDLE.
+  // Applies the parameter store's record if there is a valid one (param_store.h), validates
+  // the parameters, zeroes the encoders, disables the motors, enters IDLE.
   [[nodiscard]] FwStatus Init();
   // One control period. Call every params().control_period_us.
   void Step();
@@ -94,12 +96,17 @@ class Firmware {
   const Params& params() const { return params_; }
   // Time since Init, from the step count (deterministic), milliseconds.
   uint32_t uptime_ms() const { return uptime_ms_; }
+  // What Init() found in the parameter store, and what it holds now (count 0: empty).
+  ParamStoreState param_store_state() const { return store_state_; }
+  uint8_t params_stored() const { return stored_count_; }
   // Body twist measured from the wheel speeds (forward kinematics).
   const omni::kinematics::BodyTwist<float>& measured_twist() const { return measured_twist_; }
 
  private:
   void OnMotionCommand(const float target_rad_s[kNumWheels]);
   void HandleParam(const CanFrame& f, bool set);
+  void LoadParamStore();
+  void HandleSaveParams(uint8_t action);
   void EnterFault(uint32_t bit);
   void MotorsOff();
   void CheckFaults(float dt_s);
@@ -132,6 +139,10 @@ class Firmware {
   uint16_t feedback_seq_ = 0;
   uint8_t heartbeat_counter_ = 0;
   uint16_t last_cmd_seq_ = 0;
+  ParamStoreState store_state_ = ParamStoreState::kNoStore;
+  uint8_t stored_count_ = 0;
+  uint32_t stored_crc_ = 0;
+  bool untimed_step_ = false;  // a flash write ran in this step: not a control-step time
   Counters counters_;
   omni::kinematics::BodyTwist<float> measured_twist_;
   float forward_[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // body twist = forward_ * rim speeds

@@ -45,6 +45,22 @@ class Hal {
   virtual bool CanBusOff() = 0;
   // Status LED (GPIO): blinks while running, steady on fault.
   virtual void SetStatusLed(bool on) = 0;
+  // Non-volatile parameter store (param_store.h), one small area. has_param_store(): false on a
+  // board without one (the defaults below). Read copies up to `cap` bytes of the area into buf
+  // and returns how many hold a record (0: empty or erased). Write replaces the area with
+  // `len` bytes (len 0: erase); it may block the CPU for a long time (a flash sector erase takes
+  // up to ~2 s on the STM32F4), so the firmware only calls it with the motors off.
+  virtual bool has_param_store() const { return false; }
+  virtual uint32_t ParamStoreRead(uint8_t* buf, uint32_t cap) {
+    (void)buf;
+    (void)cap;
+    return 0;
+  }
+  virtual FwStatus ParamStoreWrite(const uint8_t* buf, uint32_t len) {
+    (void)buf;
+    (void)len;
+    return FwStatus::kHardware;
+  }
 
  protected:
   ~Hal() = default;

@@ -1,0 +1,57 @@
+// The firmware's parameter store end to end: omni-firmware-sim with its "flash" in a file, and
+// omni-base-param on the same user-space CAN bus setting a gain, saving it, and finding it again
+// after the simulated board restarts; erase brings the compiled default back.
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "../tools/run.h"
+
+namespace omni {
+namespace {
+
+TEST(BaseParamStore, ASavedGainSurvivesARestartOfTheBoard) {
+  const std::string dir = ::testing::TempDir() + "/param_store";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string name = "ptest" + std::to_string(getpid()), bus = "shm:" + name;
+  const std::string sim = testing::Bin("omni-firmware-sim") +
+                          " --config " OMNI_SOURCE_DIR "/config/firmware_sim.yaml --can " + bus +
+                          " --param-store " + dir + "/flash.bin --duration-s 3 2>&1 &";
+  const std::string param = testing::Bin("omni-base-param") + " --can " + bus + " ";
+  // First boot: nothing stored; set kp, keep it.
+  auto r =
+      testing::Run(sim + " sleep 0.5; " + param + "status; " + param + "set kp 0.35 && " + param +
+                   "set kp 99; echo \"refused: $?\"; " + param + "save && echo saved; wait");
+  EXPECT_NE(r.output.find("at boot: empty (compiled defaults)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("kp (1) = 0.35\n"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("refused: out of range"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("refused: 1"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("stored now: 21 parameters"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("saved"), std::string::npos) << r.output;
+  EXPECT_EQ(std::filesystem::file_size(dir + "/flash.bin"), 138u);
+  // Second boot: kp is back; erase the store.
+  r = testing::Run(sim + " sleep 0.5; " + param + "get kp; " + param + "erase; wait");
+  EXPECT_NE(r.output.find("parameter store: loaded (21 parameters)"), std::string::npos)
+      << r.output;
+  EXPECT_NE(r.output.find("kp (1) = 0.35\n"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("stored now: 0 parameters"), std::string::npos) << r.output;
+  // Third boot: the compiled default (config/firmware_sim.yaml's kp).
+  r = testing::Run(sim + " sleep 0.5; " + param + "get kp; wait");
+  EXPECT_NE(r.output.find("parameter store: empty"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("kp (1) = 0.35"), std::string::npos) << r.output;
+  // Nobody on the bus: a clear error, not a hang.
+  r = testing::Run(param + "--timeout 0.3 get kp");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("no answer from node 1"), std::string::npos) << r.output;
+  r = testing::Run(param + "get nonsense");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("no parameter named 'nonsense'"), std::string::npos) << r.output;
+  std::filesystem::remove("/dev/shm/omni-can-" + name);  // the user-space bus's segment
+}
+
+}  // namespace
+}  // namespace omni
