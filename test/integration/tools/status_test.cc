@@ -1,0 +1,44 @@
+// omni-status: the processes' heartbeats as a table and as JSON (a headless robot's health check).
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "run.h"
+
+namespace omni {
+namespace {
+
+TEST(OmniStatus, ShowsEveryProcessOnTheBusAndSaysWhenThereIsNone) {
+  auto r = testing::Run(testing::Bin("omni-status") + " --lcm-url memq:// --wait 0.3");
+  EXPECT_EQ(r.exit_code, 3) << r.output;
+  EXPECT_NE(r.output.find("no process's heartbeat within 0.3 s"), std::string::npos) << r.output;
+  if (testing::Run("unshare -n true").exit_code != 0)
+    GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
+  const std::string dir = ::testing::TempDir() + "/omni_status";
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream s(dir + "/run.sh");
+    s << "set -u\nip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
+      << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0'\n"
+      << testing::Bin("odom_mapper") << " --config " OMNI_SOURCE_DIR "/config/odom_mapper.yaml"
+      << " --out " << dir << " >/dev/null 2>&1 & m=$!\n"
+      << "sleep 1.2\n"
+      << testing::Bin("omni-status") << "; echo \"table: $?\"\n"
+      << testing::Bin("omni-status") << " --json --all-counters --wait 1.2; echo \"json: $?\"\n"
+      << "kill -TERM $m; wait $m; exit 0\n";
+  }
+  r = testing::Run("timeout 30 unshare -n bash " + dir + "/run.sh");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("table: 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("json: 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("PROCESS"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("mapping at raw odometry"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("{\"process\": \"odom_mapper\""), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"state\": \"OK\""), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"scans_in\": 0"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace omni

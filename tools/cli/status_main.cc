@@ -1,0 +1,173 @@
+// omni-status (./omni status): the health of every omni process on the bus, from their
+// HEARTBEAT messages, as a table in the terminal (for a headless robot PC, where lcm-spy's
+// window is not at hand) or as JSON for scripts.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <map>
+#include <string>
+#include <tuple>
+
+#include "omni/bus/bus.h"
+#include "omni/common/cli.h"
+#include "omni/heartbeat_t.hpp"
+
+namespace {
+
+void Usage(std::FILE* f) {
+  std::fprintf(
+      f,
+      "usage: omni-status [--lcm-url URL] [--wait S] [--process NAME] [--all-counters] [--json]\n"
+      "  Listens to HEARTBEAT for S seconds (default 2.5; processes beat once a second) and\n"
+      "  prints each process heard: state, uptime, CPU, memory, bus traffic and errors, its\n"
+      "  status text and its non-zero counters (--all-counters: every counter).\n"
+      "  Exit status: 0 all OK (or starting), 1 one is DEGRADED, ERROR or STOPPING, 3 none "
+      "heard.\n");
+}
+
+const char* StateName(int8_t s) {
+  switch (s) {
+    case omni::heartbeat_t::STATE_STARTING:
+      return "STARTING";
+    case omni::heartbeat_t::STATE_OK:
+      return "OK";
+    case omni::heartbeat_t::STATE_DEGRADED:
+      return "DEGRADED";
+    case omni::heartbeat_t::STATE_ERROR:
+      return "ERROR";
+    case omni::heartbeat_t::STATE_STOPPING:
+      return "STOPPING";
+    default:
+      return "?";
+  }
+}
+
+std::string Json(const std::string& s) {
+  std::string o = "\"";
+  for (char c : s) {
+    if (c == '"' || c == '\\') {
+      o += '\\';
+      o += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      char b[8];
+      std::snprintf(b, sizeof(b), "\\u%04x", c);
+      o += b;
+    } else {
+      o += c;
+    }
+  }
+  return o + "\"";
+}
+
+std::string Uptime(int64_t us) {
+  const int64_t s = us / 1000000;
+  char b[32];
+  if (s >= 3600)
+    std::snprintf(b, sizeof(b), "%lldh%02lldm", static_cast<long long>(s / 3600),
+                  static_cast<long long>(s / 60 % 60));
+  else
+    std::snprintf(b, sizeof(b), "%lldm%02llds", static_cast<long long>(s / 60),
+                  static_cast<long long>(s % 60));
+  return b;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string lcm_url, only;
+  double wait_s = 2.5;
+  bool all_counters = false, json = false;
+  omni::ArgReader args(argc, argv, "omni-status", Usage);
+  while (args.Next()) {
+    if (args.Is("--lcm-url")) {
+      lcm_url = args.Value();
+    } else if (args.Is("--wait")) {
+      wait_s = args.Number(0.1, 3600);
+    } else if (args.Is("--process")) {
+      only = args.Value();
+    } else if (args.Is("--all-counters")) {
+      all_counters = true;
+    } else if (args.Is("--json")) {
+      json = true;
+    } else {
+      args.Unknown();
+    }
+  }
+  auto bus = omni::bus::Bus::Create(lcm_url);
+  if (!bus.ok()) {
+    std::fprintf(stderr, "omni-status: %s\n", bus.error().message.c_str());
+    return 1;
+  }
+  // The newest heartbeat of each process (name, pid: a restarted process is a new row).
+  std::map<std::tuple<std::string, int32_t>, omni::heartbeat_t> latest;
+  (*bus)->Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) {
+    if (!only.empty() && m.process != only) return;
+    auto& slot = latest[{m.process, m.pid}];
+    if (m.utime >= slot.utime) slot = m;
+  });
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                            std::chrono::duration<double>(wait_s));
+  while (std::chrono::steady_clock::now() < deadline) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    if ((*bus)->HandleTimeout(static_cast<int>(std::max<int64_t>(1, left.count()))) < 0) break;
+  }
+  const int64_t undecodable = (*bus)->counters().decode_errors;
+  int unhealthy = 0;
+  for (const auto& [key, m] : latest)
+    unhealthy += m.state == omni::heartbeat_t::STATE_DEGRADED ||
+                 m.state == omni::heartbeat_t::STATE_ERROR ||
+                 m.state == omni::heartbeat_t::STATE_STOPPING;
+  if (json) {
+    std::printf("{\"processes\": [");
+    bool first = true;
+    for (const auto& [key, m] : latest) {
+      std::printf(
+          "%s\n  {\"process\": %s, \"pid\": %d, \"state\": \"%s\", \"status\": %s, "
+          "\"uptime_s\": %.1f, \"cpu_percent\": %.1f, \"rss_mb\": %.1f, \"msgs_in\": %lld, "
+          "\"msgs_out\": %lld, \"decode_errors\": %lld, \"drops\": %lld, \"counters\": {",
+          first ? "" : ",", Json(m.process).c_str(), m.pid, StateName(m.state),
+          Json(m.status_text).c_str(), static_cast<double>(m.uptime_us) * 1e-6,
+          static_cast<double>(m.cpu_percent), static_cast<double>(m.rss_mb),
+          static_cast<long long>(m.msgs_in), static_cast<long long>(m.msgs_out),
+          static_cast<long long>(m.decode_errors), static_cast<long long>(m.drops));
+      for (int i = 0; i < m.num_counters; ++i)
+        std::printf("%s%s: %lld", i == 0 ? "" : ", ", Json(m.counter_names[i]).c_str(),
+                    static_cast<long long>(m.counter_values[i]));
+      std::printf("}}");
+      first = false;
+    }
+    std::printf("\n], \"undecodable_heartbeats\": %lld}\n", static_cast<long long>(undecodable));
+  } else if (!latest.empty()) {
+    std::printf("%-20s %7s %-9s %8s %5s %7s %9s %9s %6s %6s  %s\n", "PROCESS", "PID", "STATE",
+                "UPTIME", "CPU%", "RSS MB", "MSGS IN", "MSGS OUT", "DECERR", "DROPS", "STATUS");
+    for (const auto& [key, m] : latest) {
+      std::printf("%-20s %7d %-9s %8s %5.1f %7.1f %9lld %9lld %6lld %6lld  %s\n", m.process.c_str(),
+                  m.pid, StateName(m.state), Uptime(m.uptime_us).c_str(),
+                  static_cast<double>(m.cpu_percent), static_cast<double>(m.rss_mb),
+                  static_cast<long long>(m.msgs_in), static_cast<long long>(m.msgs_out),
+                  static_cast<long long>(m.decode_errors), static_cast<long long>(m.drops),
+                  m.status_text.c_str());
+      std::string line;
+      for (int i = 0; i < m.num_counters; ++i)
+        if (all_counters || m.counter_values[i] != 0)
+          line += (line.empty() ? "" : "  ") + m.counter_names[i] + "=" +
+                  std::to_string(m.counter_values[i]);
+      if (!line.empty()) std::printf("    %s\n", line.c_str());
+    }
+    if (undecodable > 0)
+      std::printf(
+          "(%lld HEARTBEAT messages could not be decoded: another program's type on the "
+          "channel?)\n",
+          static_cast<long long>(undecodable));
+  }
+  if (latest.empty()) {
+    std::fprintf(stderr,
+                 "omni-status: no %s heartbeat within %g s (is the stack running, on "
+                 "this bus?)\n",
+                 only.empty() ? "process's" : only.c_str(), wait_s);
+    return 3;
+  }
+  return unhealthy > 0 ? 1 : 0;
+}
