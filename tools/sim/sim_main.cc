@@ -105,7 +105,8 @@ void Usage(std::FILE* f) {
       "                 revolution as the base moves, as a spinning lidar measures them)\n"
       "  --world FILE   YAML `boxes: [[x0, y0, x1, y1, z0, z1], ...]` (the tour is built for\n"
       "                 the built-in world; other worlds must leave its path free)\n"
-      "  --live URL     also publish on the bus at X times real time (default 1)\n"
+      "  --live URL     also publish on the bus at X times real time (default 1); URL \"\":\n"
+      "                 LCM's default (LCM_DEFAULT_URL)\n"
       "  --drive tour   (default) the built-in tour's waypoint follower drives the base\n"
       "  --drive bus    BASE_CMD (base_cmd_t) from the --live bus drives it, as on the robot:\n"
       "                 a twist holds for the bridge's command timeout, e-stop and clear\n"
@@ -127,6 +128,7 @@ bool ParseNumber(const std::string& v, double* out) {
 
 int main(int argc, char** argv) {
   std::string out_dir, world_path, live_url, drive = "tour", cmd_channel, bridge_config;
+  bool live = false;
   double speed = 1.0;
   omni::sim::SimOptions opt;
   omni::ArgReader args(argc, argv, "omni-sim", Usage);
@@ -174,6 +176,7 @@ int main(int argc, char** argv) {
       opt.wheel_slip_noise = args.Number(0, 0.2);
     } else if (args.Is("--live")) {
       live_url = args.Value();
+      live = true;
     } else if (args.Is("--speed")) {
       speed = args.Number(0.01, 1000);
     } else if (args.Is("--drive")) {
@@ -193,7 +196,7 @@ int main(int argc, char** argv) {
     Usage(stderr);
     return 2;
   }
-  if (drive == "bus" && live_url.empty()) {
+  if (drive == "bus" && !live) {
     std::fprintf(stderr, "omni-sim: --drive bus needs --live URL (the bus the commands come on)\n");
     return 2;
   }
@@ -230,7 +233,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   std::unique_ptr<omni::bus::Bus> bus;
-  if (!live_url.empty()) {
+  if (live) {
     auto b = omni::bus::Bus::Create(live_url);
     if (!b.ok()) {
       std::fprintf(stderr, "omni-sim: %s\n", b.error().message.c_str());

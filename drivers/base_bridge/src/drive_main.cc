@@ -62,6 +62,9 @@ int Teleop(const Send& send, double rate_hz, const std::string& channel) {
   }
   std::fprintf(stderr, "omni-drive: teleop on %s\n%s", channel.c_str(),
                omni::base_bridge::TeleopHelp());
+  // On a terminal the twist is one line rewritten in place; otherwise one line per change.
+  const char* const line_start = isatty(STDERR_FILENO) != 0 ? "\r\x1b[K" : "";
+  const char* const line_end = isatty(STDERR_FILENO) != 0 ? "" : "\n";
   const omni::base_bridge::TeleopOptions opt;
   omni::base_bridge::TeleopTwist twist;
   const auto period = std::chrono::duration<double>(1.0 / rate_hz);
@@ -91,18 +94,18 @@ int Teleop(const Send& send, double rate_hz, const std::string& channel) {
       switch (omni::base_bridge::ApplyTeleopKey(buf[i], opt, &twist)) {
         case omni::base_bridge::TeleopAction::kEstop:
           send(omni::base_cmd_t::MODE_ESTOP, 0, 0, 0);
-          std::fprintf(stderr, "\r\x1b[Ke-stop sent (c clears faults)\n");
+          std::fprintf(stderr, "%se-stop sent (c clears faults)\n", line_start);
           break;
         case omni::base_bridge::TeleopAction::kClearFaults:
           send(omni::base_cmd_t::MODE_CLEAR_FAULTS, 0, 0, 0);
-          std::fprintf(stderr, "\r\x1b[Kclear-faults sent\n");
+          std::fprintf(stderr, "%sclear-faults sent\n", line_start);
           break;
         case omni::base_bridge::TeleopAction::kQuit:
           quit = true;
           break;
         case omni::base_bridge::TeleopAction::kTwist:
-          std::fprintf(stderr, "\r\x1b[Kvx %+.2f m/s  vy %+.2f m/s  omega %+.2f rad/s",
-                       twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s);
+          std::fprintf(stderr, "%svx %+.2f m/s  vy %+.2f m/s  omega %+.2f rad/s%s", line_start,
+                       twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s, line_end);
           break;
         case omni::base_bridge::TeleopAction::kNone:
           break;
