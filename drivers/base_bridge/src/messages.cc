@@ -55,7 +55,7 @@ Command FromMessage(const omni::base_cmd_t& m) {
   c.mode = static_cast<Command::Mode>(m.mode);
   if (m.mode != omni::base_cmd_t::MODE_TWIST && m.mode != omni::base_cmd_t::MODE_ESTOP &&
       m.mode != omni::base_cmd_t::MODE_CLEAR_FAULTS)
-    c.mode = static_cast<Command::Mode>(-1);
+    c.mode = Command::kInvalid;
   c.vx_m_s = m.vx_m_s;
   c.vy_m_s = m.vy_m_s;
   c.omega_rad_s = m.omega_rad_s;

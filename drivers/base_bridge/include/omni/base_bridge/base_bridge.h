@@ -62,7 +62,9 @@ Result<BaseBridgeOptions> LoadBaseBridgeOptionsFromString(const std::string& yam
                                                           const std::string& name);
 
 struct Command {
-  enum Mode { kTwist = 0, kEstop = 1, kClearFaults = 2 } mode = kTwist;  // = base_cmd_t MODE_*
+  // = base_cmd_t MODE_*; kInvalid: a mode the message does not define (refused and counted).
+  // The fixed underlying type makes every int8_t a valid value, so a bad mode is never UB.
+  enum Mode : int8_t { kTwist = 0, kEstop = 1, kClearFaults = 2, kInvalid = -1 } mode = kTwist;
   double vx_m_s = 0, vy_m_s = 0, omega_rad_s = 0;
 };
 
