@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <functional>
 
 namespace omni::supervisor {
 
@@ -41,11 +42,44 @@ Result<SupervisorOptions> SupervisorOptions::Load(ConfigReader& r) {
     s.Get("backoff_initial_s", &c.backoff_initial_s, Optional(), InRange(0.0, 3600.0));
     s.Get("backoff_max_s", &c.backoff_max_s, Optional(), InRange(0.0, 3600.0));
     s.Get("stop_grace_s", &c.stop_grace_s, Optional(), InRange(0.0, 600.0));
+    s.Get("after", &c.after, Optional());
+    for (const std::string& a : c.after) {
+      const auto keys = children.Keys();
+      if (a == name)
+        s.AddError("after", "a process cannot wait for itself");
+      else if (std::find(keys.begin(), keys.end(), a) == keys.end())
+        s.AddError("after", "'" + a + "' is not one of the children");
+    }
     if (c.backoff_max_s < c.backoff_initial_s)
       s.AddError("backoff_max_s", "must be >= backoff_initial_s");
     o.children.push_back(std::move(c));
   }
   if (o.children.empty()) r.AddError("children", "must name at least one process to supervise");
+  // A cycle of `after`s would leave its children waiting for ever.
+  const size_t n = o.children.size();
+  auto index_of = [&](const std::string& name) {
+    for (size_t k = 0; k < n; ++k)
+      if (o.children[k].name == name) return k;
+    return n;
+  };
+  std::vector<int> mark(n, 0);  // 0 unvisited, 1 on the path, 2 done
+  std::function<bool(size_t)> cyclic = [&](size_t k) {
+    if (mark[k] == 1) return true;
+    if (mark[k] == 2) return false;
+    mark[k] = 1;
+    for (const std::string& a : o.children[k].after) {
+      const size_t j = index_of(a);
+      if (j < n && cyclic(j)) return true;
+    }
+    mark[k] = 2;
+    return false;
+  };
+  for (size_t k = 0; k < n; ++k)
+    if (mark[k] == 0 && cyclic(k)) {
+      children.Section(o.children[k].name)
+          .AddError("after", "the children's `after`s form a cycle through here");
+      break;
+    }
   if (Status st = r.Finish(); !st.ok()) return st.error();
   return o;
 }
@@ -93,6 +127,8 @@ void PosixLauncher::Signal(int pid, int sig) {
 
 const char* ChildStateName(ChildState s) {
   switch (s) {
+    case ChildState::kWaiting:
+      return "waiting";
     case ChildState::kBackoff:
       return "waiting to restart";
     case ChildState::kStarting:
@@ -115,7 +151,22 @@ Supervisor::Supervisor(SupervisorOptions options, Launcher* launcher)
 }
 
 void Supervisor::Start(int64_t now_us) {
-  for (size_t i = 0; i < st_.size(); ++i) Launch(i, now_us);
+  for (size_t i = 0; i < st_.size(); ++i) {
+    if (o_.children[i].after.empty())
+      Launch(i, now_us);
+    else
+      st_[i].state = ChildState::kWaiting;
+  }
+  Tick(now_us);  // those whose `after`s run without heartbeats can start at once
+}
+
+std::string Supervisor::WaitingFor(size_t i) const {
+  std::string names;
+  for (const std::string& a : o_.children[i].after)
+    for (size_t k = 0; k < st_.size(); ++k)
+      if (o_.children[k].name == a && st_[k].state != ChildState::kRunning)
+        names += (names.empty() ? "" : ", ") + a;
+  return names;
 }
 
 void Supervisor::Launch(size_t i, int64_t now_us) {
@@ -222,6 +273,9 @@ void Supervisor::Tick(int64_t now_us) {
       case ChildState::kBackoff:
         if (!stopping_all_ && now_us >= s.next_start_us) Launch(i, now_us);
         break;
+      case ChildState::kWaiting:
+        if (!stopping_all_ && WaitingFor(i).empty()) Launch(i, now_us);
+        break;
       case ChildState::kExited:
       case ChildState::kGaveUp:
         break;
@@ -246,7 +300,8 @@ void Supervisor::OnHeartbeat(const std::string& process, int8_t state, const std
 void Supervisor::StopAll(int64_t now_us) {
   stopping_all_ = true;
   for (auto& s : st_)
-    if (s.state == ChildState::kBackoff) s.state = ChildState::kExited;
+    if (s.state == ChildState::kBackoff || s.state == ChildState::kWaiting)
+      s.state = ChildState::kExited;
   StopNext(now_us);
 }
 
@@ -317,6 +372,7 @@ std::string Supervisor::Summary() const {
     }
     if (!down.empty()) down += ", ";
     down += o_.children[i].name + " " + ChildStateName(s.state);
+    if (s.state == ChildState::kWaiting) down += " for " + WaitingFor(i);
     if (s.last_exit && s.state != ChildState::kStarting) {
       down += s.last_exit->signal ? " (signal " + std::to_string(s.last_exit->signal) + ")"
                                   : " (exit " + std::to_string(s.last_exit->code) + ")";

@@ -228,6 +228,76 @@ TEST(Supervisor, StopAllStopsNewestFirstAndRestartsNothing) {
   EXPECT_EQ(l.started.size(), 3u);  // nothing restarted
 }
 
+// `after`: a mapper waits for its driver's first heartbeat, a child that has no heartbeat to wait
+// for counts as up once started, a stop while some wait ends them too, and a dependency's later
+// restart does not restart what depends on it.
+TEST(Supervisor, AfterStartsAChildOnceWhatItWaitsForRuns) {
+  SupervisorOptions o;
+  ChildSpec driver = Child("driver", RestartPolicy::kAlways);
+  driver.heartbeat = "driver";
+  ChildSpec logger = Child("logger", RestartPolicy::kAlways);  // no heartbeat
+  ChildSpec mapper = Child("mapper", RestartPolicy::kAlways);
+  mapper.after = {"driver", "logger"};
+  ChildSpec fusion = Child("fusion", RestartPolicy::kAlways);
+  fusion.after = {"logger"};
+  o.children = {mapper, driver, logger, fusion};
+  FakeLauncher l;
+  Supervisor s(o, &l);
+  s.Start(0);
+  // driver (100), logger (101) and fusion (102, its logger is up at once) start; the mapper waits.
+  ASSERT_EQ(l.started.size(), 3u);
+  EXPECT_EQ(l.commands[100][0], "/bin/driver");
+  EXPECT_EQ(l.commands[102][0], "/bin/fusion");
+  EXPECT_EQ(s.children()[0].state, ChildState::kWaiting);
+  EXPECT_NE(s.Summary().find("mapper waiting for driver"), std::string::npos) << s.Summary();
+  s.Tick(kS);
+  EXPECT_EQ(l.started.size(), 3u);
+  s.OnHeartbeat("driver", 1, "", 2 * kS);
+  s.Tick(2 * kS);
+  ASSERT_EQ(l.started.size(), 4u);
+  EXPECT_EQ(l.commands[103][0], "/bin/mapper");
+  EXPECT_EQ(s.children()[0].state, ChildState::kRunning);
+  // The driver crashes and comes back: the mapper is left alone.
+  l.Exit(100, 1);
+  s.Tick(3 * kS);
+  s.Tick(4 * kS + 1);
+  EXPECT_EQ(l.started.size(), 5u);
+  EXPECT_EQ(l.commands[104][0], "/bin/driver");
+  EXPECT_TRUE(l.signals.empty());
+  // A stop while a child still waits: it is done at once, nothing is started.
+  Supervisor t(o, &l);
+  t.Start(10 * kS);
+  ASSERT_EQ(t.children()[0].state, ChildState::kWaiting);
+  t.StopAll(11 * kS);
+  for (int k = 0; k < 10 && !t.AllStopped(); ++k) t.Tick((12 + k) * kS);
+  EXPECT_TRUE(t.AllStopped());
+  EXPECT_TRUE(t.Finished());
+  EXPECT_EQ(t.children()[0].starts, 0);
+}
+
+TEST(SupervisorOptions, AfterNamesOtherChildrenWithoutACycle) {
+  auto load = [](const std::string& yaml) {
+    auto r = ConfigReader::FromString(yaml, "after.yaml");
+    EXPECT_TRUE(r.ok());
+    return SupervisorOptions::Load(*r);
+  };
+  auto ok = load("children:\n  a:\n    command: [x]\n  b:\n    command: [y]\n    after: [a]\n");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->children[1].after, std::vector<std::string>{"a"});
+  auto unknown = load("children:\n  a:\n    command: [x]\n    after: [b]\n");
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_NE(unknown.error().message.find("'b' is not one of the children"), std::string::npos)
+      << unknown.error().message;
+  auto self = load("children:\n  a:\n    command: [x]\n    after: [a]\n");
+  ASSERT_FALSE(self.ok());
+  EXPECT_NE(self.error().message.find("cannot wait for itself"), std::string::npos);
+  auto cycle = load(
+      "children:\n  a:\n    command: [x]\n    after: [c]\n  b:\n    command: [y]\n"
+      "    after: [a]\n  c:\n    command: [z]\n    after: [b]\n");
+  ASSERT_FALSE(cycle.ok());
+  EXPECT_NE(cycle.error().message.find("form a cycle"), std::string::npos) << cycle.error().message;
+}
+
 TEST(SupervisorOptions, ChildrenByNameAndMistakesNamed) {
   auto r = ConfigReader::FromString(
       "working_dir: /tmp\nchildren:\n  rbpf_mapper:\n    command: [build/bin/rbpf_mapper, "

@@ -14,6 +14,10 @@
 //   and is restarted (unless `restart: never`);
 // - more than max_restarts restarts within restart_window_s: the supervisor gives up on it
 //   (state kGaveUp, counted, reported) instead of restarting forever.
+// - with `after` (names of other children), it is started only once each of them is running —
+//   its first heartbeat has come, or it was started if it has no heartbeat — (state kWaiting
+//   until then), so a mapper starts after the drivers and the base bridge are up. It waits
+//   only for its first start: later restarts of either side do not cascade.
 // A child's heartbeat state (e.g. ERROR while a driver's device is away) is reported, not acted
 // on: the drivers reconnect by themselves.
 #pragma once
@@ -43,14 +47,16 @@ struct ChildSpec {
   double backoff_initial_s = 1.0;
   double backoff_max_s = 30.0;
   double stop_grace_s = 5.0;
+  std::vector<std::string> after;  // children that must be running before the first start
 };
 
 struct SupervisorOptions {
   std::vector<ChildSpec> children;  // in config order: started in this order
   std::string working_dir;          // "" = the supervisor's own
   std::string channel = "HEARTBEAT";
-  // `children:` is a map from a name to that child's keys (command required); unknown keys
-  // and bad values are errors naming them.
+  // `children:` is a map from a name to that child's keys (command required); unknown keys,
+  // bad values, an `after` naming no child (or itself) and a cycle of `after`s are errors naming
+  // them.
   static Result<SupervisorOptions> Load(ConfigReader& reader);
 };
 
@@ -83,7 +89,7 @@ class PosixLauncher final : public Launcher {
   void Signal(int pid, int signal) override;
 };
 
-enum class ChildState { kBackoff, kStarting, kRunning, kStopping, kExited, kGaveUp };
+enum class ChildState { kWaiting, kBackoff, kStarting, kRunning, kStopping, kExited, kGaveUp };
 const char* ChildStateName(ChildState s);
 
 struct ChildStatus {
@@ -134,6 +140,8 @@ class Supervisor {
   void Stop(size_t i, int64_t now_us, bool restart);
   void ScheduleRestart(size_t i, int64_t now_us);
   void StopNext(int64_t now_us);
+  // The names in child i's `after` that are not running yet ("" when none).
+  std::string WaitingFor(size_t i) const;
 
   SupervisorOptions o_;
   Launcher* launcher_;
