@@ -192,8 +192,41 @@ Status WriteMapServer(const GridMap& map, const std::string& base_path) {
   return Status::Ok();
 }
 
+GridMap AxisAligned(const GridMap& g, double yaw) {
+  if (yaw == 0.0 || g.width == 0 || g.height == 0) return g;
+  const double c = std::cos(yaw), s = std::sin(yaw), res = g.resolution_m;
+  const double w = g.width * res, h = g.height * res;
+  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+  for (const auto& [u, v] : {std::pair<double, double>{0, 0}, {w, 0}, {0, h}, {w, h}}) {
+    const double x = g.origin_x_m + c * u - s * v, y = g.origin_y_m + s * u + c * v;
+    x0 = std::min(x0, x);
+    y0 = std::min(y0, y);
+    x1 = std::max(x1, x);
+    y1 = std::max(y1, y);
+  }
+  GridMap out;
+  out.resolution_m = res;
+  out.origin_x_m = x0;
+  out.origin_y_m = y0;
+  out.width = static_cast<int>(std::ceil((x1 - x0) / res - 1e-9));
+  out.height = static_cast<int>(std::ceil((y1 - y0) / res - 1e-9));
+  out.cells.assign(static_cast<size_t>(out.width) * out.height, -1);
+  for (int row = 0; row < out.height; ++row)
+    for (int col = 0; col < out.width; ++col) {
+      // This cell's centre in the source grid's own axes, metres from its origin corner.
+      const double dx = x0 + (col + 0.5) * res - g.origin_x_m;
+      const double dy = y0 + (row + 0.5) * res - g.origin_y_m;
+      const double u = c * dx + s * dy, v = -s * dx + c * dy;
+      const int sc = static_cast<int>(std::floor(u / res)),
+                sr = static_cast<int>(std::floor(v / res));
+      if (g.Contains(sc, sr)) out.at(col, row) = g.at(sc, sr);
+    }
+  return out;
+}
+
 Result<GridMap> ReadMapServer(const std::string& path) {
   GridMap m;
+  double yaw = 0;
   std::string image_path = path;
   double occ_th = kOccupiedThresh, free_th = kFreeThresh;
   bool negate = false;
@@ -209,6 +242,9 @@ Result<GridMap> ReadMapServer(const std::string& path) {
       m.resolution_m = y["resolution"].as<double>();
       m.origin_x_m = y["origin"][0].as<double>();
       m.origin_y_m = y["origin"][1].as<double>();
+      if (y["origin"].size() > 2) yaw = y["origin"][2].as<double>();
+      if (!std::isfinite(m.origin_x_m) || !std::isfinite(m.origin_y_m) || !std::isfinite(yaw))
+        return MakeError(ErrorCode::kParse, path + ": origin must be finite");
       if (y["occupied_thresh"]) occ_th = y["occupied_thresh"].as<double>();
       if (y["free_thresh"]) free_th = y["free_thresh"].as<double>();
       if (y["negate"]) negate = y["negate"].as<int>() != 0;
@@ -236,7 +272,7 @@ Result<GridMap> ReadMapServer(const std::string& path) {
         cell = 0;
       m.at(x, m.height - 1 - y) = cell;
     }
-  return m;
+  return AxisAligned(m, yaw);
 }
 
 Image RenderGrid(const GridMap& map, const std::vector<Polyline>& trajectories, int scale) {

@@ -76,6 +76,10 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
       static_cast<int64_t>(g.width) * g.height != g.num_cells)
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': inconsistent size or resolution");
+  if (!std::isfinite(g.origin_x_m) || !std::isfinite(g.origin_y_m) ||
+      !std::isfinite(g.origin_yaw_rad))
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "occupancy grid from '" + g.source + "': non-finite origin");
   io::GridMap m;
   m.resolution_m = g.resolution_m;
   m.origin_x_m = g.origin_x_m;
@@ -83,7 +87,8 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
   m.width = g.width;
   m.height = g.height;
   m.cells = g.cells;
-  return m;
+  // A grid turned in its frame (origin_yaw_rad) is resampled onto the frame's axes.
+  return io::AxisAligned(m, g.origin_yaw_rad);
 }
 
 }  // namespace omni::bus

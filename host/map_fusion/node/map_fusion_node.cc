@@ -32,14 +32,12 @@ void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_gri
   ++grids_in_;
   auto map = bus::FromGridMessage(msg);
   const bool other_frame = !o_.frame.empty() && !msg.frame.empty() && msg.frame != o_.frame;
-  if (!map.ok() || msg.origin_yaw_rad != 0.0 || !std::isfinite(msg.origin_x_m) ||
-      !std::isfinite(msg.origin_y_m) || other_frame) {
+  // (A grid turned in its frame arrives resampled onto the frame's axes: FromGridMessage.)
+  if (!map.ok() || other_frame) {
     ++grids_rejected_;
     LOG_WARN << "grid on " << channel << " rejected: "
-             << (!map.ok()                 ? map.error().message
-                 : other_frame             ? "frame '" + msg.frame + "' is not '" + o_.frame + "'"
-                 : msg.origin_yaw_rad != 0 ? std::string("rotated grids are not supported")
-                                           : std::string("non-finite origin"));
+             << (!map.ok() ? map.error().message
+                           : "frame '" + msg.frame + "' is not '" + o_.frame + "'");
     return;
   }
   latest_[channel] = std::move(*map);

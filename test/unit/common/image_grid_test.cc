@@ -1,3 +1,4 @@
+#include <cmath>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -82,6 +83,82 @@ TEST(Grid, MapServerRoundTrip) {
   EXPECT_EQ(back->cells, m.cells);
   EXPECT_DOUBLE_EQ(back->origin_x_m, -1.0);
   EXPECT_DOUBLE_EQ(back->resolution_m, 0.1);
+}
+
+// A grid turned by yaw about its origin corner, resampled onto the frame's axes: at a quarter
+// and a half turn every cell lands where its centre is in the frame, with its value; at an
+// oblique angle a straight wall stays on its line.
+TEST(Grid, AxisAlignedPutsATurnedGridWhereItsCellsAre) {
+  GridMap m;
+  m.resolution_m = 0.1;
+  m.origin_x_m = 1.0;
+  m.origin_y_m = -2.0;
+  m.width = 4;
+  m.height = 3;
+  m.cells = {-1, 0, 100, 0, 0, 0, 0, 100, -1, -1, 0, 0};
+  EXPECT_EQ(AxisAligned(m, 0.0).cells, m.cells);
+  for (const double yaw : {M_PI / 2, M_PI, -M_PI / 2}) {
+    const GridMap a = AxisAligned(m, yaw);
+    EXPECT_EQ(static_cast<size_t>(a.width) * a.height, m.cells.size()) << yaw;
+    for (int r = 0; r < m.height; ++r)
+      for (int c = 0; c < m.width; ++c) {
+        const double u = (c + 0.5) * 0.1, v = (r + 0.5) * 0.1;
+        const double x = m.origin_x_m + std::cos(yaw) * u - std::sin(yaw) * v;
+        const double y = m.origin_y_m + std::sin(yaw) * u + std::cos(yaw) * v;
+        const int ac = static_cast<int>(std::floor((x - a.origin_x_m) / 0.1));
+        const int ar = static_cast<int>(std::floor((y - a.origin_y_m) / 0.1));
+        ASSERT_TRUE(a.Contains(ac, ar)) << yaw;
+        EXPECT_EQ(a.at(ac, ar), m.at(c, r)) << "yaw " << yaw << " cell " << c << "," << r;
+      }
+  }
+  // A 4 m wall along the grid's u axis (row 10 of a 5 cm grid), turned by 0.3 rad.
+  GridMap w;
+  w.resolution_m = 0.05;
+  w.width = 80;
+  w.height = 21;
+  w.cells.assign(80 * 21, 0);
+  for (int c = 0; c < 80; ++c) w.at(c, 10) = 100;
+  const GridMap a = AxisAligned(w, 0.3);
+  int occupied = 0;
+  for (int r = 0; r < a.height; ++r)
+    for (int c = 0; c < a.width; ++c) {
+      if (a.at(c, r) != 100) continue;
+      ++occupied;
+      const double x = a.origin_x_m + (c + 0.5) * 0.05, y = a.origin_y_m + (r + 0.5) * 0.05;
+      // Distance to the wall's centre line, v = 0.525 m in the grid's axes.
+      const double v = -std::sin(0.3) * x + std::cos(0.3) * y;
+      EXPECT_NEAR(v, 0.525, 0.05) << c << "," << r;
+    }
+  EXPECT_GT(occupied, 70);
+  EXPECT_LT(occupied, 130);
+}
+
+TEST(Grid, MapServerOriginYawIsResampledNotIgnored) {
+  const std::string dir = omni::testing::TempDir();
+  GridMap m;
+  m.resolution_m = 0.1;
+  m.width = 4;
+  m.height = 3;
+  m.cells = {-1, 0, 100, 0, 0, 0, 0, 100, -1, -1, 0, 0};
+  ASSERT_TRUE(WriteMapServer(m, dir + "/turned").ok());
+  {
+    std::ofstream y(dir + "/turned.yaml");
+    y << "image: turned.pgm\nresolution: 0.1\norigin: [1.0, 2.0, 1.5707963267948966]\n"
+         "occupied_thresh: 0.65\nfree_thresh: 0.196\nnegate: 0\n";
+  }
+  auto back = ReadMapServer(dir + "/turned.yaml");
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->width, 3);  // a quarter turn: 3 wide, 4 high
+  EXPECT_EQ(back->height, 4);
+  EXPECT_NEAR(back->origin_x_m, 0.7, 1e-9);
+  EXPECT_NEAR(back->origin_y_m, 2.0, 1e-9);
+  {
+    std::ofstream y(dir + "/bad.yaml");
+    y << "image: turned.pgm\nresolution: 0.1\norigin: [1.0, 2.0, .nan]\n";
+  }
+  auto bad = ReadMapServer(dir + "/bad.yaml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("origin must be finite"), std::string::npos);
 }
 
 }  // namespace

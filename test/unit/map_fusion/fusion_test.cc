@@ -354,6 +354,34 @@ omni::occupancy_grid_t GridMsg(const io::GridMap& m, int64_t utime, const std::s
   return g;
 }
 
+// A grid whose cells are turned in the map frame (occupancy_grid_t.origin_yaw_rad, a ROS map
+// with a yaw) arrives resampled onto the frame's axes, so it lies on the world without any
+// alignment; read as if unturned it would be off by the turn.
+TEST(MapFusion, AGridTurnedInItsFrameIsResampledOntoTheFramesAxes) {
+  const Plan plan;
+  const Pose2 turn(0.4, -0.2, 0.3);
+  const io::GridMap g = Rasterize(plan, turn);  // cells along the turned frame's axes
+  omni::occupancy_grid_t msg = GridMsg(g, 0, "other");
+  const Eigen::Vector2d corner = turn.Transform({g.origin_x_m, g.origin_y_m});
+  msg.origin_x_m = corner.x();
+  msg.origin_y_m = corner.y();
+  msg.origin_yaw_rad = turn.theta;
+  auto back = bus::FromGridMessage(msg);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  const io::GridMap truth = Rasterize(plan, Pose2());
+  eval::MapCompareOptions o;
+  o.align = false;
+  const auto right = eval::CompareMaps(truth, *back, o);
+  EXPECT_GT(right.precision, 0.95);
+  EXPECT_GT(right.recall, 0.95);
+  msg.origin_yaw_rad = 0;  // the turn ignored, as before
+  auto wrong = bus::FromGridMessage(msg);
+  ASSERT_TRUE(wrong.ok());
+  const auto bad = eval::CompareMaps(truth, *wrong, o);
+  EXPECT_LT(bad.precision, 0.5);
+  EXPECT_LT(right.error, 0.5 * bad.error) << right.error << " vs " << bad.error;
+}
+
 TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   auto bus_or = bus::Bus::Create("memq://");
   ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
@@ -385,14 +413,15 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   node.Tick();
   pump();
   EXPECT_TRUE(fused.empty());
-  // Bad grids: undecodable, inconsistent, rotated, another frame. All counted, none held.
+  // Bad grids: undecodable, inconsistent, a non-finite turn, another frame. All counted, none
+  // held. (A finite turn is resampled onto the frame's axes: FromGridMessage.)
   b.PublishRaw("GRID_RBPF", "junk", 4);
   auto inconsistent = GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "rbpf");
   inconsistent.num_cells -= 1;
   inconsistent.cells.pop_back();
   b.Publish("GRID_RBPF", inconsistent);
   auto rotated = GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "rbpf");
-  rotated.origin_yaw_rad = 0.3;
+  rotated.origin_yaw_rad = std::nan("");
   b.Publish("GRID_RBPF", rotated);
   auto other = GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "rbpf");
   other.frame = "odom";

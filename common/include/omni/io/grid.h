@@ -78,8 +78,16 @@ class LogOddsGrid {
 // map_server form: trinary PGM (0 occupied, 254 free, 205 unknown) + YAML beside it.
 // `base_path` without extension: writes base_path.pgm and base_path.yaml.
 Status WriteMapServer(const GridMap& map, const std::string& base_path);
-// Reads a map_server YAML (with its image) or a bare PGM (resolution 0.05 m, origin 0).
+// Reads a map_server YAML (with its image) or a bare PGM (resolution 0.05 m, origin 0). A YAML
+// origin with a yaw ([x, y, yaw], the grid turned by yaw about its lower-left corner) is
+// resampled onto the map frame's axes (AxisAligned).
 Result<GridMap> ReadMapServer(const std::string& path);
+
+// A grid whose cell axes are turned by `yaw` (radians) from the map frame's, about its origin
+// corner (origin_x_m, origin_y_m), resampled onto a grid along the map frame's axes at the same
+// resolution: each new cell takes the value of the source cell under its centre (nearest
+// neighbour), -1 where none is. yaw 0 returns the grid as it is.
+GridMap AxisAligned(const GridMap& rotated, double yaw);
 
 struct Polyline {
   std::vector<Pose2> poses;
