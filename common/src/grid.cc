@@ -192,7 +192,9 @@ Status WriteMapServer(const GridMap& map, const std::string& base_path) {
   return Status::Ok();
 }
 
-GridMap AxisAligned(const GridMap& g, double yaw) {
+Result<GridMap> AxisAligned(const GridMap& g, double yaw) {
+  if (!std::isfinite(yaw) || !std::isfinite(g.resolution_m) || !(g.resolution_m > 0))
+    return MakeError(ErrorCode::kInvalidArgument, "grid turn or resolution is not finite");
   if (yaw == 0.0 || g.width == 0 || g.height == 0) return g;
   const double c = std::cos(yaw), s = std::sin(yaw), res = g.resolution_m;
   const double w = g.width * res, h = g.height * res;
@@ -208,8 +210,15 @@ GridMap AxisAligned(const GridMap& g, double yaw) {
   out.resolution_m = res;
   out.origin_x_m = x0;
   out.origin_y_m = y0;
-  out.width = static_cast<int>(std::ceil((x1 - x0) / res - 1e-9));
-  out.height = static_cast<int>(std::ceil((y1 - y0) / res - 1e-9));
+  const double cols = std::ceil((x1 - x0) / res - 1e-9), rows = std::ceil((y1 - y0) / res - 1e-9);
+  const double cells = static_cast<double>(g.width) * g.height;
+  if (!(cols * rows <= 4.0 * cells + 1e6))
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "a " + std::to_string(g.width) + " x " + std::to_string(g.height) +
+                         " grid turned by " + std::to_string(yaw) +
+                         " rad would need too large an axis-aligned grid");
+  out.width = static_cast<int>(cols);
+  out.height = static_cast<int>(rows);
   out.cells.assign(static_cast<size_t>(out.width) * out.height, -1);
   for (int row = 0; row < out.height; ++row)
     for (int col = 0; col < out.width; ++col) {
@@ -272,7 +281,9 @@ Result<GridMap> ReadMapServer(const std::string& path) {
         cell = 0;
       m.at(x, m.height - 1 - y) = cell;
     }
-  return AxisAligned(m, yaw);
+  auto aligned = AxisAligned(m, yaw);
+  if (!aligned.ok()) return MakeError(ErrorCode::kParse, path + ": " + aligned.error().message);
+  return aligned;
 }
 
 Image RenderGrid(const GridMap& map, const std::vector<Polyline>& trajectories, int scale) {

@@ -15,6 +15,17 @@ MapSaveService::MapSaveService(Bus* bus, std::string process, std::string defaul
   bus_->Subscribe<omni::map_save_request_t>(
       kMapSaveChannel, [this](const omni::map_save_request_t& m, int64_t) {
         if (!m.process.empty() && m.process != process_) return;  // another process's
+        if (pending_.size() >= 16) {  // a flood: answered as refused, nothing written
+          omni::map_save_reply_t busy{};
+          busy.utime = clock_->NowUtime();
+          busy.seq = m.seq;
+          busy.process = process_;
+          busy.ok = false;
+          busy.message = "too many map save requests waiting; try again";
+          bus_->Publish(kMapSaveReplyChannel, busy);
+          ++failed_;
+          return;
+        }
         std::string dir = default_dir_;
         if (!m.directory.empty())
           dir = m.process.empty() ? m.directory + "/" + process_ : m.directory;

@@ -72,7 +72,7 @@ omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
 }
 
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
-  if (!(g.resolution_m > 0) || g.width < 0 || g.height < 0 ||
+  if (!(g.resolution_m > 0) || !std::isfinite(g.resolution_m) || g.width < 0 || g.height < 0 ||
       static_cast<int64_t>(g.width) * g.height != g.num_cells)
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': inconsistent size or resolution");

@@ -2,6 +2,7 @@
 
 #include <fstream>
 
+#include "omni/bus/convert.h"
 #include "omni/common/time.h"
 #include "omni/imu_t.hpp"
 #include "omni/io/carmen.h"
@@ -48,7 +49,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       s.range_min_m = m.range_min_m;
       s.range_max_m = m.range_max_m;
       s.ranges_m = std::move(m.ranges_m);
-      s.scan_time_s = std::isfinite(m.scan_time_s) && m.scan_time_s > 0 ? m.scan_time_s : 0.f;
+      s.scan_time_s = SweepTime(m.scan_time_s);
       if (!handlers.scan(s)) break;
     } else if (ev.channel == channels.odom) {
       omni::odometry_t m;

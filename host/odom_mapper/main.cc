@@ -83,7 +83,7 @@ int main(int argc, char** argv) {
     s.angle_min_rad = m.angle_min_rad;
     s.angle_increment_rad = m.angle_increment_rad;
     s.range_max_m = m.range_max_m;
-    s.scan_time_s = m.scan_time_s;
+    s.scan_time_s = omni::bus::SweepTime(m.scan_time_s);
     s.ranges_m = m.ranges_m;
     if (!mapper.AddScan(s)) ++bus.counters().drops;
   });

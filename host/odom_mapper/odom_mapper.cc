@@ -76,7 +76,7 @@ bool OdomMapper::AddScan(const Scan& scan) {
   // one odometry period past the newest sample takes the newest).
   const size_t n = ranges.size();
   std::vector<Pose2> beam_pose;
-  if (scan.scan_time_s > 0 && std::isfinite(scan.scan_time_s) && n > 1) {
+  if (scan.scan_time_s > 0 && scan.scan_time_s <= 1.f && n > 1) {  // (NaN fails the first)
     constexpr int64_t kSlackUs = 20000;
     beam_pose.reserve(n);
     for (size_t i = 0; i < n; ++i) {

@@ -206,7 +206,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   }
   // The base's motion from the first beam to the last (a spinning lidar's sweep).
   std::optional<Pose2> sweep;
-  if (scan.scan_time_s > 0) {
+  if (scan.scan_time_s > 0 && scan.scan_time_s <= 1.f) {  // a plausible sweep (bus::SweepTime)
     const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
     if (have_odom_ && scan.utime >= odom_.oldest_utime() && t1 <= last_odom_utime_) {
       auto m = Motion().Between(scan.utime, t1);

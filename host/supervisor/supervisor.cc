@@ -164,7 +164,10 @@ std::string Supervisor::WaitingFor(size_t i) const {
   std::string names;
   for (const std::string& a : o_.children[i].after)
     for (size_t k = 0; k < st_.size(); ++k)
-      if (o_.children[k].name == a && st_[k].state != ChildState::kRunning)
+      // A child that ended for good (a one-shot that exited, or one given up) holds no one back:
+      // waiting for it would be for ever.
+      if (o_.children[k].name == a && st_[k].state != ChildState::kRunning &&
+          st_[k].state != ChildState::kExited && st_[k].state != ChildState::kGaveUp)
         names += (names.empty() ? "" : ", ") + a;
   return names;
 }

@@ -3,10 +3,10 @@
 // window is not at hand) or as JSON for scripts.
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <string>
-#include <tuple>
 
 #include "omni/bus/bus.h"
 #include "omni/common/cli.h"
@@ -59,6 +59,9 @@ std::string Json(const std::string& s) {
   return o + "\"";
 }
 
+// JSON has no NaN: a figure a process could not measure (NaN) is written as -1.
+double Finite(float v) { return std::isfinite(v) ? static_cast<double>(v) : -1.0; }
+
 std::string Uptime(int64_t us) {
   const int64_t s = us / 1000000;
   char b[32];
@@ -98,11 +101,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-status: %s\n", bus.error().message.c_str());
     return 1;
   }
-  // The newest heartbeat of each process (name, pid: a restarted process is a new row).
-  std::map<std::tuple<std::string, int32_t>, omni::heartbeat_t> latest;
+  // The newest heartbeat of each process (by name: a process restarted while we listen shows
+  // its new instance, not the old one's last STOPPING).
+  std::map<std::string, omni::heartbeat_t> latest;
   (*bus)->Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) {
     if (!only.empty() && m.process != only) return;
-    auto& slot = latest[{m.process, m.pid}];
+    auto& slot = latest[m.process];
     if (m.utime >= slot.utime) slot = m;
   });
   const auto deadline = std::chrono::steady_clock::now() +
@@ -129,9 +133,9 @@ int main(int argc, char** argv) {
           "\"msgs_out\": %lld, \"decode_errors\": %lld, \"drops\": %lld, \"counters\": {",
           first ? "" : ",", Json(m.process).c_str(), m.pid, StateName(m.state),
           Json(m.status_text).c_str(), static_cast<double>(m.uptime_us) * 1e-6,
-          static_cast<double>(m.cpu_percent), static_cast<double>(m.rss_mb),
-          static_cast<long long>(m.msgs_in), static_cast<long long>(m.msgs_out),
-          static_cast<long long>(m.decode_errors), static_cast<long long>(m.drops));
+          Finite(m.cpu_percent), Finite(m.rss_mb), static_cast<long long>(m.msgs_in),
+          static_cast<long long>(m.msgs_out), static_cast<long long>(m.decode_errors),
+          static_cast<long long>(m.drops));
       for (int i = 0; i < m.num_counters; ++i)
         std::printf("%s%s: %lld", i == 0 ? "" : ", ", Json(m.counter_names[i]).c_str(),
                     static_cast<long long>(m.counter_values[i]));
@@ -144,11 +148,10 @@ int main(int argc, char** argv) {
                 "UPTIME", "CPU%", "RSS MB", "MSGS IN", "MSGS OUT", "DECERR", "DROPS", "STATUS");
     for (const auto& [key, m] : latest) {
       std::printf("%-20s %7d %-9s %8s %5.1f %7.1f %9lld %9lld %6lld %6lld  %s\n", m.process.c_str(),
-                  m.pid, StateName(m.state), Uptime(m.uptime_us).c_str(),
-                  static_cast<double>(m.cpu_percent), static_cast<double>(m.rss_mb),
-                  static_cast<long long>(m.msgs_in), static_cast<long long>(m.msgs_out),
-                  static_cast<long long>(m.decode_errors), static_cast<long long>(m.drops),
-                  m.status_text.c_str());
+                  m.pid, StateName(m.state), Uptime(m.uptime_us).c_str(), Finite(m.cpu_percent),
+                  Finite(m.rss_mb), static_cast<long long>(m.msgs_in),
+                  static_cast<long long>(m.msgs_out), static_cast<long long>(m.decode_errors),
+                  static_cast<long long>(m.drops), m.status_text.c_str());
       std::string line;
       for (int i = 0; i < m.num_counters; ++i)
         if (all_counters || m.counter_values[i] != 0)

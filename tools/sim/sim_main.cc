@@ -321,7 +321,12 @@ int main(int argc, char** argv) {
         st.base_problem.empty() ? "ok" : st.base_problem.c_str());
     // The watchdog and bad-command bits are warnings (a watchdog stop after the last command
     // is the base doing its job); latched faults and an unhealthy bridge are not.
-    if (!st.base_problem.empty() || (st.firmware_faults & omni::firmware::kLatchedFaults) != 0) {
+    // Driven from the bus, an e-stop left on at the end is the operator's choice, not a fault
+    // (the bridge reports it as a fault bit, so its health text is not a problem either then).
+    const uint32_t latched = st.firmware_faults & omni::firmware::kLatchedFaults;
+    if (drive == "bus" && latched == omni::firmware::kFaultEstop) {
+      std::printf("omni-sim: the base ends e-stopped, as commanded on %s\n", cmd_channel.c_str());
+    } else if (!st.base_problem.empty() || latched != 0) {
       std::fprintf(stderr, "omni-sim: the simulated base ended unhealthy (see above)\n");
       return 1;
     }

@@ -31,6 +31,14 @@ namespace {
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
+// The terminal as it was before --keys made it raw; restored on every way out.
+termios g_saved_terminal{};
+bool g_restore_terminal = false;
+void RestoreTerminal() {
+  if (g_restore_terminal) tcsetattr(STDIN_FILENO, TCSANOW, &g_saved_terminal);
+  g_restore_terminal = false;
+}
+
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
@@ -51,14 +59,15 @@ void Usage(std::FILE* f) {
 // and its end quits.
 template <typename Send>
 int Teleop(const Send& send, double rate_hz, const std::string& channel) {
-  const bool tty = isatty(STDIN_FILENO) != 0;
-  termios saved{};
-  if (tty && tcgetattr(STDIN_FILENO, &saved) == 0) {
-    termios raw = saved;
+  if (isatty(STDIN_FILENO) != 0 && tcgetattr(STDIN_FILENO, &g_saved_terminal) == 0) {
+    termios raw = g_saved_terminal;
     raw.c_lflag &= static_cast<tcflag_t>(~(ICANON | ECHO | ISIG));
     raw.c_cc[VMIN] = 0;
     raw.c_cc[VTIME] = 0;
-    tcsetattr(STDIN_FILENO, TCSANOW, &raw);
+    if (tcsetattr(STDIN_FILENO, TCSANOW, &raw) == 0) {
+      g_restore_terminal = true;
+      std::atexit(RestoreTerminal);  // also on an exit from a failed publish
+    }
   }
   std::fprintf(stderr, "omni-drive: teleop on %s\n%s", channel.c_str(),
                omni::base_bridge::TeleopHelp());
@@ -83,14 +92,29 @@ int Teleop(const Send& send, double rate_hz, const std::string& channel) {
     const int ms = static_cast<int>(
                        std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count()) +
                    1;
-    if (poll(&p, 1, ms) <= 0 || (p.revents & (POLLIN | POLLHUP)) == 0) continue;
+    if (poll(&p, 1, ms) <= 0) continue;
+    if (p.revents & (POLLERR | POLLNVAL)) break;  // stdin is gone: stop, do not spin
+    if ((p.revents & (POLLIN | POLLHUP)) == 0) continue;
     char buf[64];
-    const ssize_t n = read(STDIN_FILENO, buf, sizeof(buf));
+    ssize_t n = read(STDIN_FILENO, buf, sizeof(buf));
     if (n <= 0) {  // end of input
       quit = true;
       break;
     }
+    // A key like an arrow sends an escape sequence (ESC [ A): not the Esc key that quits. Esc
+    // alone is the last byte read with nothing following within 50 ms.
+    if (buf[n - 1] == 27) {
+      pollfd more{STDIN_FILENO, POLLIN, 0};
+      if (poll(&more, 1, 50) > 0 && (more.revents & POLLIN)) {
+        char rest[64];
+        const ssize_t m = read(STDIN_FILENO, rest, sizeof(rest));
+        if (m > 0) {
+          --n;  // the ESC starts a sequence whose rest was `rest`: drop both
+        }
+      }
+    }
     for (ssize_t i = 0; i < n && !quit; ++i) {
+      if (buf[i] == 27 && i + 1 < n) break;  // an escape sequence: the rest of this read
       switch (omni::base_bridge::ApplyTeleopKey(buf[i], opt, &twist)) {
         case omni::base_bridge::TeleopAction::kEstop:
           send(omni::base_cmd_t::MODE_ESTOP, 0, 0, 0);
@@ -113,7 +137,7 @@ int Teleop(const Send& send, double rate_hz, const std::string& channel) {
     }
   }
   send(omni::base_cmd_t::MODE_TWIST, 0, 0, 0);
-  if (tty) tcsetattr(STDIN_FILENO, TCSANOW, &saved);
+  RestoreTerminal();
   std::printf("\nomni-drive: teleop ended, %lld twists sent, then a zero twist\n",
               static_cast<long long>(sent));
   return 0;

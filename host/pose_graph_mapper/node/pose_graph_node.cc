@@ -40,7 +40,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
     it.scan.min_range_m = m.range_min_m;
     it.scan.max_range_m = m.range_max_m;
     it.scan.ranges_m = m.ranges_m;
-    it.scan.scan_time_s = std::isfinite(m.scan_time_s) && m.scan_time_s > 0 ? m.scan_time_s : 0.f;
+    it.scan.scan_time_s = bus::SweepTime(m.scan_time_s);
     OnMessage(std::move(it));
   });
   bus_->Subscribe<omni::odometry_t>(o_.odom_channel, [this](const omni::odometry_t& m, int64_t) {

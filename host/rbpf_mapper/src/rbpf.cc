@@ -299,7 +299,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   const double max_hit = std::min(opt_.max_hit_range_m, opt_.max_range_m);
   // The base's motion from the first beam to the last (a spinning lidar's sweep).
   std::optional<Pose2> sweep;
-  if (scan.scan_time_s > 0 && scan.ranges_m.size() > 1) {
+  if (scan.scan_time_s > 0 && scan.scan_time_s <= 1.f && scan.ranges_m.size() > 1) {
     const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
     const auto a = RawOdometryAt(scan.utime);
     const auto b = odom_buffer_.At(t1);

@@ -31,7 +31,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
         s.range_min_m = m.range_min_m;
         s.range_max_m = m.range_max_m;
         s.ranges_m = m.ranges_m;
-        s.scan_time_s = std::isfinite(m.scan_time_s) && m.scan_time_s > 0 ? m.scan_time_s : 0.f;
+        s.scan_time_s = bus::SweepTime(m.scan_time_s);
         OnScan(s, m.seq);
       });
   bus_->Subscribe<omni::odometry_t>(opt_.odom_channel, [this](const omni::odometry_t& m, int64_t) {

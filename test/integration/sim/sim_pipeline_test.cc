@@ -200,12 +200,15 @@ TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
       << testing::Bin("omni-drive") << " --vx 0.3 --duration 2 || exit 4\n"
       << "(printf 'wwxy'; sleep 1.5; printf ' '; sleep 0.3) | " << testing::Bin("omni-drive")
       << " --keys || exit 5\n"
+      << testing::Bin("omni-drive") << " --estop || exit 6\n"
       << "wait $s\n";
   }
   const auto r = testing::Run("timeout 60 unshare -n bash " + dir + "/run.sh");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("sent 40 twists"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("teleop ended"), std::string::npos) << r.output;
+  // Left e-stopped by the operator: said, and not an unhealthy end (exit 0 above).
+  EXPECT_NE(r.output.find("the base ends e-stopped, as commanded"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("vx +0.20 m/s"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("on the bus: "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find(" commands, 0 refused by the base, 0 undecodable"), std::string::npos)

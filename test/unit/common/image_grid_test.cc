@@ -1,5 +1,6 @@
 #include <cmath>
 #include <fstream>
+#include <limits>
 
 #include <gtest/gtest.h>
 
@@ -96,9 +97,9 @@ TEST(Grid, AxisAlignedPutsATurnedGridWhereItsCellsAre) {
   m.width = 4;
   m.height = 3;
   m.cells = {-1, 0, 100, 0, 0, 0, 0, 100, -1, -1, 0, 0};
-  EXPECT_EQ(AxisAligned(m, 0.0).cells, m.cells);
+  EXPECT_EQ(AxisAligned(m, 0.0)->cells, m.cells);
   for (const double yaw : {M_PI / 2, M_PI, -M_PI / 2}) {
-    const GridMap a = AxisAligned(m, yaw);
+    const GridMap a = *AxisAligned(m, yaw);
     EXPECT_EQ(static_cast<size_t>(a.width) * a.height, m.cells.size()) << yaw;
     for (int r = 0; r < m.height; ++r)
       for (int c = 0; c < m.width; ++c) {
@@ -118,7 +119,7 @@ TEST(Grid, AxisAlignedPutsATurnedGridWhereItsCellsAre) {
   w.height = 21;
   w.cells.assign(80 * 21, 0);
   for (int c = 0; c < 80; ++c) w.at(c, 10) = 100;
-  const GridMap a = AxisAligned(w, 0.3);
+  const GridMap a = *AxisAligned(w, 0.3);
   int occupied = 0;
   for (int r = 0; r < a.height; ++r)
     for (int c = 0; c < a.width; ++c) {
@@ -131,6 +132,19 @@ TEST(Grid, AxisAlignedPutsATurnedGridWhereItsCellsAre) {
     }
   EXPECT_GT(occupied, 70);
   EXPECT_LT(occupied, 130);
+  // A long thin grid turned 45 degrees would need a huge box: an error, nothing allocated; so
+  // are a non-finite turn and resolution.
+  GridMap thin;
+  thin.resolution_m = 0.05;
+  thin.width = 1000000;
+  thin.height = 1;
+  thin.cells.assign(1000000, 0);
+  EXPECT_FALSE(AxisAligned(thin, M_PI / 4).ok());
+  EXPECT_TRUE(AxisAligned(thin, M_PI / 2).ok());  // a quarter turn: the same number of cells
+  EXPECT_FALSE(AxisAligned(m, std::nan("")).ok());
+  GridMap inf = m;
+  inf.resolution_m = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(AxisAligned(inf, 0.3).ok());
 }
 
 TEST(Grid, MapServerOriginYawIsResampledNotIgnored) {

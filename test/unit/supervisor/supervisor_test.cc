@@ -273,6 +273,22 @@ TEST(Supervisor, AfterStartsAChildOnceWhatItWaitsForRuns) {
   EXPECT_TRUE(t.AllStopped());
   EXPECT_TRUE(t.Finished());
   EXPECT_EQ(t.children()[0].starts, 0);
+  // What it waits for ends for good (a one-shot that exits, a driver given up): it starts
+  // anyway instead of waiting for ever.
+  SupervisorOptions p;
+  ChildSpec setup = Child("setup", RestartPolicy::kNever);
+  setup.heartbeat = "setup";  // never sends one: it is a one-shot
+  ChildSpec user = Child("user", RestartPolicy::kNever);
+  user.after = {"setup"};
+  p.children = {setup, user};
+  FakeLauncher m;
+  Supervisor u(p, &m);
+  u.Start(0);
+  ASSERT_EQ(m.started.size(), 1u);
+  m.Exit(m.started[0], 0);
+  u.Tick(kS);
+  ASSERT_EQ(m.started.size(), 2u);
+  EXPECT_EQ(m.commands[m.started[1]][0], "/bin/user");
 }
 
 TEST(SupervisorOptions, AfterNamesOtherChildrenWithoutACycle) {

@@ -16,7 +16,16 @@ omni::laser_scan_t ToLaserScan(const io::CarmenLaser& laser, int64_t seq);
 omni::odometry_t ToOdometry(const io::CarmenOdom& odom, int64_t seq);
 omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
                                      const std::string& source);
-// Rejects messages whose sizes disagree or whose resolution is not positive.
+// Rejects messages whose sizes disagree, whose resolution is not positive and finite or whose
+// origin is not finite; a grid turned in its frame (origin_yaw_rad) is resampled onto the
+// frame's axes (io::AxisAligned).
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
+
+// A laser_scan_t's sweep time as the mappers use it: the message's scan_time_s when it is a
+// plausible revolution (finite, in (0, 1] s), else 0 (the scan is taken as one instant). A
+// lidar slower than 1 Hz is not one of ours; a wild value must not overflow the time arithmetic.
+inline float SweepTime(float scan_time_s) {
+  return scan_time_s > 0.f && scan_time_s <= 1.f ? scan_time_s : 0.f;  // NaN compares false
+}
 
 }  // namespace omni::bus

@@ -86,8 +86,10 @@ Result<GridMap> ReadMapServer(const std::string& path);
 // A grid whose cell axes are turned by `yaw` (radians) from the map frame's, about its origin
 // corner (origin_x_m, origin_y_m), resampled onto a grid along the map frame's axes at the same
 // resolution: each new cell takes the value of the source cell under its centre (nearest
-// neighbour), -1 where none is. yaw 0 returns the grid as it is.
-GridMap AxisAligned(const GridMap& rotated, double yaw);
+// neighbour), -1 where none is. yaw 0 returns the grid as it is. An error when the resolution or
+// yaw is not finite, or when the turned grid's bounding box would hold more than 4 times its
+// cells plus a million (a long thin grid turned 45 degrees): it is not allocated.
+Result<GridMap> AxisAligned(const GridMap& rotated, double yaw);
 
 struct Polyline {
   std::vector<Pose2> poses;

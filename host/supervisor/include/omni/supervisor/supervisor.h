@@ -17,7 +17,9 @@
 // - with `after` (names of other children), it is started only once each of them is running —
 //   its first heartbeat has come, or it was started if it has no heartbeat — (state kWaiting
 //   until then), so a mapper starts after the drivers and the base bridge are up. It waits
-//   only for its first start: later restarts of either side do not cascade.
+//   only for its first start: later restarts of either side do not cascade. A child that ended
+//   for good (exited with no restart to come, or given up) holds no one back, so a one-shot
+//   (e.g. bringing a CAN interface up) can come first.
 // A child's heartbeat state (e.g. ERROR while a driver's device is away) is reported, not acted
 // on: the drivers reconnect by themselves.
 #pragma once
