@@ -24,25 +24,25 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
       clock_(clock),
       slam_(slam, batch, clock),
       heartbeat_(bus, "pose_graph_mapper", clock) {
-  bus_->Subscribe<omni::laser_scan_t>(o_.scan_channel, [this](const omni::laser_scan_t& m,
-                                                              int64_t) {
-    if (m.seq >= 0) {
-      if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
-      last_seq_ = m.seq;
-    }
-    Item it;
-    it.kind = Kind::kScan;
-    it.utime = m.utime;
-    it.scan.utime = m.utime;
-    it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-    it.scan.angle_min_rad = m.angle_min_rad;
-    it.scan.angle_increment_rad = m.angle_increment_rad;
-    it.scan.min_range_m = m.range_min_m;
-    it.scan.max_range_m = m.range_max_m;
-    it.scan.ranges_m = m.ranges_m;
-    it.scan.scan_time_s = bus::SweepTime(m.scan_time_s);
-    OnMessage(std::move(it));
-  });
+  bus_->Subscribe<omni::laser_scan_t>(
+      o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
+        if (m.seq >= 0) {
+          if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
+          last_seq_ = m.seq;
+        }
+        Item it;
+        it.kind = Kind::kScan;
+        it.utime = m.utime;
+        it.scan.utime = m.utime;
+        it.scan.laser_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+        it.scan.angle_min_rad = m.angle_min_rad;
+        it.scan.angle_increment_rad = m.angle_increment_rad;
+        it.scan.min_range_m = m.range_min_m;
+        it.scan.max_range_m = m.range_max_m;
+        it.scan.ranges_m = m.ranges_m;
+        it.scan.scan_time_s = bus::SweepTime(m.scan_time_s);
+        OnMessage(std::move(it));
+      });
   bus_->Subscribe<omni::odometry_t>(o_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
     Item it;
     it.utime = m.utime;

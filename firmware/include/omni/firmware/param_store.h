@@ -10,8 +10,8 @@
 // applied: the firmware boots with its compiled defaults and says so (ParamStoreState).
 #pragma once
 
-#include <cstring>  // size_t (the MCU build has no <cstddef>)
 #include <cstdint>
+#include <cstring>  // size_t (the MCU build has no <cstddef>)
 
 #include "omni/firmware/params.h"
 #include "omni/firmware/status.h"
