@@ -113,11 +113,13 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   Pose2 pose = route.front(), odom = pose;
   const Pose2 start = pose;
   const bool firmware = o_.base == SimOptions::Base::kFirmware;
+  // The bridge's limits and timing: the firmware base's bridge runs with them, and the ideal
+  // base applies them to outside commands.
+  const base_bridge::BaseBridgeOptions limits =
+      o_.bridge ? *o_.bridge : FirmwareBase::ShippedBridgeOptions();
   std::unique_ptr<FirmwareBase> base;
   if (firmware) {
-    base = std::make_unique<FirmwareBase>(
-        o_.center_to_wheel_m, o_.wheel_radius_m,
-        o_.bridge ? *o_.bridge : FirmwareBase::ShippedBridgeOptions());
+    base = std::make_unique<FirmwareBase>(o_.center_to_wheel_m, o_.wheel_radius_m, limits);
     if (!base->booted(&st.base_problem)) return st;
   }
   auto base_sink = [&](const SimEvent& e) {
@@ -138,8 +140,6 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
   // Driven from outside (set_command_source): the commands of this step, and for the ideal
   // base the twist it holds, since when, and whether it is e-stopped.
   const bool external = static_cast<bool>(command_source_);
-  const base_bridge::BaseBridgeOptions limits =
-      o_.bridge ? *o_.bridge : FirmwareBase::ShippedBridgeOptions();
   std::vector<base_bridge::Command> arrived;
   kinematics::BodyTwist<double> held{};
   int64_t held_since = 0;
