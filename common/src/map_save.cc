@@ -16,14 +16,9 @@ MapSaveService::MapSaveService(Bus* bus, std::string process, std::string defaul
       kMapSaveChannel, [this](const omni::map_save_request_t& m, int64_t) {
         if (!m.process.empty() && m.process != process_) return;  // another process's
         if (pending_.size() >= 16) {  // a flood: answered as refused, nothing written
-          omni::map_save_reply_t busy{};
-          busy.utime = clock_->NowUtime();
-          busy.seq = m.seq;
-          busy.process = process_;
-          busy.ok = false;
-          busy.message = "too many map save requests waiting; try again";
-          bus_->Publish(kMapSaveReplyChannel, busy);
-          ++failed_;
+          Reply(
+              m.seq, "",
+              MakeError(ErrorCode::kUnavailable, "too many map save requests waiting; try again"));
           return;
         }
         std::string dir = default_dir_;
@@ -41,30 +36,34 @@ int MapSaveService::Serve(const WriteFn& write) {
   const std::vector<Request> requests = std::move(pending_);
   pending_.clear();
   for (const Request& r : requests) {
-    omni::map_save_reply_t reply{};
-    reply.seq = r.seq;
-    reply.process = process_;
-    reply.directory = r.directory;
     std::error_code ec;
     std::filesystem::create_directories(r.directory, ec);
-    Status s;
     if (ec)
-      s = MakeError(ErrorCode::kIo, "cannot create folder '" + r.directory + "': " + ec.message());
+      Reply(
+          r.seq, r.directory,
+          MakeError(ErrorCode::kIo, "cannot create folder '" + r.directory + "': " + ec.message()));
     else
-      s = write(r.directory);
-    reply.utime = clock_->NowUtime();
-    reply.ok = s.ok();
-    reply.message = s.ok() ? "maps written to " + r.directory : s.message();
-    if (s.ok()) {
-      ++saved_;
-      LOG_INFO << "map save request " << r.seq << ": written to " << r.directory;
-    } else {
-      ++failed_;
-      LOG_WARN << "map save request " << r.seq << " failed: " << s.message();
-    }
-    bus_->Publish(kMapSaveReplyChannel, reply);
+      Reply(r.seq, r.directory, write(r.directory));
   }
   return static_cast<int>(requests.size());
+}
+
+void MapSaveService::Reply(int64_t seq, const std::string& directory, const Status& s) {
+  omni::map_save_reply_t reply{};
+  reply.utime = clock_->NowUtime();
+  reply.seq = seq;
+  reply.process = process_;
+  reply.directory = directory;
+  reply.ok = s.ok();
+  reply.message = s.ok() ? "maps written to " + directory : s.message();
+  if (s.ok()) {
+    ++saved_;
+    LOG_INFO << "map save request " << seq << ": written to " << directory;
+  } else {
+    ++failed_;
+    LOG_WARN << "map save request " << seq << " failed: " << s.message();
+  }
+  bus_->Publish(kMapSaveReplyChannel, reply);
 }
 
 }  // namespace omni::bus

@@ -40,6 +40,8 @@ class MapSaveService {
     int64_t seq;
     std::string directory;
   };
+  // Counts, logs and publishes the answer to request `seq` (ok when s is).
+  void Reply(int64_t seq, const std::string& directory, const Status& s);
   Bus* bus_;
   std::string process_, default_dir_;
   const Clock* clock_;
