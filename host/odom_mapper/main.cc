@@ -102,10 +102,7 @@ int main(int argc, char** argv) {
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
   // DIR/odom_map.{pgm,yaml,png} and DIR/odom_trajectory.{txt,png}, at exit and on a MAP_SAVE
   // request while mapping.
-  auto write_maps = [&](const std::string& dir) -> omni::Status {
-    const auto map = mapper.Map();
-    if (map.width == 0)
-      return omni::MakeError(omni::ErrorCode::kNotFound, "no scan was mapped yet");
+  auto write_maps = [&](const omni::io::GridMap& map, const std::string& dir) -> omni::Status {
     const std::string base = dir + "/odom_map";
     omni::Status s = omni::io::WriteMapServer(map, base);
     if (s.ok()) s = omni::io::WritePng(base + ".png", omni::io::RenderGrid(map, {}, 1));
@@ -137,7 +134,13 @@ int main(int argc, char** argv) {
       bus, loop, [] { return 0; },
       [&] {
         hb.Tick();
-        saver.Serve(write_maps);
+        saver.Serve([&](const std::string& dir) {
+          const auto map = mapper.Map();
+          if (map.width == 0)
+            return omni::Status(
+                omni::MakeError(omni::ErrorCode::kNotFound, "no scan was mapped yet"));
+          return write_maps(map, dir);
+        });
         const int64_t now = omni::MonotonicMicros();
         if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
             c.scans_mapped > 0) {
@@ -159,7 +162,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
-  const omni::Status s = write_maps(out_dir);
+  const omni::Status s = write_maps(map, out_dir);
   if (!s.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", s.message().c_str());
     return 1;
