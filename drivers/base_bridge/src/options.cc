@@ -1,4 +1,5 @@
 #include "omni/base_bridge/base_bridge.h"
+#include "omni/can/can_bus.h"
 #include "omni/common/config.h"
 
 namespace omni::base_bridge {
@@ -9,6 +10,8 @@ Result<BaseBridgeOptions> Load(Result<ConfigReader> reader) {
   ConfigReader& r = *reader;
   BaseBridgeOptions o;
   r.Get("can", &o.can_url, Required(), NonEmpty());
+  if (!o.can_url.empty())
+    if (auto u = can::ParseCanUrl(o.can_url); !u.ok()) r.AddError("can", u.error().message);
   r.Get("node_id", &o.node_id, Optional(), InRange(0, 63));
   ConfigReader g = r.Section("geometry");
   g.Get("alpha_rad", &o.alpha_rad, Optional(), InRange(0.1, 3.0));

@@ -152,7 +152,22 @@ TEST(ShmCanBusTest, LinkDownAndUp) {
 }
 
 TEST(ShmCanBusTest, RejectsBadUrlsAndFrames) {
-  EXPECT_EQ(OpenCanBus("vcan0").error().code, ErrorCode::kInvalidArgument);
+  // A bare interface name is SocketCAN's; names that no interface can have are refused.
+  auto bare = ParseCanUrl("can0");
+  ASSERT_TRUE(bare.ok());
+  EXPECT_EQ(bare->kind, CanUrl::Kind::kSocketCan);
+  EXPECT_EQ(bare->name, "can0");
+  auto full = ParseCanUrl("socketcan:vcan0");
+  ASSERT_TRUE(full.ok());
+  EXPECT_EQ(full->name, "vcan0");
+  EXPECT_EQ(ParseCanUrl("shm:sim")->kind, CanUrl::Kind::kShm);
+  for (const char* u : {"", "socketcan:", "udp:can0", "can 0", "a23456789012345678", "shm:"}) {
+    auto r = ParseCanUrl(u);
+    ASSERT_FALSE(r.ok()) << u;
+    EXPECT_EQ(r.error().code, ErrorCode::kInvalidArgument) << u;
+    EXPECT_NE(r.error().message.find("can0"), std::string::npos) << r.error().message;
+  }
+  EXPECT_EQ(OpenCanBus("udp:can0").error().code, ErrorCode::kInvalidArgument);
   EXPECT_EQ(OpenCanBus("shm:../etc").error().code, ErrorCode::kInvalidArgument);
   EXPECT_EQ(OpenCanBus("shm:").error().code, ErrorCode::kInvalidArgument);
   BusName bus("bad");

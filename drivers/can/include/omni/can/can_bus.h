@@ -46,7 +46,17 @@ class CanBus {
   virtual CanBusStats stats() const = 0;
 };
 
-// Opens "socketcan:<ifname>" or "shm:<name>".
+// A CAN bus URL taken apart: "socketcan:<ifname>", "shm:<name>", or a bare interface name
+// ("can0", as `ip link` prints it), which means socketcan:<ifname>.
+struct CanUrl {
+  enum class Kind { kSocketCan, kShm } kind = Kind::kSocketCan;
+  std::string name;
+};
+// kInvalidArgument, naming the URL, when it can never be opened (so callers can refuse it at
+// start instead of retrying it as if the device were only missing).
+Result<CanUrl> ParseCanUrl(const std::string& url);
+
+// Opens a URL of ParseCanUrl's forms.
 Result<std::unique_ptr<CanBus>> OpenCanBus(const std::string& url);
 
 }  // namespace omni::can
