@@ -1,15 +1,71 @@
 #include "omni/bus/bus.h"
 
+#include <cstdlib>
+#include <filesystem>
+
 #include "omni/common/log.h"
+#include "omni/io/lcm_log.h"
 
 namespace omni::bus {
 
+namespace {
+
+// The path of a file:// URL ("file:///abs/log?speed=0" -> "/abs/log"), or "" for other URLs.
+std::string LogPathOf(const std::string& url) {
+  if (url.rfind("file://", 0) != 0) return "";
+  return url.substr(7, url.find('?') == std::string::npos ? std::string::npos : url.find('?') - 7);
+}
+
+bool WritesLog(const std::string& url) {
+  const size_t q = url.find('?');
+  return q != std::string::npos && url.find("mode=w", q) != std::string::npos;
+}
+
+// Why LCM could not open `url`, as far as we can tell from outside it.
+std::string OpenFailureHint(const std::string& url) {
+  const std::string path = LogPathOf(url);
+  if (!path.empty()) {
+    std::error_code ec;
+    if (WritesLog(url)) return "cannot write the log file '" + path + "'";
+    if (!std::filesystem::exists(path, ec)) return "log file '" + path + "' does not exist";
+    if (std::filesystem::is_regular_file(path, ec) && std::filesystem::file_size(path, ec) == 0)
+      return "log file '" + path + "' is empty";
+    return "log file '" + path + "' is not a readable LCM log";
+  }
+  if (url.empty() || url.rfind("udpm://", 0) == 0)
+    return "UDP multicast needs a route for 224.0.0.0/4; see README, Networking";
+  if (url.rfind("memq://", 0) == 0 || url.rfind("tcpq://", 0) == 0)
+    return "see LCM's documentation of this provider";
+  return "unknown provider; use udpm://, file://, memq:// or tcpq://";
+}
+
+}  // namespace
+
 Result<std::unique_ptr<Bus>> Bus::Create(const std::string& url) {
+  const char* env = std::getenv("LCM_DEFAULT_URL");
+  const std::string effective = url.empty() && env != nullptr ? std::string(env) : url;
   auto lcm = std::make_unique<lcm::LCM>(url);
   if (!lcm->good()) {
-    return MakeError(ErrorCode::kUnavailable,
-                     "cannot open the LCM bus at '" + (url.empty() ? std::string("default") : url) +
-                         "' (UDP multicast needs a route for 224.0.0.0/4; see README, Networking)");
+    return MakeError(ErrorCode::kUnavailable, "cannot open the LCM bus at '" +
+                                                  (effective.empty() ? "default" : effective) +
+                                                  "' (" + OpenFailureHint(effective) + ")");
+  }
+  // LCM's file reader ends or skips silently at a corrupt event: check the log first so that a
+  // replay that will lose events says so before it starts.
+  if (const std::string path = LogPathOf(effective); !path.empty() && !WritesLog(effective)) {
+    if (auto reader = io::LcmLogReader::Open(path); reader.ok()) {
+      io::LcmLogEvent ev;
+      for (;;) {
+        auto more = reader->Next(&ev);
+        if (!more.ok()) {
+          LOG_WARN << more.error().message
+                   << ": LCM's file reader stops or skips there, so events of this log are lost "
+                      "(`omni replay --resync` reads past it)";
+          break;
+        }
+        if (!*more) break;
+      }
+    }
   }
   return std::unique_ptr<Bus>(new Bus(std::move(lcm), url));
 }

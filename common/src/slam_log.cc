@@ -67,6 +67,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       handlers.imu(m.utime, m.angular_velocity_rad_s[2]);
     }
   }
+  out.skipped_bytes = reader->skipped_bytes();
   return out;
 }
 

@@ -144,10 +144,16 @@ int main(int argc, char** argv) {
   }
   if (!read->stopped_early.empty())
     std::fprintf(stderr, "omni-posegraph-slam: %s (stopping there)\n", read->stopped_early.c_str());
+  if (read->skipped_bytes > 0)
+    std::fprintf(stderr,
+                 "omni-posegraph-slam: warning: %llu corrupt bytes of %s skipped (the events in "
+                 "them are lost; stats.json skipped_bytes)\n",
+                 static_cast<unsigned long long>(read->skipped_bytes), input.c_str());
   slam.Finish();
   omni::pgm::SlamRunInfo info;
   info.input = input;
   info.decode_errors = read->decode_errors;
+  info.extra.emplace_back("skipped_bytes", static_cast<int64_t>(read->skipped_bytes));
   info.window_size = opt.window_size;
   info.wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
   if (omni::Status s = omni::pgm::WriteSlamOutputs(slam, out_dir, info); !s.ok()) {

@@ -164,6 +164,12 @@ int main(int argc, char** argv) {
     opt = *loaded;
   }
   if (seed >= 0) opt.seed = static_cast<uint64_t>(seed);
+  // -1: not given (the config's value); an explicit 0 is an error, not "use the config".
+  if (particles == 0 || threads == 0) {
+    std::fprintf(stderr, "omni-slam: --%s must be at least 1\n",
+                 particles == 0 ? "particles" : "threads");
+    return 2;
+  }
   if (particles > 0) opt.particles = static_cast<int>(particles);
   if (threads > 0) opt.threads = static_cast<int>(threads);
   if (omni::Status s = opt.Validate(); !s.ok()) {
@@ -215,6 +221,11 @@ int main(int argc, char** argv) {
   }
   if (!read->stopped_early.empty())
     std::fprintf(stderr, "omni-slam: %s (stopping there)\n", read->stopped_early.c_str());
+  if (read->skipped_bytes > 0)
+    std::fprintf(stderr,
+                 "omni-slam: warning: %llu corrupt bytes of %s skipped (the events in them are "
+                 "lost; stats.json skipped_bytes)\n",
+                 static_cast<unsigned long long>(read->skipped_bytes), input.c_str());
   const int64_t decode_errors = read->decode_errors;
   const auto& c = slam.counters();
   const auto traj = slam.BestTrajectory();
@@ -261,7 +272,8 @@ int main(int argc, char** argv) {
       "\"odom_jumps\": %lld, \"odom_invalid\": %lld, \"odom_out_of_order\": %lld, "
       "\"decode_errors\": %lld, \"resamplings\": %lld, \"match_failures\": %lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
-      "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld}\n",
+      "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld, "
+      "\"skipped_bytes\": %llu}\n",
       input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed),
       static_cast<long long>(c.scans_gated), static_cast<long long>(c.scans_too_few_beams),
@@ -272,7 +284,8 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.resamplings), static_cast<long long>(c.match_failures),
       static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
       slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
-      static_cast<long long>(c.sweeps_uncorrected));
+      static_cast<long long>(c.sweeps_uncorrected),
+      static_cast<unsigned long long>(read->skipped_bytes));
   std::fclose(f);
   std::printf(
       "omni-slam rbpf: %lld scans (%lld updates), %d particles, %lld resamplings, %lld match "

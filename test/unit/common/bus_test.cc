@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <set>
 #include <string>
@@ -9,11 +10,15 @@
 
 #include <gtest/gtest.h>
 
+#include "omni/io/lcm_log.h"
+
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/map_save.h"
+#include "omni/bus/slam_log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/map_save_reply_t.hpp"
 #include "omni/map_save_request_t.hpp"
+#include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
 
 namespace omni::bus {
@@ -213,6 +218,39 @@ TEST(Bus, JavaJarHoldsEveryType) {
   ASSERT_EQ(pclose(p), 0);
   for (const auto& t : types)
     EXPECT_TRUE(classes.count("omni/" + t + ".class")) << t << " missing from the jar";
+}
+
+TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {
+  const std::string path = ::testing::TempDir() + "/slam_corrupt.lcmlog";
+  size_t event_bytes = 0;
+  {
+    auto w = io::LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok());
+    for (int i = 0; i < 3; ++i) {
+      omni::odometry_t m{};
+      m.utime = 1000000 * (i + 1);
+      m.x_m = i;
+      std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+      m.encode(buf.data(), 0, static_cast<int>(buf.size()));
+      ASSERT_TRUE(w->Write(m.utime, "WHEEL_ODOM", buf.data(), buf.size()).ok());
+      event_bytes = 28 + std::string("WHEEL_ODOM").size() + buf.size();
+    }
+    ASSERT_TRUE(w->Close().ok());
+  }
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(static_cast<std::streamoff>(event_bytes));  // the second event's sync word
+    f.put('\x00');
+  }
+  std::vector<double> xs;
+  SlamLogHandlers h;
+  h.scan = [](const SlamScan&) { return true; };
+  h.odom = [&](int64_t, const Pose2& p) { xs.push_back(p.x); };
+  auto r = ReadSlamLog(path, SlamLogChannels{}, h);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(xs, (std::vector<double>{0.0, 2.0})) << "the corrupt event is lost, the next is read";
+  EXPECT_EQ(r->skipped_bytes, event_bytes);
+  EXPECT_TRUE(r->stopped_early.empty());
 }
 
 }  // namespace

@@ -39,14 +39,17 @@ struct SlamLogHandlers {
 };
 
 struct SlamLogResult {
-  int64_t decode_errors = 0;  // LCM events on a SLAM channel that did not decode (skipped)
-  std::string stopped_early;  // a corrupt LCM log: where and why the reading stopped
+  int64_t decode_errors = 0;   // LCM events on a SLAM channel that did not decode (skipped)
+  std::string stopped_early;   // a truncated LCM log: where and why the reading stopped
+  uint64_t skipped_bytes = 0;  // corrupt LCM log bytes skipped to the next event's sync word
 };
 
 bool IsLcmLogFile(const std::string& path);
 
 // Reads `path` and calls the handlers in file order. An unreadable file or a bad CARMEN line is
-// an error; corruption inside an LCM log ends the reading there (said in `stopped_early`).
+// an error. Inside an LCM log a corrupt region is skipped to the next event (counted in
+// `skipped_bytes`: the events in it are lost, callers must say so) and a truncated last event
+// ends the reading (said in `stopped_early`).
 Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
                                   const SlamLogHandlers& handlers);
 
