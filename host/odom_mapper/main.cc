@@ -159,7 +159,8 @@ int main(int argc, char** argv) {
         "odom_mapper: no scan was mapped (scans in %lld, without pose %lld, too few beams %lld)\n",
         static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_pose),
         static_cast<long long>(c.scans_too_few_beams));
-    return 1;
+    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
+    return end == omni::bus::LoopEnd::kSignal ? 0 : 1;
   }
   bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
   const omni::Status s = write_maps(map, out_dir);

@@ -98,7 +98,8 @@ int main(int argc, char** argv) {
                  s.message().c_str(), static_cast<long long>(c.scans_in),
                  static_cast<long long>(c.scans_no_odom),
                  static_cast<long long>(c.scans_too_few_beams));
-    return 1;
+    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
+    return end == omni::bus::LoopEnd::kSignal && c.scans_processed == 0 ? 0 : 1;
   }
   std::printf(
       "rbpf_mapper: %lld scans (%lld filter updates, %lld lost on the bus, %lld without "

@@ -97,11 +97,12 @@ int main(int argc, char** argv) {
   LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); optimising and writing the map";
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   const omni::Status s = node.WriteOutputs(out_dir, run_info());
+  const auto& c = node.slam().counters();
   if (!s.ok()) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", s.message().c_str());
-    return 1;
+    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
+    return end == omni::bus::LoopEnd::kSignal && c.scans_used == 0 ? 0 : 1;
   }
-  const auto& c = node.slam().counters();
   std::printf(
       "pose_graph_mapper: %lld scans (%lld used, %lld lost on the bus, %lld without odometry), "
       "%lld keyframes, %lld loops, %lld poses, %lld trajectories and %lld grids published, %lld "
