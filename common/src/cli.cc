@@ -65,7 +65,7 @@ bool ReadMapperArg(ArgReader& args, MapperArgs* a) {
     a->config = args.Value();
   } else if (args.Is("--out")) {
     a->out = args.Value();
-  } else if (args.Is("--url")) {
+  } else if (args.IsUrl()) {
     a->url = args.Value();
   } else if (args.Is("--idle-exit")) {
     a->idle_exit_s = args.Number(0, 1e6);

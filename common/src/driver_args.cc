@@ -10,8 +10,8 @@ int ParseDriverArgs(int argc, char** argv, const std::string& device_flag, int (
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--help" || a == "-h") return usage(0);
-    const bool takes_value =
-        a == "--config" || a == device_flag || a == "--lcm-url" || a == "--duration-s";
+    const bool takes_value = a == "--config" || a == device_flag || a == "--lcm-url" ||
+                             a == "--url" || a == "--duration-s";
     if (!takes_value) {
       std::fprintf(stderr, "unknown option %s\n", a.c_str());
       return usage(2);
@@ -26,7 +26,7 @@ int ParseDriverArgs(int argc, char** argv, const std::string& device_flag, int (
     } else if (a == device_flag) {
       out->device = v;
       out->have_device = true;
-    } else if (a == "--lcm-url") {
+    } else if (a == "--lcm-url" || a == "--url") {
       out->lcm_url = v;
       out->have_url = true;
     } else {

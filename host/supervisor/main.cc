@@ -41,7 +41,7 @@ int main(int argc, char** argv) {
   while (args.Next()) {
     if (args.Is("--config")) {
       config_path = args.Value();
-    } else if (args.Is("--url")) {
+    } else if (args.IsUrl()) {
       url = args.Value();
     } else if (args.Is("--duration-s")) {
       duration_s = args.Number(0, 1e9);

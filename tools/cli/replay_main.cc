@@ -65,8 +65,8 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "omni replay: --min-gap-us '%s' must be an integer >= 0\n", v);
         return 2;
       }
-    } else if (a == "--url") {
-      url = need("--url");
+    } else if (a == "--url" || a == "--lcm-url") {
+      url = need(a.c_str());
     } else if (a == "--channels") {
       channels = need("--channels");
     } else if (a == "--resync") {

@@ -21,7 +21,7 @@ namespace {
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
-      "usage: omni-save-map [--lcm-url URL] [--process NAME] [--dir DIR] [--wait S]\n"
+      "usage: omni-save-map [--url URL] [--process NAME] [--dir DIR] [--wait S]\n"
       "  Asks the running mappers (rbpf_mapper, pose_graph_mapper, odom_mapper, map_fusion,\n"
       "  octomap_builder) to write their maps now, without stopping, and prints each answer.\n"
       "  --process NAME  only this process (default: every mapper on the bus)\n"
@@ -39,7 +39,7 @@ int main(int argc, char** argv) {
   double wait_s = 10;
   omni::ArgReader args(argc, argv, "omni-save-map", Usage);
   while (args.Next()) {
-    if (args.Is("--lcm-url")) {
+    if (args.IsUrl()) {
       lcm_url = args.Value();
     } else if (args.Is("--process")) {
       process = args.Value();

@@ -17,7 +17,7 @@ namespace {
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
-      "usage: omni-status [--lcm-url URL] [--wait S] [--process NAME] [--all-counters] [--json]\n"
+      "usage: omni-status [--url URL] [--wait S] [--process NAME] [--all-counters] [--json]\n"
       "  Listens to HEARTBEAT for S seconds (default 2.5; processes beat once a second) and\n"
       "  prints each process heard: state, uptime, CPU, memory, bus traffic and errors, its\n"
       "  status text and its non-zero counters (--all-counters: every counter).\n"
@@ -82,7 +82,7 @@ int main(int argc, char** argv) {
   bool all_counters = false, json = false;
   omni::ArgReader args(argc, argv, "omni-status", Usage);
   while (args.Next()) {
-    if (args.Is("--lcm-url")) {
+    if (args.IsUrl()) {
       lcm_url = args.Value();
     } else if (args.Is("--wait")) {
       wait_s = args.Number(0.1, 3600);

@@ -1,9 +1,9 @@
 // omni-drive: sends the base a command on the bus (BASE_CMD, base_cmd_t), for bring-up on the
 // robot and for driving the simulator (`omni-sim --drive bus`).
 //
-//   omni-drive [--lcm-url URL] [--channel NAME] --vx 0.2 [--vy 0] [--omega 0] [--duration 2]
-//   omni-drive [--lcm-url URL] --estop | --clear-faults | --stop
-//   omni-drive [--lcm-url URL] --keys        (keyboard teleop, omni/base_bridge/teleop.h)
+//   omni-drive [--url URL] [--channel NAME] --vx 0.2 [--vy 0] [--omega 0] [--duration 2]
+//   omni-drive [--url URL] --estop | --clear-faults | --stop
+//   omni-drive [--url URL] --keys        (keyboard teleop, omni/base_bridge/teleop.h)
 //
 // A twist is repeated at --rate (the bridge stops the base when commands go stale, after its
 // command_timeout_s, 0.3 s as shipped), then one zero twist ends the motion.
@@ -42,10 +42,10 @@ void RestoreTerminal() {
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
-      "usage: omni-drive [--lcm-url URL] [--channel NAME] [--vx M_S] [--vy M_S] [--omega RAD_S]\n"
+      "usage: omni-drive [--url URL] [--channel NAME] [--vx M_S] [--vy M_S] [--omega RAD_S]\n"
       "                  [--duration S] [--rate HZ]\n"
-      "       omni-drive [--lcm-url URL] [--channel NAME] --estop | --clear-faults | --stop\n"
-      "       omni-drive [--lcm-url URL] [--channel NAME] --keys [--rate HZ]\n"
+      "       omni-drive [--url URL] [--channel NAME] --estop | --clear-faults | --stop\n"
+      "       omni-drive [--url URL] [--channel NAME] --keys [--rate HZ]\n"
       "  Publishes base_cmd_t on NAME (default BASE_CMD): the body twist (x forward, y left,\n"
       "  counter-clockwise; default 0) every 1/HZ s (default 20) for S s (default 1), then a zero\n"
       "  twist; or one e-stop (motors off until --clear-faults), clear-faults or zero twist.\n"
@@ -152,7 +152,7 @@ int main(int argc, char** argv) {
   bool twist_given = false, single = false, keys = false;
   omni::ArgReader args(argc, argv, "omni-drive", Usage);
   while (args.Next()) {
-    if (args.Is("--lcm-url")) {
+    if (args.IsUrl()) {
       lcm_url = args.Value();
     } else if (args.Is("--channel")) {
       channel = args.Value();

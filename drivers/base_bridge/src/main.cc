@@ -1,6 +1,6 @@
 // omni-base-bridge: BASE_CMD -> CAN -> base firmware; wheel feedback -> WHEEL_ODOM, BASE_STATUS.
 //
-//   omni-base-bridge --config config/base_bridge.yaml [--can URL] [--lcm-url URL] [--duration-s S]
+//   omni-base-bridge --config config/base_bridge.yaml [--can URL] [--url URL] [--duration-s S]
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -8,6 +8,7 @@
 #include <string>
 
 #include "omni/base_bridge/base_bridge_node.h"
+#include "omni/can/can_bus.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
 
@@ -18,8 +19,8 @@ void OnSignal(int) { g_stop = true; }
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
-      "usage: omni-base-bridge --config FILE [--can URL] [--lcm-url URL] [--duration-s S]\n"
-      "Bridges BASE_CMD to the base firmware over CAN (URL socketcan:IF or shm:NAME)\n"
+      "usage: omni-base-bridge --config FILE [--can URL] [--url URL] [--duration-s S]\n"
+      "Bridges BASE_CMD to the base firmware over CAN (URL: can0, socketcan:IF or shm:NAME)\n"
       "and publishes WHEEL_ODOM, WHEEL_ENCODERS, BASE_STATUS and HEARTBEAT.\n");
 }
 }  // namespace
@@ -33,7 +34,7 @@ int main(int argc, char** argv) {
       config = args.Value();
     } else if (args.Is("--can")) {
       can_url = args.Value();
-    } else if (args.Is("--lcm-url")) {
+    } else if (args.IsUrl()) {
       lcm_url = args.Value();
     } else if (args.Is("--duration-s")) {
       duration_s = args.Number(0, 1e9);
@@ -49,6 +50,11 @@ int main(int argc, char** argv) {
     return 1;
   }
   if (!can_url.empty()) opts->can_url = can_url;
+  // A URL that can never open is a mistake to fix, not a device to wait for.
+  if (auto u = omni::can::ParseCanUrl(opts->can_url); !u.ok()) {
+    LOG_ERROR << u.error().message;
+    return 1;
+  }
   auto bus = omni::bus::Bus::Create(lcm_url);
   if (!bus.ok()) {
     LOG_ERROR << bus.error().ToString();

@@ -1,6 +1,6 @@
 // omni-imu-driver: a WitMotion WT901/JY901 on a serial port -> IMU (omni.imu_t) + HEARTBEAT.
 //
-//   omni-imu-driver --config config/imu_driver.yaml [--port PATH] [--lcm-url URL]
+//   omni-imu-driver --config config/imu_driver.yaml [--port PATH] [--url URL]
 //                   [--duration-s S]
 // Exits 1 with a message naming the port when the device is absent or sends no frame at start;
 // a device lost later is retried until it comes back.
@@ -21,12 +21,12 @@ void OnSignal(int) { g_stop = true; }
 
 int Usage(int code) {
   std::fprintf(code == 0 ? stdout : stderr,
-               "usage: omni-imu-driver --config FILE [--port PATH] [--lcm-url URL] "
+               "usage: omni-imu-driver --config FILE [--port PATH] [--url URL] "
                "[--duration-s S]\n"
                "Reads a WitMotion WT901/JY901 IMU (0x55 serial protocol) and publishes one\n"
                "omni.imu_t per output period on IMU (acceleration m/s^2, angular rate rad/s,\n"
                "orientation quaternion), plus HEARTBEAT with its counters.\n"
-               "Config: config/imu_driver.yaml. --port and --lcm-url override the file.\n");
+               "Config: config/imu_driver.yaml. --port and --url override the file.\n");
   return code;
 }
 }  // namespace

@@ -249,7 +249,7 @@ int main(int argc, char** argv) {
       return 0;
     } else if (a == "send" || a == "recv") {
       o.mode = a;
-    } else if (a == "--url") {
+    } else if (a == "--url" || a == "--lcm-url") {
       o.url = next();
     } else if (a == "--channel") {
       o.channel = next();

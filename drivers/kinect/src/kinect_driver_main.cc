@@ -1,7 +1,7 @@
 // omni-kinect-driver: a Kinect-class RGB-D camera over OpenNI2 -> DEPTH (omni.depth_image_t),
 // RGB (omni.color_image_t) and HEARTBEAT.
 //
-//   omni-kinect-driver --config config/kinect_driver.yaml [--uri URI] [--lcm-url URL]
+//   omni-kinect-driver --config config/kinect_driver.yaml [--uri URI] [--url URL]
 //                      [--duration-s S]
 // Exits 1 with a message naming the URI when the device cannot be opened at start; a device
 // lost later is reopened every reconnect_interval_s until it comes back.
@@ -24,7 +24,7 @@ void OnSignal(int) { g_stop = true; }
 
 int Usage(int code) {
   std::fprintf(code == 0 ? stdout : stderr,
-               "usage: omni-kinect-driver --config FILE [--uri URI] [--lcm-url URL] "
+               "usage: omni-kinect-driver --config FILE [--uri URI] [--url URL] "
                "[--duration-s S]\n"
                "Streams a Kinect-class RGB-D camera through OpenNI2 and publishes\n"
                "omni.depth_image_t on DEPTH (16-bit mm, RAW/ZLIB/DELTA_ZLIB) and\n"

@@ -1,6 +1,6 @@
 // omni-rplidar-driver: an RPLidar on a serial port -> LIDAR_SCAN (omni.laser_scan_t) + HEARTBEAT.
 //
-//   omni-rplidar-driver --config config/rplidar_driver.yaml [--port PATH] [--lcm-url URL]
+//   omni-rplidar-driver --config config/rplidar_driver.yaml [--port PATH] [--url URL]
 //                       [--duration-s S]
 // Exits 1 with a message naming the port when the device is absent or does not answer at start;
 // a device lost later is retried until it comes back.
@@ -21,7 +21,7 @@ void OnSignal(int) { g_stop = true; }
 
 int Usage(int code) {
   std::fprintf(code == 0 ? stdout : stderr,
-               "usage: omni-rplidar-driver --config FILE [--port PATH] [--lcm-url URL] "
+               "usage: omni-rplidar-driver --config FILE [--port PATH] [--url URL] "
                "[--duration-s S]\n"
                "Reads an RPLidar (A1/A2/A3) and publishes one omni.laser_scan_t per revolution\n"
                "on LIDAR_SCAN, plus HEARTBEAT with its counters. Config: "

@@ -25,6 +25,8 @@ class ArgReader {
   bool Next();
   const std::string& arg() const { return arg_; }
   bool Is(const char* option) const { return arg_ == option; }
+  // The LCM URL option, which every process takes under both names: --url and --lcm-url.
+  bool IsUrl() const { return arg_ == "--url" || arg_ == "--lcm-url"; }
 
   // The value after the current option (exit 2 when there is none).
   std::string Value();
