@@ -26,11 +26,13 @@ void Usage(std::FILE* f) {
       "  coarse-to-fine rotation + translation alignment; also occupied precision/recall.\n");
 }
 
-double Num(const char* flag, const char* v) {
+// The value of `flag` as a number in [lo, hi] (exit 2 otherwise); `integer`: a whole number.
+double Num(const char* flag, const char* v, double lo, double hi, bool integer = false) {
   char* end = nullptr;
   const double d = std::strtod(v, &end);
-  if (*end != '\0' || !std::isfinite(d)) {
-    std::fprintf(stderr, "omni eval: %s '%s' must be a number\n", flag, v);
+  if (*end != '\0' || !std::isfinite(d) || d < lo || d > hi || (integer && d != std::floor(d))) {
+    std::fprintf(stderr, "omni eval: %s '%s' must be %s in [%g, %g]\n", flag, v,
+                 integer ? "an integer" : "a number", lo, hi);
     std::exit(2);
   }
   return d;
@@ -66,17 +68,17 @@ int main(int argc, char** argv) {
     else if (a == "--json")
       json = true;
     else if (a == "--max-dt")
-      max_dt = Num("--max-dt", val());
+      max_dt = Num("--max-dt", val(), 0.0, 3600.0);
     else if (a == "--delta")
-      delta = static_cast<int>(Num("--delta", val()));
+      delta = static_cast<int>(Num("--delta", val(), 1, 1e6, true));
     else if (a == "--no-align")
       mopt.align = false;
     else if (a == "--max-rotation-deg")
-      mopt.max_rotation_rad = Num("--max-rotation-deg", val()) * M_PI / 180;
+      mopt.max_rotation_rad = Num("--max-rotation-deg", val(), 0.0, 180.0) * M_PI / 180;
     else if (a == "--max-shift-m")
-      mopt.max_shift_m = Num("--max-shift-m", val());
+      mopt.max_shift_m = Num("--max-shift-m", val(), 0.0, 1000.0);
     else if (a == "--tolerance-cells")
-      mopt.match_tolerance_cells = static_cast<int>(Num("--tolerance-cells", val()));
+      mopt.match_tolerance_cells = static_cast<int>(Num("--tolerance-cells", val(), 0, 100, true));
     else {
       std::fprintf(stderr, "omni eval: unknown option '%s'\n", a.c_str());
       Usage(stderr);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <numeric>
 #include <string>
 #include <vector>
@@ -43,6 +44,12 @@ int main(int argc, char** argv) {
     return 2;
   }
   const std::string in = argv[2], out = argv[3];
+  std::error_code ec;
+  if (std::filesystem::equivalent(in, out, ec)) {
+    std::fprintf(stderr, "omni import: OUT '%s' is the input file; name another file\n",
+                 out.c_str());
+    return 2;
+  }
   auto log = omni::io::ReadCarmenLog(in);
   if (!log.ok()) {
     std::fprintf(stderr, "omni import: %s\n", log.error().message.c_str());

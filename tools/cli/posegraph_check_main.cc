@@ -16,6 +16,11 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni posegraph-check: %s\n", g.error().message.c_str());
     return 1;
   }
+  if (g->vertices2.empty() && g->vertices3.empty()) {
+    std::fprintf(stderr, "omni posegraph-check: %s: no vertices (an empty or non-g2o file)\n",
+                 argv[1]);
+    return 1;
+  }
   if (g->is_3d())
     std::printf("%s: 3D graph, %zu vertices, %zu edges\n", argv[1], g->vertices3.size(),
                 g->edges3.size());

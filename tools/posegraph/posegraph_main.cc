@@ -81,12 +81,15 @@ int CmdChi2(int argc, char** argv) {
   if (!poses_path.empty()) {
     auto p = omni::io::ReadPoseGraph(poses_path);
     if (!p.ok()) return Fail(p.error().message);
+    if (p->vertices2.empty() && p->vertices3.empty())
+      return Fail(poses_path + ": no vertices (--poses takes a g2o file with the poses to score)");
     g->vertices2 = p->vertices2;
     g->vertices3 = p->vertices3;
   }
   auto chi2 = omni::pgm::ComputeChi2(*g);
-  if (!chi2.ok())
-    return Fail((poses_path.empty() ? graph_path : poses_path) + ": " + chi2.error().message);
+  if (!chi2.ok())  // the edges (and their line numbers) are the graph's; the poses may be another's
+    return Fail(graph_path + ": " + chi2.error().message +
+                (poses_path.empty() ? "" : " (poses from " + poses_path + ")"));
   if (json)
     std::printf("{\"graph\": \"%s\", \"chi2\": %.10g}\n", graph_path.c_str(), *chi2);
   else
@@ -177,6 +180,8 @@ int CmdOptimize(int argc, char** argv) {
   auto seconds = [](Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
   };
+  // A bad option is the command line's mistake, not the graph's: said before reading it.
+  if (omni::Status s = opt.Validate(); !s.ok()) return Fail("optimize: " + s.message());
   const auto t_read = Clock::now();
   auto g = omni::io::ReadPoseGraph(in);
   if (!g.ok()) return Fail(g.error().message);

@@ -196,6 +196,12 @@ int main(int argc, char** argv) {
     Usage(stderr);
     return 2;
   }
+  if (speed != 1.0 && !live) {
+    std::fprintf(stderr,
+                 "omni-sim: --speed paces a --live run; without --live the log is written as fast "
+                 "as it can be\n");
+    return 2;
+  }
   if (drive == "bus" && !live) {
     std::fprintf(stderr, "omni-sim: --drive bus needs --live URL (the bus the commands come on)\n");
     return 2;

@@ -59,6 +59,8 @@ int main(int argc, char** argv) {
       args.Unknown();
     }
   }
+  if (base_index > 0 && !offline)
+    args.Fail("--base N chooses among --fuse's files; on the bus, set base: in the config");
   std::string config_path = m.config, out_dir = m.out, url = m.url;
   const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("map_fusion");
@@ -130,6 +132,13 @@ int main(int argc, char** argv) {
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   node.heartbeat().Tick(true);
   const omni::Status s = node.WriteOutputs(out_dir);
+  if (!s.ok() && end == omni::bus::LoopEnd::kSignal && node.fusions() == 0) {
+    // Stopped (systemctl stop, Ctrl-C) before there was anything to fuse: not a failure.
+    std::fprintf(stderr, "map_fusion: %s (grids in %lld, rejected %lld); stopped before a fusion\n",
+                 s.message().c_str(), static_cast<long long>(node.grids_in()),
+                 static_cast<long long>(node.grids_rejected()));
+    return 0;
+  }
   if (!s.ok())
     return Fail(s.message() + " (grids in " + std::to_string(node.grids_in()) + ", rejected " +
                 std::to_string(node.grids_rejected()) + ")");

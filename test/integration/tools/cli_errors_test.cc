@@ -2,6 +2,8 @@
 // and a non-zero exit. Nothing half-written is left behind.
 #include <filesystem>
 #include <fstream>
+#include <set>
+#include <sstream>
 
 #include <gtest/gtest.h>
 
@@ -15,6 +17,66 @@ using testing::Bin;
 
 void Write(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;
+}
+
+// The omni script's lists of tools and benchmarks (what `./omni NAME` accepts) match what the
+// build makes, and a typo is refused without starting a build.
+TEST(CliErrors, OmniScriptKnowsEveryTool) {
+  std::ifstream in(std::string(OMNI_SOURCE_DIR) + "/omni");
+  const std::string script((std::istreambuf_iterator<char>(in)), {});
+  auto list = [&](const std::string& var) {
+    const size_t at = script.find("\n" + var + "=\"");
+    EXPECT_NE(at, std::string::npos) << var;
+    const size_t from = at + var.size() + 3;
+    std::istringstream words(script.substr(from, script.find('"', from) - from));
+    std::set<std::string> out;
+    for (std::string w; words >> w;) out.insert(w);
+    return out;
+  };
+  std::set<std::string> tools, benches;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(OMNI_BINARY_DIR) + "/bin")) {
+    const std::string n = e.path().filename().string();
+    if (n.rfind("omni-bench-", 0) == 0)
+      benches.insert(n.substr(11));
+    else if (n.rfind("omni-", 0) == 0)
+      tools.insert(n.substr(5));
+  }
+  EXPECT_EQ(list("TOOLS"), tools);
+  EXPECT_EQ(list("BENCHMARKS"), benches);
+  // A fake ninja first on PATH would leave a mark if the script tried to build.
+  const std::string dir = testing::TempDir() + "/omni_typo";
+  std::filesystem::create_directories(dir);
+  Write(dir + "/ninja", "#!/bin/sh\ntouch " + dir + "/built\n");
+  std::filesystem::permissions(dir + "/ninja", std::filesystem::perms::owner_all);
+  auto r = testing::Run("PATH=" + dir + ":$PATH OMNI_BUILD_DIR=" + std::string(OMNI_BINARY_DIR) +
+                        " " + OMNI_SOURCE_DIR + "/omni stauts");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("unknown command 'stauts'"), std::string::npos) << r.output;
+  r = testing::Run("PATH=" + dir + ":$PATH " + std::string(OMNI_SOURCE_DIR) + "/omni bench --help");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("rbpf"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/built")) << "a typo or --help started a build";
+}
+
+TEST(CliErrors, ImportRefusesToWriteOverItsInput) {
+  const std::string dir = testing::TempDir();
+  const std::string clf = "ODOM 0 0 0 0 0 0 1.0 h 1.0\n";
+  Write(dir + "/same.clf", clf);
+  const auto r =
+      testing::Run(Bin("omni-import") + " carmen " + dir + "/same.clf " + dir + "/./same.clf");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("is the input file"), std::string::npos) << r.output;
+  std::ifstream in(dir + "/same.clf");
+  EXPECT_EQ(std::string((std::istreambuf_iterator<char>(in)), {}), clf) << "input untouched";
+}
+
+TEST(CliErrors, EvalRefusesOutOfRangeOptions) {
+  for (const char* opt : {"--tolerance-cells -1", "--tolerance-cells 1.5", "--max-shift-m -2",
+                          "--max-rotation-deg -5", "--delta 0", "--max-dt -1"}) {
+    const auto r = testing::Run(Bin("omni-eval") + " map a.pgm b.pgm " + opt);
+    EXPECT_EQ(r.exit_code, 2) << opt << ": " << r.output;
+    EXPECT_NE(r.output.find("must be"), std::string::npos) << opt << ": " << r.output;
+  }
 }
 
 TEST(CliErrors, TruncatedCarmenLine) {
@@ -54,6 +116,8 @@ TEST(CliErrors, ShippedOdomMapperConfigLoads) {
                               dir + " & sleep 0.5; kill -TERM $! ; wait $!");
   EXPECT_EQ(r.output.find("bad config"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("no scan was mapped"), std::string::npos) << r.output;
+  // Stopped before anything arrived (systemctl stop on an idle robot): nothing lost, exit 0.
+  EXPECT_EQ(r.exit_code, 0) << r.output;
 }
 
 // A number that does not parse is an error naming the program, the option and the value,
