@@ -137,7 +137,7 @@ int main(int argc, char** argv) {
   }
   const std::vector<uint8_t> dirty = Splice(clean, 2048, 7);
   fs::create_directories(out_dir, ec);
-  std::ofstream json(fs::path(out_dir) / "rplidar.jsonl", std::ios::app);
+  std::ofstream json(fs::path(out_dir) / "rplidar.jsonl");
 
   std::printf("RPLidar parser, one core, %zu captures (%zu bytes) from %s\n", files.size(),
               clean.size(), dir.c_str());

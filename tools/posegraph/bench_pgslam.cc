@@ -2,7 +2,7 @@
 // (omni-slam rbpf) on intel-raw and the slam-noisy-odom logs, both as child processes in the same
 // run. Per run: ATE RMSE/max against the reference (omni::eval), wall time, peak resident memory
 // (wait4), and for ours the window-update latency p50/p99 from stats.json. Prints a table and
-// appends one JSON object per row to OUT/posegraph.jsonl (the batch benchmark's file).
+// writes one JSON object per row to OUT/pgslam.jsonl.
 #include <fcntl.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -54,7 +54,7 @@ void Usage(std::FILE* f) {
                "                         [--max-scans N]\n"
                "  Online table: omni-posegraph-slam beside omni-slam rbpf on intel-raw and the\n"
                "  four slam-noisy-odom logs: ATE RMSE/max, wall, peak RSS, window latency\n"
-               "  p50/p99. Rows are appended to OUT/posegraph.jsonl (default out/bench).\n");
+               "  p50/p99. Writes the rows to OUT/pgslam.jsonl (default out/bench).\n");
 }
 
 }  // namespace
@@ -169,7 +169,7 @@ int main(int argc, char** argv) {
   std::printf(
       "| dataset | system | ATE RMSE m | ATE max m | wall s | peak RSS MB | window p50 ms "
       "| window p99 ms | loops | note |\n|---|---|---|---|---|---|---|---|---|---|\n");
-  std::ofstream jl(out + "/posegraph.jsonl", std::ios::app);
+  std::ofstream jl(out + "/pgslam.jsonl");
   for (const auto& r : rows) {
     std::printf("| %s | %s | %.3f | %.3f | %.1f | %.0f | %s | %s | %s | %s |\n", r.dataset.c_str(),
                 r.system.c_str(), r.ate_rmse, r.ate_max, r.wall_s, r.rss_mb, Fixed(r.p50).c_str(),
