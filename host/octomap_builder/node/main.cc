@@ -3,6 +3,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <string>
 
 #include "omni/bus/map_save.h"
@@ -29,15 +30,14 @@ void Usage(std::FILE* f) {
       "  DIR/view.png (with color.enabled also DIR/map_color.ot, a ColorOcTree coloured from\n"
       "  the RGB frames, and DIR/view_color.png) every save interval, on a MAP_SAVE request\n"
       "  (omni save-map) and on SIGINT/SIGTERM (or after S seconds without messages once data\n"
-      "  has arrived). Default config:\n"
-      "  config/octomap_builder.yaml; DIR overrides output.dir.\n");
+      "  has arrived). Default config: config/octomap_builder.yaml in the current folder, else\n"
+      "  in the checkout this binary was built in; DIR overrides output.dir.\n");
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   omni::MapperArgs m;
-  m.config = "config/octomap_builder.yaml";
   m.out = "";
   omni::ArgReader args(argc, argv, "octomap_builder", Usage);
   while (args.Next()) {
@@ -45,6 +45,18 @@ int main(int argc, char** argv) {
     args.Unknown();
   }
   std::string config_path = m.config, out_dir = m.out, url = m.url;
+  if (config_path.empty()) {
+    // The shipped file, from the current folder (a checkout) or else from the checkout this
+    // binary was built in (build/bin/octomap_builder -> config/), so any folder works.
+    namespace fs = std::filesystem;
+    const fs::path rel = "config/octomap_builder.yaml";
+    std::error_code ec;
+    const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+    const fs::path beside = ec ? fs::path() : exe.parent_path().parent_path().parent_path() / rel;
+    config_path = fs::exists(rel, ec) || beside.empty() || !fs::exists(beside, ec)
+                      ? rel.string()
+                      : beside.string();
+  }
   const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("octomap_builder");
   auto opt = omni::octo::OctomapBuilderOptions::LoadFile(config_path);
