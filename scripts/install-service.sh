@@ -54,7 +54,7 @@ done
 [[ "$NAME" =~ ^[A-Za-z0-9_.@-]+$ ]] || die "--name '$NAME': letters, digits, '_', '.', '-' only"
 [[ "$BITRATE" =~ ^[0-9]+$ ]] || die "--bitrate '$BITRATE' is not a number"
 id "$RUN_USER" >/dev/null 2>&1 || die "--user '$RUN_USER': no such user"
-[ -x "$BUILD/bin/supervisor" ] || die "$BUILD/bin/supervisor not built (./omni build)"
+[ -x "$BUILD/bin/supervisor" ] || die "$BUILD/bin/supervisor not built (./omni setup)"
 case "$CONFIG" in /*) CONFIG_PATH="$CONFIG" ;; *) CONFIG_PATH="$ROOT/$CONFIG" ;; esac
 [ -f "$CONFIG_PATH" ] || die "config '$CONFIG_PATH' not found"
 
