@@ -18,7 +18,9 @@ std::string LogPathOf(const std::string& url) {
 
 bool WritesLog(const std::string& url) {
   const size_t q = url.find('?');
-  return q != std::string::npos && url.find("mode=w", q) != std::string::npos;
+  // LCM's file provider writes with mode=w and appends with mode=a.
+  return q != std::string::npos &&
+         (url.find("mode=w", q) != std::string::npos || url.find("mode=a", q) != std::string::npos);
 }
 
 // Why LCM could not open `url`, as far as we can tell from outside it.
@@ -53,18 +55,10 @@ Result<std::unique_ptr<Bus>> Bus::Create(const std::string& url) {
   // LCM's file reader ends or skips silently at a corrupt event: check the log first so that a
   // replay that will lose events says so before it starts.
   if (const std::string path = LogPathOf(effective); !path.empty() && !WritesLog(effective)) {
-    if (auto reader = io::LcmLogReader::Open(path); reader.ok()) {
-      io::LcmLogEvent ev;
-      for (;;) {
-        auto more = reader->Next(&ev);
-        if (!more.ok()) {
-          LOG_WARN << more.error().message
-                   << ": LCM's file reader stops or skips there, so events of this log are lost "
-                      "(`omni replay --resync` reads past it)";
-          break;
-        }
-        if (!*more) break;
-      }
+    if (Status s = io::CheckLcmLogFraming(path); !s.ok()) {
+      LOG_WARN << s.message()
+               << ": LCM's file reader stops or skips there, so events of this log are lost "
+                  "(`omni replay --resync` reads past it)";
     }
   }
   return std::unique_ptr<Bus>(new Bus(std::move(lcm), url));

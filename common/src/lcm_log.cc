@@ -1,5 +1,7 @@
 #include "omni/io/lcm_log.h"
 
+#include <sys/types.h>
+
 #include <cerrno>
 #include <cstring>
 
@@ -167,6 +169,44 @@ Status LcmLogWriter::Close() {
   const int r = std::fclose(f_);
   f_ = nullptr;
   if (r != 0) return MakeError(ErrorCode::kIo, "closing LCM log '" + path_ + "' failed");
+  return Status::Ok();
+}
+
+Status CheckLcmLogFraming(const std::string& path) {
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f)
+    return MakeError(ErrorCode::kIo, "cannot open LCM log '" + path + "': " + std::strerror(errno));
+  if (fseeko(f.get(), 0, SEEK_END) != 0)
+    return MakeError(ErrorCode::kIo, "cannot seek in '" + path + "'");
+  const uint64_t size = static_cast<uint64_t>(ftello(f.get()));
+  uint64_t off = 0;
+  auto bad = [&](const std::string& what) {
+    return MakeError(ErrorCode::kParse,
+                     path + ": byte offset " + std::to_string(off) + ": " + what);
+  };
+  while (off < size) {
+    uint8_t hdr[28];
+    if (size - off < sizeof(hdr)) return bad("truncated event header");
+    if (fseeko(f.get(), static_cast<off_t>(off), SEEK_SET) != 0 ||
+        std::fread(hdr, 1, sizeof(hdr), f.get()) != sizeof(hdr))
+      return MakeError(ErrorCode::kIo, "cannot read '" + path + "'");
+    const uint32_t sync = static_cast<uint32_t>(Be(hdr, 4));
+    const int32_t chan_len = static_cast<int32_t>(Be(hdr + 20, 4));
+    const int32_t data_len = static_cast<int32_t>(Be(hdr + 24, 4));
+    if (sync != kSync) {
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "bad sync word 0x%08X (expected 0xEDA1DA01)", sync);
+      return bad(buf);
+    }
+    if (chan_len <= 0 || chan_len > kMaxChannel)
+      return bad("channel length " + std::to_string(chan_len) + " out of range");
+    if (data_len < 0 || data_len > kMaxData)
+      return bad("data length " + std::to_string(data_len) + " out of range");
+    const uint64_t next =
+        off + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);
+    if (next > size) return bad("event truncated at the end of the file");
+    off = next;
+  }
   return Status::Ok();
 }
 

@@ -77,6 +77,33 @@ TEST(LcmLog, CorruptionNamesOffsetAndResyncSkipsIt) {
   EXPECT_EQ(r2->skipped_bytes(), 28u + 2 + 6);
 }
 
+TEST(LcmLog, FramingCheckNamesTheFirstBrokenEvent) {
+  const std::string path = WriteSample(omni::testing::TempDir());
+  EXPECT_TRUE(CheckLcmLogFraming(path).ok());
+  std::ifstream in(path, std::ios::binary);
+  const std::string all((std::istreambuf_iterator<char>(in)), {});
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(all.data(), static_cast<std::streamsize>(all.size() - 3));
+  }
+  Status s = CheckLcmLogFraming(path);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("truncated"), std::string::npos) << s.message();
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(all.data(), static_cast<std::streamsize>(all.size()));
+  }
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(34);  // the second event's sync word
+    f.put('\x00');
+  }
+  s = CheckLcmLogFraming(path);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("byte offset 34: bad sync"), std::string::npos) << s.message();
+  EXPECT_FALSE(CheckLcmLogFraming(path + ".none").ok());
+}
+
 TEST(LcmLog, TruncationIsAnError) {
   const std::string path = WriteSample(omni::testing::TempDir());
   std::ifstream in(path, std::ios::binary);

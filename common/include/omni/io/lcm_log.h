@@ -44,6 +44,12 @@ class LcmLogReader {
   uint64_t skipped_bytes_ = 0;
 };
 
+// Walks the event headers of a log, seeking over channels and data, and names the first event
+// whose framing is broken (bad sync word, lengths out of range, or truncated at the end): the
+// check LcmLogReader::Next makes, without reading the payloads, so a multi-GB log takes well
+// under a second. An unreadable file is an error too.
+Status CheckLcmLogFraming(const std::string& path);
+
 class LcmLogWriter {
  public:
   static Result<LcmLogWriter> Open(const std::string& path);
