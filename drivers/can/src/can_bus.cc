@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <filesystem>
 
 #include "omni/can/shm_can_bus.h"
 #include "omni/can/socket_can_bus.h"
@@ -22,8 +23,9 @@ Result<CanUrl> ParseCanUrl(const std::string& url) {
   if (starts("shm:")) {
     u.kind = CanUrl::Kind::kShm;
     u.name = url.substr(4);
-    if (u.name.empty()) return bad("empty bus name");
-    return u;  // the shared-memory bus checks its own name rules when it opens
+    if (!ShmCanBus::IsValidName(u.name))
+      return bad("a shared-memory bus name is 1-64 characters of letters, digits, _ . -");
+    return u;
   }
   u.kind = CanUrl::Kind::kSocketCan;
   u.name = starts("socketcan:") ? url.substr(10) : url;
@@ -45,7 +47,15 @@ Result<std::unique_ptr<CanBus>> OpenCanBus(const std::string& url) {
     return std::unique_ptr<CanBus>(std::move(bus).value());
   }
   auto bus = SocketCanBus::Open(u->name);
-  if (!bus.ok()) return bus.error();
+  if (!bus.ok()) {
+    // A simulator bus named without its shm: prefix would otherwise wait for an interface.
+    std::error_code ec;
+    if (url.rfind("socketcan:", 0) != 0 &&
+        std::filesystem::exists("/dev/shm/omni-can-" + u->name, ec))
+      return MakeError(bus.error().code, bus.error().message + " (a simulated bus shm:" + u->name +
+                                             " exists: did you mean --can shm:" + u->name + "?)");
+    return bus.error();
+  }
   return std::unique_ptr<CanBus>(std::move(bus).value());
 }
 

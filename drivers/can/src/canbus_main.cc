@@ -19,7 +19,7 @@ int Usage(int code) {
                "       omni-canbus send <url> <id>#<hexdata>\n"
                "       omni-canbus link <name> up|down\n"
                "       omni-canbus rm <name>\n"
-               "urls: shm:<name> (user-space bus), socketcan:<ifname>\n");
+               "urls: shm:<name> (user-space bus), socketcan:<ifname> or just <ifname> (can0)\n");
   return code;
 }
 

@@ -94,6 +94,8 @@ long Futex(std::atomic<uint32_t>* addr, int op, uint32_t val, const timespec* ts
 }
 }  // namespace
 
+bool ShmCanBus::IsValidName(const std::string& name) { return ValidName(name); }
+
 Result<std::unique_ptr<ShmCanBus>> ShmCanBus::Open(const std::string& name) {
   auto mapped = MapBus(name);
   if (!mapped.ok()) return mapped.error();

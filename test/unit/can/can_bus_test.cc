@@ -161,13 +161,25 @@ TEST(ShmCanBusTest, RejectsBadUrlsAndFrames) {
   ASSERT_TRUE(full.ok());
   EXPECT_EQ(full->name, "vcan0");
   EXPECT_EQ(ParseCanUrl("shm:sim")->kind, CanUrl::Kind::kShm);
-  for (const char* u : {"", "socketcan:", "udp:can0", "can 0", "a23456789012345678", "shm:"}) {
+  for (const char* u :
+       {"", "socketcan:", "udp:can0", "can 0", "a23456789012345678", "shm:", "shm:a/b"}) {
     auto r = ParseCanUrl(u);
     ASSERT_FALSE(r.ok()) << u;
     EXPECT_EQ(r.error().code, ErrorCode::kInvalidArgument) << u;
     EXPECT_NE(r.error().message.find("can0"), std::string::npos) << r.error().message;
   }
   EXPECT_EQ(OpenCanBus("udp:can0").error().code, ErrorCode::kInvalidArgument);
+  // A simulator bus named without its prefix: whatever SocketCAN says, the error points at it.
+  BusName sim("hint");
+  auto held = ShmCanBus::Open(sim.name);
+  ASSERT_TRUE(held.ok());
+  if (sim.name.size() < 16) {
+    auto bare_sim = OpenCanBus(sim.name);
+    ASSERT_FALSE(bare_sim.ok());
+    EXPECT_NE(bare_sim.error().message.find("did you mean --can shm:" + sim.name),
+              std::string::npos)
+        << bare_sim.error().message;
+  }
   EXPECT_EQ(OpenCanBus("shm:../etc").error().code, ErrorCode::kInvalidArgument);
   EXPECT_EQ(OpenCanBus("shm:").error().code, ErrorCode::kInvalidArgument);
   BusName bus("bad");

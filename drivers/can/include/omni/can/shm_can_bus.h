@@ -24,6 +24,8 @@ class ShmCanBus final : public CanBus {
 
   // Attaches to (creating if needed) the bus `name` ([A-Za-z0-9_.-], at most 64 chars).
   static Result<std::unique_ptr<ShmCanBus>> Open(const std::string& name);
+  // 1-64 characters of [A-Za-z0-9_.-] (a file name under /dev/shm, never a path).
+  static bool IsValidName(const std::string& name);
   // Brings the bus `name` down or up for every node (tests, `omni-canbus link`).
   static Status SetLinkUp(const std::string& name, bool up);
   // Removes the shared file (nodes still attached keep their mapping).
