@@ -160,7 +160,8 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_pose),
         static_cast<long long>(c.scans_too_few_beams));
     // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
-    return end == omni::bus::LoopEnd::kSignal ? 0 : 1;
+    // (Scans that came and could not be used are a fault to see: exit 1.)
+    return end == omni::bus::LoopEnd::kSignal && c.scans_in == 0 ? 0 : 1;
   }
   bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
   const omni::Status s = write_maps(map, out_dir);

@@ -99,7 +99,8 @@ int main(int argc, char** argv) {
                  static_cast<long long>(c.scans_no_odom),
                  static_cast<long long>(c.scans_too_few_beams));
     // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
-    return end == omni::bus::LoopEnd::kSignal && c.scans_processed == 0 ? 0 : 1;
+    // (Scans that came and could not be used are a fault to see: exit 1.)
+    return end == omni::bus::LoopEnd::kSignal && c.scans_in == 0 ? 0 : 1;
   }
   std::printf(
       "rbpf_mapper: %lld scans (%lld filter updates, %lld lost on the bus, %lld without "

@@ -110,6 +110,7 @@ int main(int argc, char** argv) {
     return 0;
   }
 
+  if (omni::Status s = opt.ValidateForBus(); !s.ok()) return Fail("bad config: " + s.message());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) return Fail(bus_or.error().message);
   auto& bus = **bus_or;
@@ -132,7 +133,7 @@ int main(int argc, char** argv) {
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   node.heartbeat().Tick(true);
   const omni::Status s = node.WriteOutputs(out_dir);
-  if (!s.ok() && end == omni::bus::LoopEnd::kSignal && node.fusions() == 0) {
+  if (!s.ok() && end == omni::bus::LoopEnd::kSignal && node.grids_in() == 0) {
     // Stopped (systemctl stop, Ctrl-C) before there was anything to fuse: not a failure.
     std::fprintf(stderr, "map_fusion: %s (grids in %lld, rejected %lld); stopped before a fusion\n",
                  s.message().c_str(), static_cast<long long>(node.grids_in()),
