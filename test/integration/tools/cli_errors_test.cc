@@ -33,16 +33,19 @@ TEST(CliErrors, OmniScriptKnowsEveryTool) {
     for (std::string w; words >> w;) out.insert(w);
     return out;
   };
+  // The omni-* targets of this configuration (collected by the top-level CMakeLists.txt).
   std::set<std::string> tools, benches;
-  for (const auto& e : std::filesystem::directory_iterator(std::string(OMNI_BINARY_DIR) + "/bin")) {
-    const std::string n = e.path().filename().string();
+  std::istringstream targets(OMNI_TOOL_TARGETS);
+  for (std::string n; targets >> n;) {
     if (n.rfind("omni-bench-", 0) == 0)
       benches.insert(n.substr(11));
-    else if (n.rfind("omni-", 0) == 0)
+    else
       tools.insert(n.substr(5));
   }
   EXPECT_EQ(list("TOOLS"), tools);
-  EXPECT_EQ(list("BENCHMARKS"), benches);
+  // A build without Google Benchmark lacks some benchmarks; the script may list more.
+  const std::set<std::string> listed = list("BENCHMARKS");
+  for (const auto& b : benches) EXPECT_TRUE(listed.count(b)) << b << " missing from BENCHMARKS";
   // A fake ninja first on PATH would leave a mark if the script tried to build.
   const std::string dir = testing::TempDir() + "/omni_typo";
   std::filesystem::create_directories(dir);
