@@ -9,6 +9,14 @@
 
 namespace omni::map_fusion {
 
+Status FusionOptions::ValidateForBus() const {
+  if (min_maps > static_cast<int>(grid_channels.size()))
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "min_maps is " + std::to_string(min_maps) + " but grid_channels lists only " +
+                         std::to_string(grid_channels.size()) + ": it could never fuse");
+  return Status::Ok();
+}
+
 Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   FusionOptions o;
   r.Get("grid_channels", &o.grid_channels, Optional());
@@ -31,9 +39,6 @@ Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   if (o.grid_channels.empty()) r.AddError("grid_channels", "must list at least one channel");
   for (const auto& c : o.grid_channels)
     if (c.empty()) r.AddError("grid_channels", "must not contain an empty channel name");
-  if (o.min_maps > static_cast<int>(o.grid_channels.size()) && !o.grid_channels.empty())
-    r.AddError("min_maps", "is " + std::to_string(o.min_maps) + " but grid_channels lists only " +
-                               std::to_string(o.grid_channels.size()) + ": it could never fuse");
   if (!o.base.empty() &&
       std::find(o.grid_channels.begin(), o.grid_channels.end(), o.base) == o.grid_channels.end())
     r.AddError("base", "must be one of grid_channels (or empty)");

@@ -141,7 +141,7 @@ int main(int argc, char** argv) {
               best_ns, kIpcRatio, kM4Mhz, kAdcUs);
   mkdir("out", 0755);
   mkdir("out/bench", 0755);
-  std::ofstream json("out/bench/firmware.jsonl", std::ios::app);
+  std::ofstream json("out/bench/firmware.jsonl", std::ios::trunc);
   json << "{\"system\": \"omni_firmware_step\", \"dataset\": \"bench_hal\", \"host_ns_per_step\": "
        << mean_ns << ", \"host_mhz\": " << mhz << ", \"host_cycles\": " << host_cycles
        << ", \"m4_estimate_us\": " << m4_us << ", \"host_p99_ns\": " << p99_ns

@@ -47,15 +47,12 @@ int main(int argc, char** argv) {
   std::string config_path = m.config, out_dir = m.out, url = m.url;
   if (config_path.empty()) {
     // The shipped file, from the current folder (a checkout) or else from the checkout this
-    // binary was built in (build/bin/octomap_builder -> config/), so any folder works.
+    // binary was built from, so it starts from any folder.
     namespace fs = std::filesystem;
     const fs::path rel = "config/octomap_builder.yaml";
+    const fs::path shipped = fs::path(OMNI_SOURCE_DIR) / rel;
     std::error_code ec;
-    const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-    const fs::path beside = ec ? fs::path() : exe.parent_path().parent_path().parent_path() / rel;
-    config_path = fs::exists(rel, ec) || beside.empty() || !fs::exists(beside, ec)
-                      ? rel.string()
-                      : beside.string();
+    config_path = fs::exists(rel, ec) || !fs::exists(shipped, ec) ? rel.string() : shipped.string();
   }
   const double idle_exit_s = m.idle_exit_s;
   omni::SetLogProcessName("octomap_builder");

@@ -49,6 +49,9 @@ struct FusionOptions {
 
   // Every key above is optional; unknown keys and bad values are errors naming the key.
   static Result<FusionOptions> Load(ConfigReader& reader);
+  // On the bus the maps come from grid_channels: more min_maps than channels could never fuse.
+  // (Offline, --fuse takes files and ignores grid_channels.)
+  Status ValidateForBus() const;
 };
 
 struct SourceMap {
