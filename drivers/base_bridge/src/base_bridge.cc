@@ -66,8 +66,11 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
     out->push_back(fwcan::EncodeClearFaults(node_));
     pending_clear_ = false;
   }
-  // Once the firmware answers, check that it uses our geometry (else odometry would be wrong).
-  if (!geometry_checked_ && have_hb_ && now_us - geometry_query_us_ > 1000000) {
+  // Once the firmware answers, check that it uses our geometry (else odometry would be wrong);
+  // while a parameter differs, ask again every 5 s so a corrected one clears the warning.
+  const int64_t recheck_us = geometry_checked_ ? 5000000 : 1000000;
+  if ((!geometry_checked_ || !mismatches_.empty()) && have_hb_ &&
+      now_us - geometry_query_us_ > recheck_us) {
     geometry_query_us_ = now_us;
     for (uint16_t id :
          {firmware::kParamAlpha, firmware::kParamCenterToWheel, firmware::kParamWheelRadius,
@@ -120,6 +123,7 @@ void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
         const double gap = static_cast<double>(now_us - last_hb_us_) * 1e-6;
         const int64_t missed = std::llround(gap / o_.firmware_heartbeat_period_s) - 1;
         if (missed > 0) counters_.missed_heartbeats += missed;
+        if (missed >= o_.missed_heartbeats_for_silent) FirmwareReturned();
       }
       have_hb_ = true;
       last_hb_us_ = now_us;
@@ -212,14 +216,32 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
   if (r.result != fwcan::kParamOk) return;
   geometry_checked_ = true;
   if (std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours))) {
-    ++counters_.geometry_mismatches;
     std::ostringstream s;
     s << "firmware " << what << " = " << r.value << " but config says " << ours;
-    last_mismatch_ = s.str();
+    auto [it, added] = mismatches_.insert_or_assign(r.id, s.str());
+    (void)it;
+    if (added) ++counters_.geometry_mismatches;  // counted once per parameter going wrong
+  } else {
+    mismatches_.erase(r.id);
   }
+  last_mismatch_ = mismatches_.empty() ? std::string() : mismatches_.begin()->second;
+}
+
+void BaseBridge::FirmwareReturned() {
+  // Silent long enough to have restarted (a brown-out, a reflash): its counters may have
+  // started again from zero, and its parameters may be others now.
+  ++counters_.firmware_returns;
+  have_enc_ = false;
+  geometry_checked_ = false;
 }
 
 void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us) {
+  // Feedback that stopped for the silence time: re-base, whatever the sequence says (a board
+  // up for more than 2^15 feedback periods restarts with a sequence that looks "ahead").
+  const int64_t silence_us =
+      static_cast<int64_t>(o_.missed_heartbeats_for_silent * o_.firmware_heartbeat_period_s * 1e6);
+  if (have_enc_ && now_us - last_enc_us_ > silence_us) have_enc_ = false;
+  last_enc_us_ = now_us;
   if (have_enc_) {
     const uint16_t d = static_cast<uint16_t>(e.seq - last_enc_seq_);
     if (d == 0) return;  // duplicate

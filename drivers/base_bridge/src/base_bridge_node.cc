@@ -30,6 +30,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("reconnects", [c] { return c->reconnects; });
   heartbeat_.AddCounter("link_losses", [c] { return c->link_losses; });
   heartbeat_.AddCounter("geometry_mismatches", [c] { return c->geometry_mismatches; });
+  heartbeat_.AddCounter("firmware_returns", [c] { return c->firmware_returns; });
   heartbeat_.AddCounter("fw_rx_unknown", [c] { return c->firmware_rx_unknown; });
   heartbeat_.AddCounter("fw_rx_bad_length", [c] { return c->firmware_rx_bad_length; });
   heartbeat_.AddCounter("fw_max_step_us", [c] { return c->firmware_max_step_us; });
@@ -121,6 +122,17 @@ void BaseBridgeNode::Publish(int64_t now) {
     last_status_us_ = now;
     const BaseStatus s = bridge_.status(now);
     bus_->Publish(o_.status_channel, ToMessage(s, bridge_.counters()));
+    // Say it in the log too when the firmware goes silent or comes back.
+    if (s.firmware_alive != fw_alive_logged_) {
+      if (s.firmware_alive) {
+        LOG_INFO << "firmware answering"
+                 << (fw_alive_ever_ ? " again (encoders re-based, geometry re-checked)" : "");
+      } else if (fw_alive_ever_) {
+        LOG_WARN << "firmware silent: " << s.missed_heartbeats << " heartbeats missed";
+      }
+      fw_alive_ever_ = fw_alive_ever_ || s.firmware_alive;
+      fw_alive_logged_ = s.firmware_alive;
+    }
     const std::string problem = bridge_.Problem(now);
     if (problem.empty()) {
       heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "ok");

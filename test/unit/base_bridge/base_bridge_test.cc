@@ -178,6 +178,31 @@ TEST(BaseBridgeTest, LostFeedbackFramesCountedOdometrySurvives) {
   EXPECT_EQ(b.counters().feedback_frames_lost, 10);
 }
 
+// A board up for minutes restarts: its feedback sequence starts again at 1, which from a
+// sequence above 0x8000 looks like a step forward, and its positions restart at 0. The silence
+// before it is what re-bases the odometry, whatever the sequence says.
+TEST(BaseBridgeTest, FirmwareRestartAfterLongUptimeDoesNotJumpTheOdometry) {
+  const BaseBridgeOptions o = TestOptions();
+  BaseBridge b(o);
+  FakeFirmware fw(o);
+  fw.seq = 40000;  // about 6.7 minutes of feedback at 100 Hz
+  int64_t t = 0;
+  for (int i = 0; i <= 100; ++i) b.OnFrame(fw.Next({0.5, 0.0, 0.0}, 0.01), t += 10000);
+  Odometry before;
+  ASSERT_TRUE(b.TakeOdometry(&before));
+  EXPECT_NEAR(before.x_m, 0.5, 0.003);
+  FakeFirmware rebooted(o);  // positions from zero again
+  rebooted.seq = 0;
+  t += 1000000;  // one second of silence
+  for (int i = 0; i <= 100; ++i) b.OnFrame(rebooted.Next({0.5, 0.0, 0.0}, 0.01), t += 10000);
+  Odometry after;
+  ASSERT_TRUE(b.TakeOdometry(&after));
+  EXPECT_NEAR(after.x_m, 1.0, 0.01) << "re-based: the new board's motion adds on";
+  b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), t);
+  b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), t + 1000000);
+  EXPECT_EQ(b.counters().firmware_returns, 1);
+}
+
 TEST(BaseBridgeTest, SilentFirmwareDetected) {
   BaseBridge b(TestOptions());
   fwcan::Heartbeat hb;
@@ -249,6 +274,18 @@ TEST(BaseBridgeTest, GeometryMismatchReported) {
   b.OnFrame(fwcan::EncodeParamValue(1, r), 2000000);
   EXPECT_EQ(b.counters().geometry_mismatches, 1);
   EXPECT_NE(b.Problem(2000000).find("wheel_radius_m"), std::string::npos);
+  // While it differs, the bridge asks again every 5 s; once corrected, the warning clears.
+  out.clear();
+  b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), 7100000);
+  b.Tick(7100000, &out);
+  queries = 0;
+  for (const CanFrame& f : out) queries += fwcan::CommandOf(f.id) == fwcan::kGetParam;
+  EXPECT_EQ(queries, 5);
+  b.OnFrame(fwcan::EncodeParamValue(1, r), 7100000);
+  EXPECT_EQ(b.counters().geometry_mismatches, 1) << "the same mismatch is counted once";
+  r.value = static_cast<float>(TestOptions().wheel_radius_m);
+  b.OnFrame(fwcan::EncodeParamValue(1, r), 7100000);
+  EXPECT_EQ(b.Problem(7100000).find("wheel_radius_m"), std::string::npos) << b.Problem(7100000);
 }
 
 TEST(BaseBridgeConfigTest, ShippedConfigsLoad) {

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -110,7 +111,9 @@ struct Counters {
   int64_t feedback_frames_lost = 0;  // gaps in the feedback sequence
   int64_t reconnects = 0;            // CAN interface re-opened after being lost
   int64_t link_losses = 0;
-  int64_t geometry_mismatches = 0;  // firmware parameters that differ from ours
+  int64_t geometry_mismatches = 0;  // firmware parameters found to differ from ours
+  int64_t firmware_returns = 0;     // the firmware came back after a silence (maybe a restart):
+                                    // encoders re-based, geometry checked again
   int64_t firmware_rx_unknown = 0;  // as reported by the firmware's diagnostics frame
   int64_t firmware_rx_bad_length = 0;
   int64_t firmware_tx_dropped = 0;
@@ -162,6 +165,8 @@ class BaseBridge {
   // Feedback.
   bool have_enc_ = false;
   uint16_t last_enc_seq_ = 0;
+  int64_t last_enc_us_ = 0;
+  std::map<uint16_t, std::string> mismatches_;  // parameter id -> what differs
   uint16_t last_raw_[3] = {0, 0, 0};
   int64_t ticks_[3] = {0, 0, 0};
   Odometry odom_;
@@ -181,8 +186,9 @@ class BaseBridge {
   bool link_up_ = true;
   int64_t link_down_since_us_ = 0;
   bool geometry_checked_ = false;
+  void FirmwareReturned();
   int64_t geometry_query_us_ = 0;
-  std::string last_mismatch_;
+  std::string last_mismatch_;  // the first of mismatches_, "" when all agree
   Counters counters_;
 };
 

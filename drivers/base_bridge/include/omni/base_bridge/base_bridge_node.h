@@ -34,6 +34,7 @@ class BaseBridgeNode {
   std::unique_ptr<can::CanBus> can_;
   int64_t last_open_try_us_ = 0;
   int64_t last_status_us_ = 0;
+  bool fw_alive_logged_ = false, fw_alive_ever_ = false;  // for the log lines
   bool ever_opened_ = false;
   std::string open_error_;
 };
