@@ -121,6 +121,7 @@ int main(int argc, char** argv) {
   while (!sup.AllStopped()) {
     bus.HandleTimeout(20);
     sup.Tick(omni::MonotonicMicros());
+    hb.Tick();  // still visible (STOPPING) while the mappers write their maps
   }
   int exit_code = 0;
   for (size_t i = 0; i < sup.children().size(); ++i) {

@@ -90,6 +90,9 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   std::vector<char*> argv;
   for (const auto& a : command) argv.push_back(const_cast<char*>(a.c_str()));
   argv.push_back(nullptr);
+  // Written by the child when exec fails (built here: the child only calls write and _exit).
+  std::string cwd_note = working_dir.empty() ? std::string() : " (in " + working_dir + ")";
+  const std::string exec_failed = "supervisor: cannot run '" + command[0] + "'" + cwd_note + ": ";
   const pid_t parent = getpid();
   const pid_t pid = fork();
   if (pid < 0)
@@ -102,6 +105,16 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
     setpgid(0, 0);
     if (!working_dir.empty() && chdir(working_dir.c_str()) != 0) _exit(126);
     execvp(argv[0], argv.data());
+    // Say why (not found, not executable) on the supervisor's stderr, which the child shares:
+    // a bare exit 127 restarted in a loop tells nobody that a relative path was wrong.
+    const int e = errno;
+    const char* why = e == ENOENT   ? "not found (a relative path is taken from the working "
+                                      "directory)\n"
+                      : e == EACCES ? "not executable\n"
+                                    : "exec failed\n";
+    ssize_t w = write(2, exec_failed.data(), exec_failed.size());
+    w = write(2, why, std::strlen(why));
+    (void)w;
     _exit(127);
   }
   return static_cast<int>(pid);
@@ -163,12 +176,17 @@ void Supervisor::Start(int64_t now_us) {
 std::string Supervisor::WaitingFor(size_t i) const {
   std::string names;
   for (const std::string& a : o_.children[i].after)
-    for (size_t k = 0; k < st_.size(); ++k)
+    for (size_t k = 0; k < st_.size(); ++k) {
+      if (o_.children[k].name != a) continue;
       // A child that ended for good (a one-shot that exited, or one given up) holds no one back:
-      // waiting for it would be for ever.
-      if (o_.children[k].name == a && st_[k].state != ChildState::kRunning &&
-          st_[k].state != ChildState::kExited && st_[k].state != ChildState::kGaveUp)
-        names += (names.empty() ? "" : ", ") + a;
+      // waiting for it would be for ever. A one-shot (restart: never, no heartbeat) is waited
+      // for until it has finished, not merely started: `ip link set can0 up` must be done.
+      const bool one_shot =
+          o_.children[k].restart == RestartPolicy::kNever && o_.children[k].heartbeat.empty();
+      const bool ended = st_[k].state == ChildState::kExited || st_[k].state == ChildState::kGaveUp;
+      const bool up = st_[k].state == ChildState::kRunning && !one_shot;
+      if (!ended && !up) names += (names.empty() ? "" : ", ") + a;
+    }
   return names;
 }
 
@@ -215,9 +233,12 @@ void Supervisor::OnExit(size_t i, const ExitInfo& e, int64_t now_us) {
   const ChildSpec& c = o_.children[i];
   ChildStatus& s = st_[i];
   ++s.exits;
-  if (e.failed()) ++s.failures;
-  s.last_exit = e;
   const bool was_stopping = s.state == ChildState::kStopping;
+  // Ending on our own SIGTERM while the stack stops is the clean end it was asked for (a child
+  // that needed the SIGKILL after its grace did not stop cleanly and still counts).
+  const bool asked = stopping_all_ && was_stopping && e.signal == SIGTERM;
+  if (e.failed() && !asked) ++s.failures;
+  s.last_exit = asked ? ExitInfo{} : e;
   bool restart = false;
   if (stopping_all_) {
     restart = false;
@@ -333,9 +354,15 @@ bool ReportsTrouble(const ChildStatus& s) {
 }  // namespace
 
 bool Supervisor::Healthy() const {
-  return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) {
-    return s.state == ChildState::kRunning && !ReportsTrouble(s);
-  });
+  for (size_t i = 0; i < st_.size(); ++i) {
+    const ChildStatus& s = st_[i];
+    // A one-shot that finished cleanly (restart: never, exit 0) did its job.
+    const bool done = s.state == ChildState::kExited &&
+                      o_.children[i].restart == RestartPolicy::kNever && s.last_exit &&
+                      !s.last_exit->failed();
+    if (!done && !(s.state == ChildState::kRunning && !ReportsTrouble(s))) return false;
+  }
+  return true;
 }
 
 bool Supervisor::Finished() const {

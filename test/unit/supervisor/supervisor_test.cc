@@ -228,6 +228,34 @@ TEST(Supervisor, StopAllStopsNewestFirstAndRestartsNothing) {
   EXPECT_EQ(l.started.size(), 3u);  // nothing restarted
 }
 
+// A one-shot (restart: never, no heartbeat, e.g. `ip link set can0 up`) is waited for until it
+// has finished, its clean exit leaves the stack healthy, and children ended by the supervisor's
+// own SIGTERM during a stop are not failures.
+TEST(Supervisor, OneShotsAreWaitedForAndAStopIsNotAFailure) {
+  SupervisorOptions o;
+  ChildSpec setup = Child("setup", RestartPolicy::kNever);  // no heartbeat: a one-shot
+  ChildSpec bridge = Child("bridge", RestartPolicy::kAlways);
+  bridge.after = {"setup"};
+  o.children = {setup, bridge};
+  FakeLauncher l;
+  Supervisor s(o, &l);
+  s.Start(0);
+  s.Tick(kS);
+  ASSERT_EQ(l.started.size(), 1u) << "the bridge waits while the one-shot still runs";
+  EXPECT_NE(s.Summary().find("bridge waiting for setup"), std::string::npos) << s.Summary();
+  l.Exit(l.started[0], 0);
+  s.Tick(2 * kS);
+  ASSERT_EQ(l.started.size(), 2u);
+  s.Tick(3 * kS);
+  EXPECT_TRUE(s.Healthy()) << s.Summary();
+  s.StopAll(4 * kS);
+  for (int k = 0; k < 10 && !s.AllStopped(); ++k) s.Tick((5 + k) * kS);
+  ASSERT_TRUE(s.AllStopped());
+  EXPECT_EQ(s.children()[1].failures, 0);
+  ASSERT_TRUE(s.children()[1].last_exit.has_value());
+  EXPECT_FALSE(s.children()[1].last_exit->failed());
+}
+
 // `after`: a mapper waits for its driver's first heartbeat, a child that has no heartbeat to wait
 // for counts as up once started, a stop while some wait ends them too, and a dependency's later
 // restart does not restart what depends on it.
