@@ -128,6 +128,7 @@ bool ParseNumber(const std::string& v, double* out) {
 
 int main(int argc, char** argv) {
   std::string out_dir, world_path, live_url, drive = "tour", cmd_channel, bridge_config;
+  bool slip_given = false;
   bool live = false;
   double speed = 1.0;
   omni::sim::SimOptions opt;
@@ -170,6 +171,7 @@ int main(int argc, char** argv) {
           args.Fail("--slip expects three fractions in [0, 0.5) like 0.026,0.010,0.020, got '" + v +
                     "'");
         opt.wheel_slip[w] = x;
+        slip_given = true;
         rest = comma == std::string::npos ? "" : rest.substr(comma + 1);
       }
     } else if (args.Is("--slip-noise")) {
@@ -200,6 +202,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr,
                  "omni-sim: --speed paces a --live run; without --live the log is written as fast "
                  "as it can be\n");
+    return 2;
+  }
+  // Options that would be ignored are refused, so a run is what its command line says.
+  if ((slip_given || !cmd_channel.empty()) &&
+      (slip_given ? opt.base != omni::sim::SimOptions::Base::kFirmware : drive != "bus")) {
+    std::fprintf(stderr, "omni-sim: %s\n",
+                 slip_given
+                     ? "--slip models the firmware base's wheels; it needs --base firmware"
+                     : "--cmd-channel is where --drive bus takes its commands; add --drive bus");
     return 2;
   }
   if (drive == "bus" && !live) {

@@ -150,6 +150,13 @@ int main(int argc, char** argv) {
   double vx = 0, vy = 0, omega = 0, duration_s = 1.0, rate_hz = 20;
   int8_t mode = omni::base_cmd_t::MODE_TWIST;
   bool twist_given = false, single = false, keys = false;
+  std::string single_flag;  // the one-shot command given (two are refused: which one was meant?)
+  auto one_shot = [&](omni::ArgReader& a) {
+    if (single && single_flag != a.arg())
+      a.Fail(single_flag + " and " + a.arg() + " are two commands; send one at a time");
+    single = true;
+    single_flag = a.arg();
+  };
   omni::ArgReader args(argc, argv, "omni-drive", Usage);
   while (args.Next()) {
     if (args.IsUrl()) {
@@ -170,13 +177,13 @@ int main(int argc, char** argv) {
     } else if (args.Is("--rate")) {
       rate_hz = args.Number(1, 1000);
     } else if (args.Is("--estop")) {
+      one_shot(args);
       mode = omni::base_cmd_t::MODE_ESTOP;
-      single = true;
     } else if (args.Is("--clear-faults")) {
+      one_shot(args);
       mode = omni::base_cmd_t::MODE_CLEAR_FAULTS;
-      single = true;
     } else if (args.Is("--stop")) {
-      single = true;
+      one_shot(args);
     } else if (args.Is("--keys")) {
       keys = true;
     } else {
