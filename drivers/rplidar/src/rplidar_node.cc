@@ -40,6 +40,8 @@ RplidarNode::RplidarNode(bus::Bus* bus, RplidarDriver* driver, NodeOptions optio
   heartbeat_.AddCounter("checksum_errors", [d] { return d->parser_counters().checksum_errors; });
   heartbeat_.AddCounter("resyncs", [d] { return d->parser_counters().resyncs; });
   heartbeat_.AddCounter("bytes_skipped", [d] { return d->parser_counters().bytes_skipped; });
+  heartbeat_.AddCounter("bad_angles", [d] { return d->parser_counters().bad_angles; });
+  heartbeat_.AddCounter("angle_jumps", [d] { return d->parser_counters().angle_jumps; });
   heartbeat_.AddCounter("reconnects", [d] { return d->counters().reconnects; });
   heartbeat_.AddCounter("connect_failures", [d] { return d->counters().connect_failures; });
   heartbeat_.AddCounter("timeouts", [d] { return d->counters().timeouts; });
