@@ -57,6 +57,16 @@ id "$RUN_USER" >/dev/null 2>&1 || die "--user '$RUN_USER': no such user"
 [ -x "$BUILD/bin/supervisor" ] || die "$BUILD/bin/supervisor not built (./omni setup)"
 case "$CONFIG" in /*) CONFIG_PATH="$CONFIG" ;; *) CONFIG_PATH="$ROOT/$CONFIG" ;; esac
 [ -f "$CONFIG_PATH" ] || die "config '$CONFIG_PATH' not found"
+# The unit only brings the interface up and starts the supervisor: what the children run is in
+# the config. Say so when the options and the config disagree, rather than install a mismatch.
+if [ -n "$CAN_IF" ] && ! grep -Eq -- "--can, *\"?(socketcan:)?$CAN_IF\"?[],]" "$CONFIG_PATH"; then
+  echo "install-service: warning: $CONFIG_PATH does not run the base bridge on $CAN_IF" \
+    "(--can only brings the interface up; set the bridge's --can in the config)" >&2
+fi
+if [ "$BUILD" != "$ROOT/build" ] && grep -q "build/bin/" "$CONFIG_PATH"; then
+  echo "install-service: warning: the children in $CONFIG_PATH run build/bin/... from $ROOT," \
+    "not from $BUILD (--build chooses only the supervisor's binary)" >&2
+fi
 
 # The supervisor's worst-case orderly stop is the sum of its children's stop_grace_s (default
 # 5 s each); systemd must wait longer than that before it kills what is left.
