@@ -19,9 +19,11 @@
 #include "omni/base_bridge/messages.h"
 #include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
+#include "omni/bus/heartbeat.h"
 #include "omni/common/cli.h"
 #include "omni/common/time.h"
 #include "omni/firmware/firmware.h"
+#include "omni/heartbeat_t.hpp"
 #include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
@@ -258,6 +260,18 @@ int main(int argc, char** argv) {
     }
     bus = std::move(*b);
   }
+  // Live, the simulator stands in for the drivers and the base bridge: it says so on HEARTBEAT
+  // (process omni_sim) like every omni process, so `omni status` and the supervisor see it.
+  omni::SystemClock hb_clock;
+  std::unique_ptr<omni::bus::Heartbeat> hb;
+  int64_t events_published = 0, commands_in = 0;
+  if (bus) {
+    hb = std::make_unique<omni::bus::Heartbeat>(bus.get(), "omni_sim", &hb_clock);
+    hb->AddCounter("events_published", [&] { return events_published; });
+    hb->AddCounter("commands_in", [&] { return commands_in; });
+    hb->SetState(omni::heartbeat_t::STATE_OK,
+                 drive == "bus" ? "simulating, driven on " + cmd_channel : "simulating the tour");
+  }
   omni::Status write_status;
   const auto wall_start = std::chrono::steady_clock::now();
   auto sink = [&](const omni::sim::SimEvent& e) {
@@ -267,6 +281,8 @@ int main(int argc, char** argv) {
       const double sim_s = static_cast<double>(e.utime - opt.start_utime) * 1e-6;
       std::this_thread::sleep_until(wall_start + std::chrono::duration<double>(sim_s / speed));
       bus->PublishRaw(e.channel, e.payload.data(), static_cast<int>(e.payload.size()));
+      ++events_published;
+      hb->Tick();
     }
   };
   std::vector<omni::io::TrajectoryEntry> truth;
@@ -278,6 +294,7 @@ int main(int argc, char** argv) {
   if (drive == "bus") {
     bus->Subscribe<omni::base_cmd_t>(cmd_channel, [&](const omni::base_cmd_t& m, int64_t) {
       inbox.push_back(omni::base_bridge::FromMessage(m));
+      ++commands_in;
     });
     std::signal(SIGINT, OnSignal);
     std::signal(SIGTERM, OnSignal);
