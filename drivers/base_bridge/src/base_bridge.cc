@@ -123,7 +123,8 @@ void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
         const double gap = static_cast<double>(now_us - last_hb_us_) * 1e-6;
         const int64_t missed = std::llround(gap / o_.firmware_heartbeat_period_s) - 1;
         if (missed > 0) counters_.missed_heartbeats += missed;
-        if (missed >= o_.missed_heartbeats_for_silent) FirmwareReturned();
+        // Silent as status() counts it (missed_heartbeats_for_silent periods): back now.
+        if (now_us - last_hb_us_ >= SilenceUs()) FirmwareReturned();
       }
       have_hb_ = true;
       last_hb_us_ = now_us;
@@ -227,6 +228,11 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
   last_mismatch_ = mismatches_.empty() ? std::string() : mismatches_.begin()->second;
 }
 
+int64_t BaseBridge::SilenceUs() const {
+  return static_cast<int64_t>(
+      std::llround(o_.missed_heartbeats_for_silent * o_.firmware_heartbeat_period_s * 1e6));
+}
+
 void BaseBridge::FirmwareReturned() {
   // Silent long enough to have restarted (a brown-out, a reflash): its counters may have
   // started again from zero, and its parameters may be others now.
@@ -236,11 +242,12 @@ void BaseBridge::FirmwareReturned() {
 }
 
 void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us) {
-  // Feedback that stopped for the silence time: re-base, whatever the sequence says (a board
-  // up for more than 2^15 feedback periods restarts with a sequence that looks "ahead").
-  const int64_t silence_us =
-      static_cast<int64_t>(o_.missed_heartbeats_for_silent * o_.firmware_heartbeat_period_s * 1e6);
-  if (have_enc_ && now_us - last_enc_us_ > silence_us) have_enc_ = false;
+  // Feedback that stopped for the silence time (and for at least three of its own periods, so a
+  // slow feedback rate is never taken for silence): re-base, whatever the sequence says (a
+  // board up for more than 2^15 feedback periods restarts with a sequence that looks "ahead").
+  const int64_t gap_us =
+      std::max<int64_t>(SilenceUs(), static_cast<int64_t>(3.0 * o_.feedback_period_s * 1e6));
+  if (have_enc_ && now_us - last_enc_us_ > gap_us) have_enc_ = false;
   last_enc_us_ = now_us;
   if (have_enc_) {
     const uint16_t d = static_cast<uint16_t>(e.seq - last_enc_seq_);
@@ -302,6 +309,7 @@ void BaseBridge::OnLinkDown(int64_t now_us) {
   link_down_since_us_ = now_us;
   ++counters_.link_losses;
   have_enc_ = false;  // motion while the link is down is lost; re-base on the next frame
+  have_hb_ = false;   // the link, not the firmware, was away: no "firmware returned" for it
   sending_ = false;
   sent_ = {};
   last_send_us_ = 0;

@@ -127,7 +127,7 @@ void BaseBridgeNode::Publish(int64_t now) {
       if (s.firmware_alive) {
         LOG_INFO << "firmware answering"
                  << (fw_alive_ever_ ? " again (encoders re-based, geometry re-checked)" : "");
-      } else if (fw_alive_ever_) {
+      } else if (fw_alive_ever_ && bridge_.link_up()) {
         LOG_WARN << "firmware silent: " << s.missed_heartbeats << " heartbeats missed";
       }
       fw_alive_ever_ = fw_alive_ever_ || s.firmware_alive;

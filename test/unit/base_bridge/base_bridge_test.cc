@@ -203,6 +203,19 @@ TEST(BaseBridgeTest, FirmwareRestartAfterLongUptimeDoesNotJumpTheOdometry) {
   EXPECT_EQ(b.counters().firmware_returns, 1);
 }
 
+// Feedback slower than the silence time (a board configured for 2 Hz feedback) is not silence.
+TEST(BaseBridgeTest, SlowFeedbackStillIntegrates) {
+  BaseBridgeOptions o = TestOptions();
+  o.feedback_period_s = 0.5;
+  BaseBridge b(o);
+  FakeFirmware fw(o);
+  int64_t t = 0;
+  for (int i = 0; i <= 4; ++i) b.OnFrame(fw.Next({0.2, 0.0, 0.0}, 0.5), t += 500000);
+  Odometry od;
+  ASSERT_TRUE(b.TakeOdometry(&od));
+  EXPECT_NEAR(od.x_m, 0.4, 0.005);  // four steps of 0.1 m after the first frame
+}
+
 TEST(BaseBridgeTest, SilentFirmwareDetected) {
   BaseBridge b(TestOptions());
   fwcan::Heartbeat hb;
@@ -274,13 +287,23 @@ TEST(BaseBridgeTest, GeometryMismatchReported) {
   b.OnFrame(fwcan::EncodeParamValue(1, r), 2000000);
   EXPECT_EQ(b.counters().geometry_mismatches, 1);
   EXPECT_NE(b.Problem(2000000).find("wheel_radius_m"), std::string::npos);
-  // While it differs, the bridge asks again every 5 s; once corrected, the warning clears.
-  out.clear();
-  b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), 7100000);
-  b.Tick(7100000, &out);
-  queries = 0;
-  for (const CanFrame& f : out) queries += fwcan::CommandOf(f.id) == fwcan::kGetParam;
-  EXPECT_EQ(queries, 5);
+  // While it differs, the bridge asks again every 5 s (not every second); once corrected, the
+  // warning clears. The firmware beats all along: this is the recheck, not a return.
+  auto param_queries = [&](int64_t t) {
+    out.clear();
+    b.Tick(t, &out);
+    int n = 0;
+    for (const CanFrame& f : out) n += fwcan::CommandOf(f.id) == fwcan::kGetParam;
+    return n;
+  };
+  for (int64_t t = 2100000; t <= 7100000; t += 100000) {
+    b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), t);
+    if (t == 4000000) {
+      EXPECT_EQ(param_queries(t), 0) << "no recheck 2 s after the last";
+    }
+  }
+  EXPECT_EQ(param_queries(7100000), 5);
+  EXPECT_EQ(b.counters().firmware_returns, 0);
   b.OnFrame(fwcan::EncodeParamValue(1, r), 7100000);
   EXPECT_EQ(b.counters().geometry_mismatches, 1) << "the same mismatch is counted once";
   r.value = static_cast<float>(TestOptions().wheel_radius_m);

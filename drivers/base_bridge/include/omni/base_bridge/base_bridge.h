@@ -187,6 +187,7 @@ class BaseBridge {
   int64_t link_down_since_us_ = 0;
   bool geometry_checked_ = false;
   void FirmwareReturned();
+  int64_t SilenceUs() const;  // missed_heartbeats_for_silent heartbeat periods
   int64_t geometry_query_us_ = 0;
   std::string last_mismatch_;  // the first of mismatches_, "" when all agree
   Counters counters_;
