@@ -84,6 +84,13 @@ Result<SupervisorOptions> SupervisorOptions::Load(ConfigReader& r) {
   return o;
 }
 
+namespace {
+// heartbeat_t::STATE_DEGRADED = 2, STATE_ERROR = 3: running, but saying something is wrong.
+bool ReportsTrouble(const ChildStatus& s) {
+  return s.heartbeat_state == 2 || s.heartbeat_state == 3;
+}
+}  // namespace
+
 Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
                                  const std::string& working_dir) {
   if (command.empty()) return MakeError(ErrorCode::kInvalidArgument, "empty command");
@@ -93,6 +100,9 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   // Written by the child when exec fails (built here: the child only calls write and _exit).
   std::string cwd_note = working_dir.empty() ? std::string() : " (in " + working_dir + ")";
   const std::string exec_failed = "supervisor: cannot run '" + command[0] + "'" + cwd_note + ": ";
+  const std::string chdir_failed =
+      "supervisor: cannot enter the working directory '" + working_dir + "'\n";
+  const bool path_given = command[0].find('/') != std::string::npos;
   const pid_t parent = getpid();
   const pid_t pid = fork();
   if (pid < 0)
@@ -103,15 +113,19 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
     prctl(PR_SET_PDEATHSIG, SIGTERM);
     if (getppid() != parent) _exit(126);
     setpgid(0, 0);
-    if (!working_dir.empty() && chdir(working_dir.c_str()) != 0) _exit(126);
+    if (!working_dir.empty() && chdir(working_dir.c_str()) != 0) {
+      ssize_t w = write(2, chdir_failed.data(), chdir_failed.size());
+      (void)w;
+      _exit(126);
+    }
     execvp(argv[0], argv.data());
     // Say why (not found, not executable) on the supervisor's stderr, which the child shares:
     // a bare exit 127 restarted in a loop tells nobody that a relative path was wrong.
     const int e = errno;
-    const char* why = e == ENOENT   ? "not found (a relative path is taken from the working "
-                                      "directory)\n"
-                      : e == EACCES ? "not executable\n"
-                                    : "exec failed\n";
+    const char* not_found =
+        path_given ? "not found (a relative path is taken from the working directory)\n"
+                   : "not found on PATH\n";
+    const char* why = e == ENOENT ? not_found : e == EACCES ? "not executable\n" : "exec failed\n";
     ssize_t w = write(2, exec_failed.data(), exec_failed.size());
     w = write(2, why, std::strlen(why));
     (void)w;
@@ -181,8 +195,7 @@ std::string Supervisor::WaitingFor(size_t i) const {
       // A child that ended for good (a one-shot that exited, or one given up) holds no one back:
       // waiting for it would be for ever. A one-shot (restart: never, no heartbeat) is waited
       // for until it has finished, not merely started: `ip link set can0 up` must be done.
-      const bool one_shot =
-          o_.children[k].restart == RestartPolicy::kNever && o_.children[k].heartbeat.empty();
+      const bool one_shot = IsOneShot(o_.children[k]);
       const bool ended = st_[k].state == ChildState::kExited || st_[k].state == ChildState::kGaveUp;
       const bool up = st_[k].state == ChildState::kRunning && !one_shot;
       if (!ended && !up) names += (names.empty() ? "" : ", ") + a;
@@ -234,9 +247,10 @@ void Supervisor::OnExit(size_t i, const ExitInfo& e, int64_t now_us) {
   ChildStatus& s = st_[i];
   ++s.exits;
   const bool was_stopping = s.state == ChildState::kStopping;
-  // Ending on our own SIGTERM while the stack stops is the clean end it was asked for (a child
-  // that needed the SIGKILL after its grace did not stop cleanly and still counts).
-  const bool asked = stopping_all_ && was_stopping && e.signal == SIGTERM;
+  // Ending on our own SIGTERM while the stack stops is the clean end it was asked for, for a
+  // child that was running well (one still starting, hung or in trouble, or one that needed
+  // the SIGKILL after its grace, did not end cleanly and still counts).
+  const bool asked = stopping_all_ && was_stopping && e.signal == SIGTERM && s.healthy_when_stopped;
   if (e.failed() && !asked) ++s.failures;
   s.last_exit = asked ? ExitInfo{} : e;
   bool restart = false;
@@ -260,6 +274,7 @@ void Supervisor::Stop(size_t i, int64_t now_us, bool restart) {
   ChildStatus& s = st_[i];
   if (s.pid <= 0) return;
   launcher_->Signal(s.pid, SIGTERM);
+  s.healthy_when_stopped = s.state == ChildState::kRunning && !ReportsTrouble(s);
   s.state = ChildState::kStopping;
   s.stop_deadline_us = now_us + Us(o_.children[i].stop_grace_s);
   s.restart_after_stop = restart;
@@ -346,21 +361,11 @@ bool Supervisor::AllStopped() const {
   return std::all_of(st_.begin(), st_.end(), [](const ChildStatus& s) { return s.pid <= 0; });
 }
 
-namespace {
-// heartbeat_t::STATE_DEGRADED = 2, STATE_ERROR = 3: running, but saying something is wrong.
-bool ReportsTrouble(const ChildStatus& s) {
-  return s.heartbeat_state == 2 || s.heartbeat_state == 3;
-}
-}  // namespace
-
 bool Supervisor::Healthy() const {
   for (size_t i = 0; i < st_.size(); ++i) {
     const ChildStatus& s = st_[i];
-    // A one-shot that finished cleanly (restart: never, exit 0) did its job.
-    const bool done = s.state == ChildState::kExited &&
-                      o_.children[i].restart == RestartPolicy::kNever && s.last_exit &&
-                      !s.last_exit->failed();
-    if (!done && !(s.state == ChildState::kRunning && !ReportsTrouble(s))) return false;
+    if (!FinishedOneShot(i) && !(s.state == ChildState::kRunning && !ReportsTrouble(s)))
+      return false;
   }
   return true;
 }
@@ -388,10 +393,21 @@ int64_t Supervisor::gave_up() const {
                        [](const ChildStatus& s) { return s.state == ChildState::kGaveUp; });
 }
 
+bool Supervisor::FinishedOneShot(size_t i) const {
+  const ChildStatus& s = st_[i];
+  return IsOneShot(o_.children[i]) && s.state == ChildState::kExited && s.last_exit &&
+         !s.last_exit->failed();
+}
+
 std::string Supervisor::Summary() const {
   std::string down;
+  size_t done = 0;
   for (size_t i = 0; i < st_.size(); ++i) {
     const ChildStatus& s = st_[i];
+    if (FinishedOneShot(i)) {  // did its job: nothing to report
+      ++done;
+      continue;
+    }
     if (s.state == ChildState::kRunning) {
       if (ReportsTrouble(s)) {
         if (!down.empty()) down += ", ";
@@ -408,7 +424,9 @@ std::string Supervisor::Summary() const {
                                   : " (exit " + std::to_string(s.last_exit->code) + ")";
     }
   }
-  if (down.empty()) return "all " + std::to_string(st_.size()) + " running";
+  if (down.empty())
+    return "all " + std::to_string(st_.size() - done) + " running" +
+           (done > 0 ? " (" + std::to_string(done) + " one-shot done)" : "");
   const bool all_running = std::all_of(
       st_.begin(), st_.end(), [](const ChildStatus& c) { return c.state == ChildState::kRunning; });
   if (all_running) return "all running; " + down;

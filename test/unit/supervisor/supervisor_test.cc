@@ -247,7 +247,9 @@ TEST(Supervisor, OneShotsAreWaitedForAndAStopIsNotAFailure) {
   s.Tick(2 * kS);
   ASSERT_EQ(l.started.size(), 2u);
   s.Tick(3 * kS);
+  s.OnHeartbeat("bridge", 1, "", 3 * kS);  // (no heartbeat configured: ignored)
   EXPECT_TRUE(s.Healthy()) << s.Summary();
+  EXPECT_EQ(s.Summary(), "all 1 running (1 one-shot done)");
   s.StopAll(4 * kS);
   for (int k = 0; k < 10 && !s.AllStopped(); ++k) s.Tick((5 + k) * kS);
   ASSERT_TRUE(s.AllStopped());

@@ -62,6 +62,12 @@ struct SupervisorOptions {
   static Result<SupervisorOptions> Load(ConfigReader& reader);
 };
 
+// A one-shot: a child that runs to its end (`restart: never` and no heartbeat to watch), such
+// as bringing can0 up. `after:` waits for it to finish, and its clean exit counts as healthy.
+inline bool IsOneShot(const ChildSpec& c) {
+  return c.restart == RestartPolicy::kNever && c.heartbeat.empty();
+}
+
 struct ExitInfo {
   int code = 0;    // exit status when it exited
   int signal = 0;  // the signal that ended it (0: it exited)
@@ -105,6 +111,7 @@ struct ChildStatus {
   std::string heartbeat_text;
   double backoff_s = 0;
   bool restart_after_stop = false;
+  bool healthy_when_stopped = false;  // running and not reporting trouble when asked to stop
   std::deque<int64_t> restart_times_us;
 };
 
@@ -125,6 +132,8 @@ class Supervisor {
   bool AllStopped() const;
   // Every child running and none reporting DEGRADED or ERROR in its heartbeat.
   bool Healthy() const;
+  // A one-shot ran to a clean end (restart: never, no heartbeat, exit 0).
+  bool FinishedOneShot(size_t i) const;
   // Nothing left to run: every child exited for good or was given up.
   bool Finished() const;
 
