@@ -59,11 +59,15 @@ case "$CONFIG" in /*) CONFIG_PATH="$CONFIG" ;; *) CONFIG_PATH="$ROOT/$CONFIG" ;;
 [ -f "$CONFIG_PATH" ] || die "config '$CONFIG_PATH' not found"
 # The unit only brings the interface up and starts the supervisor: what the children run is in
 # the config. Say so when the options and the config disagree, rather than install a mismatch.
-if [ -n "$CAN_IF" ] && ! grep -Eq -- "--can, *\"?(socketcan:)?$CAN_IF\"?[],]" "$CONFIG_PATH"; then
+[ -z "$CAN_IF" ] || [[ "$CAN_IF" =~ ^[A-Za-z0-9_-]+$ ]] || die "--can '$CAN_IF' is not an interface name"
+# (Comments left out; quotes and spacing as YAML allows; the interface as a whole word.)
+config_lines="$(grep -v '^[[:space:]]*#' "$CONFIG_PATH" || true)"
+if [ -n "$CAN_IF" ] && grep -q -- "--can" <<<"$config_lines" &&
+  ! grep -Eq -- "(^|[^A-Za-z0-9_-])(socketcan:)?$CAN_IF([^A-Za-z0-9_-]|\$)" <<<"$config_lines"; then
   echo "install-service: warning: $CONFIG_PATH does not run the base bridge on $CAN_IF" \
     "(--can only brings the interface up; set the bridge's --can in the config)" >&2
 fi
-if [ "$BUILD" != "$ROOT/build" ] && grep -q "build/bin/" "$CONFIG_PATH"; then
+if [ "$BUILD" != "$ROOT/build" ] && grep -q "build/bin/" <<<"$config_lines"; then
   echo "install-service: warning: the children in $CONFIG_PATH run build/bin/... from $ROOT," \
     "not from $BUILD (--build chooses only the supervisor's binary)" >&2
 fi

@@ -312,6 +312,10 @@ int main(int argc, char** argv) {
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {
         truth.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(utime), p));
       });
+  if (hb) {  // the last word on the bus: gone on purpose, not hung
+    hb->SetState(omni::heartbeat_t::STATE_STOPPING, "simulation over");
+    hb->Tick(true);
+  }
   if (write_status.ok()) write_status = log->Close();
   if (write_status.ok())
     write_status = omni::io::WriteTrajectory2D(
