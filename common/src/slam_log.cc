@@ -2,6 +2,7 @@
 
 #include <fstream>
 
+#include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
 #include "omni/common/time.h"
 #include "omni/imu_t.hpp"
@@ -37,7 +38,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
     const int size = static_cast<int>(ev.data.size());
     if (ev.channel == channels.scan) {
       omni::laser_scan_t m;
-      if (m.decode(ev.data.data(), 0, size) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
         continue;
       }
@@ -53,14 +54,14 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       if (!handlers.scan(s)) break;
     } else if (ev.channel == channels.odom) {
       omni::odometry_t m;
-      if (m.decode(ev.data.data(), 0, size) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
         continue;
       }
       handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
     } else if (handlers.imu && ev.channel == channels.imu) {
       omni::imu_t m;
-      if (m.decode(ev.data.data(), 0, size) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
         continue;
       }

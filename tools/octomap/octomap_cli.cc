@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/bus/bus.h"
 #include "omni/color_image_t.hpp"
 #include "omni/common/config.h"
 #include "omni/depth_image_t.hpp"
@@ -313,14 +314,14 @@ int main(int argc, char** argv) {
     ++events;
     if (ev.channel == pose_channel) {
       omni::pose2d_t m;
-      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
         ++decode_errors;
         continue;
       }
       pipeline.AddPose(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
     } else if (ev.channel == o.depth_channel) {
       omni::depth_image_t m;
-      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
         ++decode_errors;
         continue;
       }
@@ -332,7 +333,7 @@ int main(int argc, char** argv) {
       pipeline.AddDepth(std::move(*im));
     } else if (o.color && ev.channel == o.color_channel) {
       omni::color_image_t m;
-      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) {
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
         ++color_decode_errors;
         continue;
       }

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/bus/bus.h"
 #include "omni/io/carmen.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
@@ -118,7 +119,8 @@ int main(int argc, char** argv) {
       if (!*more) break;
       if (ev.channel != "LIDAR_SCAN") continue;
       omni::laser_scan_t m;
-      if (m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())) < 0) continue;
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0)
+        continue;
       if (m.seq < 0 || static_cast<size_t>(m.seq) >= by_index.size() || !by_index[m.seq]) continue;
       const Pose2 laser =
           by_index[m.seq]->pose2() * Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);

@@ -16,6 +16,7 @@
 #include "omni/bus/map_save.h"
 #include "omni/bus/slam_log.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/laser_scan_t.hpp"
 #include "omni/map_save_reply_t.hpp"
 #include "omni/map_save_request_t.hpp"
 #include "omni/odometry_t.hpp"
@@ -218,6 +219,35 @@ TEST(Bus, JavaJarHoldsEveryType) {
   ASSERT_EQ(pclose(p), 0);
   for (const auto& t : types)
     EXPECT_TRUE(classes.count("omni/" + t + ".class")) << t << " missing from the jar";
+}
+
+// lcm-gen's decoders size an array from its count before checking it against the bytes: a
+// negative count throws. On the bus and in a log it is an undecodable message, never a crash.
+TEST(Bus, AMessageWithANegativeArrayCountIsADecodeErrorNotACrash) {
+  omni::laser_scan_t m{};
+  m.num_ranges = 3;
+  m.ranges_m = {1.f, 2.f, 3.f};
+  std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+  m.encode(buf.data(), 0, static_cast<int>(buf.size()));
+  // num_ranges is the int32 right after the fixed fields: find it by value and make it -1.
+  bool patched = false;
+  for (size_t i = 8; i + 4 <= buf.size() && !patched; ++i)
+    if (buf[i] == 0 && buf[i + 1] == 0 && buf[i + 2] == 0 && buf[i + 3] == 3) {
+      buf[i] = buf[i + 1] = buf[i + 2] = buf[i + 3] = 0xFF;
+      patched = true;
+    }
+  ASSERT_TRUE(patched);
+  omni::laser_scan_t out;
+  EXPECT_LT(DecodeMessage(&out, buf.data(), static_cast<int>(buf.size())), 0);
+  auto bus = Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok());
+  int handled = 0;
+  (*bus)->Subscribe<omni::laser_scan_t>("LIDAR_SCAN",
+                                        [&](const omni::laser_scan_t&, int64_t) { ++handled; });
+  ASSERT_TRUE((*bus)->PublishRaw("LIDAR_SCAN", buf.data(), static_cast<int>(buf.size())));
+  Pump(**bus);
+  EXPECT_EQ(handled, 0);
+  EXPECT_EQ((*bus)->counters().decode_errors, 1);
 }
 
 TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {

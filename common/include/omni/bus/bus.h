@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <exception>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -83,13 +84,25 @@ class Bus {
   std::string last_decode_error_;
 };
 
+// Decodes an LCM message; -1 when it does not decode. lcm-gen's decoders size arrays from the
+// counts in the bytes before checking them against the data, so a negative or absurd count
+// throws (length_error, bad_alloc): that is an undecodable message too, never a crash.
+template <class Msg>
+int DecodeMessage(Msg* msg, const void* data, int size) noexcept {
+  try {
+    return msg->decode(data, 0, size);
+  } catch (const std::exception&) {
+    return -1;
+  }
+}
+
 template <class Msg>
 struct Bus::TypedSubscription final : Bus::SubscriptionBase {
   Bus* bus;
   std::function<void(const Msg&, int64_t)> handler;
   void Handle(const lcm::ReceiveBuffer* rbuf, const std::string& channel) override {
     Msg msg;
-    const int n = msg.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size));
+    const int n = DecodeMessage(&msg, rbuf->data, static_cast<int>(rbuf->data_size));
     if (n < 0) {
       bus->NoteDecodeError(channel, static_cast<int>(rbuf->data_size));
       return;
