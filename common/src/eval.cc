@@ -227,9 +227,14 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   size_t best_score = best.overlap;
   for (int level = 0; level < opt.levels; ++level) {
     double br = rot, bx = dx, by = dy;
-    for (double r = rot - rot_range; r <= rot + rot_range + 1e-12; r += rot_step)
-      for (double x = dx - shift_range; x <= dx + shift_range + 1e-12; x += shift_step)
-        for (double y = dy - shift_range; y <= dy + shift_range + 1e-12; y += shift_step) {
+    // Counted steps, not accumulated ones: far from the origin (a grid placed at 1e18 m) a
+    // floating `x += step` stops advancing and the search never ends.
+    const int nr = static_cast<int>(std::ceil(rot_range / rot_step - 1e-9));
+    const int ns = static_cast<int>(std::ceil(shift_range / shift_step - 1e-9));
+    for (int ir = -nr; ir <= nr; ++ir)
+      for (int ix = -ns; ix <= ns; ++ix)
+        for (int iy = -ns; iy <= ns; ++iy) {
+          const double r = rot + ir * rot_step, x = dx + ix * shift_step, y = dy + iy * shift_step;
           const size_t sc = score(r, x, y);
           if (sc > best_score) {
             best_score = sc;

@@ -76,10 +76,12 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
       static_cast<int64_t>(g.width) * g.height != g.num_cells)
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': inconsistent size or resolution");
+  // A map origin beyond 1000 km is no robot's map: refused like a non-finite one.
   if (!std::isfinite(g.origin_x_m) || !std::isfinite(g.origin_y_m) ||
-      !std::isfinite(g.origin_yaw_rad))
+      !std::isfinite(g.origin_yaw_rad) || std::abs(g.origin_x_m) > 1e6 ||
+      std::abs(g.origin_y_m) > 1e6)
     return MakeError(ErrorCode::kInvalidArgument,
-                     "occupancy grid from '" + g.source + "': non-finite origin");
+                     "occupancy grid from '" + g.source + "': non-finite or absurd origin");
   io::GridMap m;
   m.resolution_m = g.resolution_m;
   m.origin_x_m = g.origin_x_m;
