@@ -8,6 +8,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 
+#include "omni/common/scan_checks.h"
 #include "omni/pose_graph_mapper/chi2.h"
 #include "omni/pose_graph_mapper/lie.h"
 
@@ -202,6 +203,11 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   ++c_.scans_in;
   if (scan.utime < last_scan_utime_) {
     ++c_.scans_time_backwards;
+    return false;
+  }
+  if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
+                             scan.max_range_m, scan.laser_in_base)) {
+    ++c_.scans_bad_geometry;  // NaN or absurd angles, mount pose or range limit: never mapped
     return false;
   }
   // The base's motion from the first beam to the last (a spinning lidar's sweep).

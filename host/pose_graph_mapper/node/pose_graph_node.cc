@@ -84,6 +84,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_used", [&c] { return c.scans_used; });
   heartbeat_.AddCounter("scans_time_backwards", [&c] { return c.scans_time_backwards; });
   heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
+  heartbeat_.AddCounter("scans_bad_geometry", [&c] { return c.scans_bad_geometry; });
   heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
   heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
   heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });

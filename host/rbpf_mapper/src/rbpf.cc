@@ -5,6 +5,8 @@
 #include <limits>
 #include <numeric>
 
+#include "omni/common/scan_checks.h"
+
 namespace omni::rbpf {
 
 TrajectoryNode::~TrajectoryNode() {
@@ -238,10 +240,8 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
     ++counters_.scans_time_backwards;
     return res;
   }
-  if (!std::isfinite(scan.angle_min_rad) || !std::isfinite(scan.angle_increment_rad) ||
-      !std::isfinite(scan.sensor_in_base.x) || !std::isfinite(scan.sensor_in_base.y) ||
-      !std::isfinite(scan.sensor_in_base.theta) || !std::isfinite(scan.range_max_m) ||
-      scan.ranges_m.size() > 100000) {
+  if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
+                             scan.range_max_m, scan.sensor_in_base)) {
     ++counters_.scans_bad_geometry;
     return res;
   }

@@ -1,4 +1,5 @@
 #include "omni/common/geometry.h"
+#include "omni/common/scan_checks.h"
 
 #include <gtest/gtest.h>
 
@@ -57,6 +58,27 @@ TEST(Geometry, Se3InterpolationSlerps) {
   const auto m = Interpolate(a, b, 0.5);
   EXPECT_NEAR(Eigen::AngleAxisd(m.linear()).angle(), 0.5, 1e-12);
   EXPECT_TRUE(m.translation().isApprox(Eigen::Vector3d(1, 0, 2)));
+}
+
+}  // namespace
+}  // namespace omni
+
+namespace omni {
+namespace {
+
+TEST(ScanChecks, RealLidarsPassAbsurdGeometryDoesNot) {
+  const Pose2 mount(0.1, 0.0, 0.0);
+  EXPECT_TRUE(PlausibleScanGeometry(-M_PI / 2, M_PI / 180, 181, 81.9, mount));  // CARMEN SICK
+  EXPECT_TRUE(PlausibleScanGeometry(0.0, 2 * M_PI / 1600, 1600, 25.0, mount));  // RPLidar
+  EXPECT_TRUE(PlausibleScanGeometry(0.0, 0.0, 1, 25.0, mount));       // one beam: no increment
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 0.0, 360, 25.0, mount));    // all beams alike
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 1e30, 360, 25.0, mount));   // many revolutions
+  EXPECT_FALSE(PlausibleScanGeometry(3e38, 0.01, 360, 25.0, mount));  // angle_min
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, NAN, 360, 25.0, mount));    // NaN increment
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 0.01, 360, 1e5, mount));    // range limit
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 0.01, 360, NAN, mount));    // NaN range limit
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 0.01, 360, 25.0, Pose2(1e300, 0, 0)));  // mount
+  EXPECT_FALSE(PlausibleScanGeometry(0.0, 1e-6, kMaxScanBeams + 1, 25.0, mount));
 }
 
 }  // namespace

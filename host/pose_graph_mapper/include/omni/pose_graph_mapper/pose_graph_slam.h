@@ -143,6 +143,7 @@ Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, B
 struct SlamCounters {
   int64_t scans_in = 0, scans_used = 0;
   int64_t scans_time_backwards = 0, scans_too_few_beams = 0, scans_no_odom = 0;
+  int64_t scans_bad_geometry = 0;  // NaN or absurd angles, mount pose or range limit
   int64_t invalid_beams = 0;       // NaN/inf or out-of-range beams skipped inside used scans
   int64_t sweeps_corrected = 0;    // used scans corrected for the base's motion in their sweep
   int64_t sweeps_uncorrected = 0;  // used scans with a sweep but no (jump-free) odometry over it

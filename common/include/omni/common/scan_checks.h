@@ -1,0 +1,34 @@
+// Whether a laser scan's geometry is one a real lidar could produce, before any mapper uses it.
+// A finite but absurd angle increment (0, 1e30), a mount pose kilometres off the base or a
+// range limit of 1e5 m passes a finiteness check and then builds starbursts or multi-GB grids.
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+
+#include "omni/common/geometry.h"
+
+namespace omni {
+
+// Beams per scan above which a scan is refused (an RPLidar gives ~2000, a Hokuyo ~1100).
+inline constexpr size_t kMaxScanBeams = 100000;
+
+inline bool PlausibleScanGeometry(double angle_min_rad, double angle_increment_rad, size_t beams,
+                                  double range_max_m, const Pose2& sensor_in_base) {
+  constexpr double kTwoPi = 2.0 * M_PI;
+  if (beams > kMaxScanBeams) return false;
+  if (!std::isfinite(angle_min_rad) || std::abs(angle_min_rad) > kTwoPi) return false;
+  if (!std::isfinite(angle_increment_rad)) return false;
+  // One revolution at most, and distinct beams.
+  if (beams > 1 && (angle_increment_rad == 0.0 ||
+                    std::abs(angle_increment_rad) * static_cast<double>(beams - 1) > kTwoPi + 1e-3))
+    return false;
+  // range_max: not beyond what any 2D lidar measures (1 km); 0 leaves no beam valid.
+  if (!(range_max_m >= 0) || !(range_max_m <= 1000.0)) return false;
+  // The sensor on the robot: within 10 m of the base's origin, a finite heading.
+  return std::isfinite(sensor_in_base.x) && std::isfinite(sensor_in_base.y) &&
+         std::isfinite(sensor_in_base.theta) && std::abs(sensor_in_base.x) <= 10.0 &&
+         std::abs(sensor_in_base.y) <= 10.0;
+}
+
+}  // namespace omni
