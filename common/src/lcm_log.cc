@@ -17,6 +17,24 @@ uint64_t Be(const uint8_t* p, int n) {
   for (int i = 0; i < n; ++i) v = (v << 8) | p[i];
   return v;
 }
+// An event header's lengths, or what is wrong with it ("" when it is good): the one framing rule
+// for the reader and for CheckLcmLogFraming.
+std::string CheckHeader(const uint8_t* hdr, int32_t* chan_len, int32_t* data_len) {
+  const uint32_t sync = static_cast<uint32_t>(Be(hdr, 4));
+  *chan_len = static_cast<int32_t>(Be(hdr + 20, 4));
+  *data_len = static_cast<int32_t>(Be(hdr + 24, 4));
+  if (sync != kSync) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "bad sync word 0x%08X (expected 0xEDA1DA01)", sync);
+    return buf;
+  }
+  if (*chan_len <= 0 || *chan_len > kMaxChannel)
+    return "channel length " + std::to_string(*chan_len) + " out of range";
+  if (*data_len < 0 || *data_len > kMaxData)
+    return "data length " + std::to_string(*data_len) + " out of range";
+  return "";
+}
+
 void PutBe(uint8_t* p, uint64_t v, int n) {
   for (int i = n - 1; i >= 0; --i) {
     p[i] = static_cast<uint8_t>(v & 0xff);
@@ -66,19 +84,8 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
       return MakeError(ErrorCode::kParse, where(start) + "truncated event header (" +
                                               std::to_string(n) + " of 28 bytes)");
     }
-    const uint32_t sync = static_cast<uint32_t>(Be(hdr, 4));
-    const int32_t chan_len = static_cast<int32_t>(Be(hdr + 20, 4));
-    const int32_t data_len = static_cast<int32_t>(Be(hdr + 24, 4));
-    std::string problem;
-    if (sync != kSync) {
-      char buf[64];
-      std::snprintf(buf, sizeof(buf), "bad sync word 0x%08X (expected 0xEDA1DA01)", sync);
-      problem = buf;
-    } else if (chan_len <= 0 || chan_len > kMaxChannel) {
-      problem = "channel length " + std::to_string(chan_len) + " out of range";
-    } else if (data_len < 0 || data_len > kMaxData) {
-      problem = "data length " + std::to_string(data_len) + " out of range";
-    }
+    int32_t chan_len = 0, data_len = 0;
+    const std::string problem = CheckHeader(hdr, &chan_len, &data_len);
     if (!problem.empty()) {
       if (!resync) return MakeError(ErrorCode::kParse, where(start) + problem);
       // Scan forward byte by byte for the next sync word.
@@ -190,18 +197,9 @@ Status CheckLcmLogFraming(const std::string& path) {
     if (fseeko(f.get(), static_cast<off_t>(off), SEEK_SET) != 0 ||
         std::fread(hdr, 1, sizeof(hdr), f.get()) != sizeof(hdr))
       return MakeError(ErrorCode::kIo, "cannot read '" + path + "'");
-    const uint32_t sync = static_cast<uint32_t>(Be(hdr, 4));
-    const int32_t chan_len = static_cast<int32_t>(Be(hdr + 20, 4));
-    const int32_t data_len = static_cast<int32_t>(Be(hdr + 24, 4));
-    if (sync != kSync) {
-      char buf[64];
-      std::snprintf(buf, sizeof(buf), "bad sync word 0x%08X (expected 0xEDA1DA01)", sync);
-      return bad(buf);
-    }
-    if (chan_len <= 0 || chan_len > kMaxChannel)
-      return bad("channel length " + std::to_string(chan_len) + " out of range");
-    if (data_len < 0 || data_len > kMaxData)
-      return bad("data length " + std::to_string(data_len) + " out of range");
+    int32_t chan_len = 0, data_len = 0;
+    if (const std::string problem = CheckHeader(hdr, &chan_len, &data_len); !problem.empty())
+      return bad(problem);
     const uint64_t next =
         off + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);
     if (next > size) return bad("event truncated at the end of the file");
