@@ -159,9 +159,7 @@ int main(int argc, char** argv) {
         "odom_mapper: no scan was mapped (scans in %lld, without pose %lld, too few beams %lld)\n",
         static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_pose),
         static_cast<long long>(c.scans_too_few_beams));
-    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
-    // (Scans that came and could not be used are a fault to see: exit 1.)
-    return end == omni::bus::LoopEnd::kSignal && c.scans_in == 0 ? 0 : 1;
+    return omni::bus::NothingToWriteExit(end, c.scans_in);
   }
   bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
   const omni::Status s = write_maps(map, out_dir);

@@ -98,9 +98,7 @@ int main(int argc, char** argv) {
                  s.message().c_str(), static_cast<long long>(c.scans_in),
                  static_cast<long long>(c.scans_no_odom),
                  static_cast<long long>(c.scans_too_few_beams));
-    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
-    // (Scans that came and could not be used are a fault to see: exit 1.)
-    return end == omni::bus::LoopEnd::kSignal && c.scans_in == 0 ? 0 : 1;
+    return omni::bus::NothingToWriteExit(end, c.scans_in);
   }
   std::printf(
       "rbpf_mapper: %lld scans (%lld filter updates, %lld lost on the bus, %lld without "

@@ -133,8 +133,7 @@ int main(int argc, char** argv) {
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   node.heartbeat().Tick(true);
   const omni::Status s = node.WriteOutputs(out_dir);
-  if (!s.ok() && end == omni::bus::LoopEnd::kSignal && node.grids_in() == 0) {
-    // Stopped (systemctl stop, Ctrl-C) before there was anything to fuse: not a failure.
+  if (!s.ok() && omni::bus::NothingToWriteExit(end, node.grids_in()) == 0) {
     std::fprintf(stderr, "map_fusion: %s (grids in %lld, rejected %lld); stopped before a fusion\n",
                  s.message().c_str(), static_cast<long long>(node.grids_in()),
                  static_cast<long long>(node.grids_rejected()));

@@ -100,9 +100,7 @@ int main(int argc, char** argv) {
   const auto& c = node.slam().counters();
   if (!s.ok()) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", s.message().c_str());
-    // Stopped (systemctl stop, Ctrl-C) before anything was mapped: nothing lost, not a failure.
-    // (Scans that came and could not be used are a fault to see: exit 1.)
-    return end == omni::bus::LoopEnd::kSignal && c.scans_in == 0 ? 0 : 1;
+    return omni::bus::NothingToWriteExit(end, c.scans_in);
   }
   std::printf(
       "pose_graph_mapper: %lld scans (%lld used, %lld lost on the bus, %lld without odometry), "

@@ -18,6 +18,13 @@ bool StopRequested();
 enum class LoopEnd { kSignal, kBusEnded, kIdle };
 const char* LoopEndName(LoopEnd e);
 
+// The exit status of a mapper that has nothing to write: 0 when it was stopped (systemctl stop,
+// Ctrl-C) before any input arrived (nothing lost), 1 otherwise (input came and none of it could
+// be used, or a log ended with nothing mapped: a fault to see).
+inline int NothingToWriteExit(LoopEnd end, int64_t inputs_in) {
+  return end == LoopEnd::kSignal && inputs_in == 0 ? 0 : 1;
+}
+
 struct NodeLoopOptions {
   double idle_exit_s = 0;  // > 0: stop this long after the last message once nothing is ready
 };
