@@ -1,5 +1,6 @@
 #include "omni/bus/slam_log.h"
 
+#include <cstdio>
 #include <fstream>
 
 #include "omni/bus/bus.h"
@@ -18,6 +19,16 @@ bool IsLcmLogFile(const std::string& path) {
   unsigned char b[4] = {0, 0, 0, 0};
   in.read(reinterpret_cast<char*>(b), 4);
   return in.gcount() == 4 && b[0] == 0xED && b[1] == 0xA1 && b[2] == 0xDA && b[3] == 0x01;
+}
+
+void ReportSlamLogProblems(const char* program, const std::string& input, const SlamLogResult& r) {
+  if (!r.stopped_early.empty())
+    std::fprintf(stderr, "%s: %s (stopping there)\n", program, r.stopped_early.c_str());
+  if (r.skipped_bytes > 0)
+    std::fprintf(stderr,
+                 "%s: warning: %llu corrupt bytes of %s skipped (the events in them are lost; "
+                 "stats.json skipped_bytes)\n",
+                 program, static_cast<unsigned long long>(r.skipped_bytes), input.c_str());
 }
 
 namespace {

@@ -142,13 +142,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-posegraph-slam: %s\n", read.error().message.c_str());
     return 1;
   }
-  if (!read->stopped_early.empty())
-    std::fprintf(stderr, "omni-posegraph-slam: %s (stopping there)\n", read->stopped_early.c_str());
-  if (read->skipped_bytes > 0)
-    std::fprintf(stderr,
-                 "omni-posegraph-slam: warning: %llu corrupt bytes of %s skipped (the events in "
-                 "them are lost; stats.json skipped_bytes)\n",
-                 static_cast<unsigned long long>(read->skipped_bytes), input.c_str());
+  omni::bus::ReportSlamLogProblems("omni-posegraph-slam", input, *read);
   slam.Finish();
   omni::pgm::SlamRunInfo info;
   info.input = input;

@@ -219,13 +219,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-slam: %s\n", read.error().message.c_str());
     return 1;
   }
-  if (!read->stopped_early.empty())
-    std::fprintf(stderr, "omni-slam: %s (stopping there)\n", read->stopped_early.c_str());
-  if (read->skipped_bytes > 0)
-    std::fprintf(stderr,
-                 "omni-slam: warning: %llu corrupt bytes of %s skipped (the events in them are "
-                 "lost; stats.json skipped_bytes)\n",
-                 static_cast<unsigned long long>(read->skipped_bytes), input.c_str());
+  omni::bus::ReportSlamLogProblems("omni-slam", input, *read);
   const int64_t decode_errors = read->decode_errors;
   const auto& c = slam.counters();
   const auto traj = slam.BestTrajectory();

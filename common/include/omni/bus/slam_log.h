@@ -46,6 +46,10 @@ struct SlamLogResult {
 
 bool IsLcmLogFile(const std::string& path);
 
+// Tells stderr, as `program`, where a read of `input` stopped early and how many corrupt bytes it
+// skipped (events lost), so no offline run loses data without a word.
+void ReportSlamLogProblems(const char* program, const std::string& input, const SlamLogResult& r);
+
 // Reads `path` and calls the handlers in file order. An unreadable file or a bad CARMEN line is
 // an error. Inside an LCM log a corrupt region is skipped to the next event (counted in
 // `skipped_bytes`: the events in it are lost, callers must say so) and a truncated last event
