@@ -11,8 +11,12 @@ namespace omni::io {
 
 LogOddsGrid::LogOddsGrid(const LogOddsOptions& options) : opt_(options) {}
 
-void LogOddsGrid::EnsureContains(int64_t cx, int64_t cy) {
-  if (w_ > 0 && cx >= min_cx_ && cy >= min_cy_ && cx < min_cx_ + w_ && cy < min_cy_ + h_) return;
+bool LogOddsGrid::EnsureContains(int64_t cx, int64_t cy) {
+  if (w_ > 0 && cx >= min_cx_ && cy >= min_cy_ && cx < min_cx_ + w_ && cy < min_cy_ + h_)
+    return true;
+  // Cells this far out (|index| > 2^40) cannot be held anyway; keeps the arithmetic in range.
+  constexpr int64_t kFar = int64_t{1} << 40;
+  if (cx > kFar || cx < -kFar || cy > kFar || cy < -kFar) return false;
   constexpr int64_t kChunk = 64;
   auto floor_chunk = [](int64_t v) {
     return (v >= 0 ? v / kChunk : (v - kChunk + 1) / kChunk) * kChunk;
@@ -35,7 +39,19 @@ void LogOddsGrid::EnsureContains(int64_t cx, int64_t cy) {
     ny1 = cy >= min_cy_ + h_ ? std::max(min_cy_ + h_ + gy, floor_chunk(cy) + 2 * kChunk)
                              : min_cy_ + h_;
   }
+  // In doubles: far cells would overflow the product.
+  auto too_big = [&](int64_t w, int64_t h) {
+    return static_cast<double>(w) * static_cast<double>(h) > static_cast<double>(opt_.max_cells);
+  };
+  if (w_ > 0 && too_big(nx1 - nx0, ny1 - ny0)) {
+    // The usual growth would pass the cap: grow only as far as the cell needs.
+    nx0 = std::min(min_cx_, floor_chunk(cx));
+    ny0 = std::min(min_cy_, floor_chunk(cy));
+    nx1 = std::max(min_cx_ + w_, floor_chunk(cx) + kChunk);
+    ny1 = std::max(min_cy_ + h_, floor_chunk(cy) + kChunk);
+  }
   const int64_t nw = nx1 - nx0, nh = ny1 - ny0;
+  if (too_big(nw, nh)) return false;
   std::vector<float> lo(static_cast<size_t>(nw * nh), 0.f);
   std::vector<uint8_t> seen(static_cast<size_t>(nw * nh), 0);
   for (int64_t y = 0; y < h_; ++y)
@@ -51,6 +67,7 @@ void LogOddsGrid::EnsureContains(int64_t cx, int64_t cy) {
   min_cy_ = ny0;
   w_ = nw;
   h_ = nh;
+  return true;
 }
 
 void LogOddsGrid::Update(int64_t cx, int64_t cy, float delta) {
@@ -59,12 +76,26 @@ void LogOddsGrid::Update(int64_t cx, int64_t cy, float delta) {
   seen_[i] = 1;
 }
 
+namespace {
+// The cell holding coordinate v; false when v is not finite or absurdly far (so the cast to an
+// integer stays defined).
+bool CellOf(double v, double res, int64_t* cell) {
+  const double c = std::floor(v / res);
+  if (!(std::abs(c) < 1e12)) return false;
+  *cell = static_cast<int64_t>(c);
+  return true;
+}
+}  // namespace
+
 int LogOddsGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<float>& ranges,
                                float angle_min, float angle_inc, float max_range) {
   const double res = opt_.resolution_m;
-  const int64_t sx = static_cast<int64_t>(std::floor(sensor_pose.x / res));
-  const int64_t sy = static_cast<int64_t>(std::floor(sensor_pose.y / res));
-  EnsureContains(sx, sy);
+  int64_t sx = 0, sy = 0;
+  if (!CellOf(sensor_pose.x, res, &sx) || !CellOf(sensor_pose.y, res, &sy) ||
+      !EnsureContains(sx, sy)) {
+    refused_beams_ += static_cast<int64_t>(ranges.size());
+    return 0;
+  }
   int used = 0;
   for (size_t i = 0; i < ranges.size(); ++i) {
     const double a = sensor_pose.theta + angle_min + static_cast<double>(i) * angle_inc;
@@ -80,9 +111,11 @@ int LogOddsGrid::IntegrateScan(const std::function<Pose2(size_t)>& sensor_pose_o
   int used = 0;
   for (size_t i = 0; i < ranges.size(); ++i) {
     const Pose2 sensor = sensor_pose_of_beam(i);
-    const int64_t sx = static_cast<int64_t>(std::floor(sensor.x / res));
-    const int64_t sy = static_cast<int64_t>(std::floor(sensor.y / res));
-    EnsureContains(sx, sy);
+    int64_t sx = 0, sy = 0;
+    if (!CellOf(sensor.x, res, &sx) || !CellOf(sensor.y, res, &sy) || !EnsureContains(sx, sy)) {
+      ++refused_beams_;
+      continue;
+    }
     const double a = sensor.theta + angle_min + static_cast<double>(i) * angle_inc;
     used += IntegrateBeam(sensor, sx, sy, a, ranges[i], max_range) ? 1 : 0;
   }
@@ -100,9 +133,11 @@ bool LogOddsGrid::IntegrateBeam(const Pose2& sensor, int64_t sx, int64_t sy, dou
   }
   const double ex = sensor.x + len * std::cos(a);
   const double ey = sensor.y + len * std::sin(a);
-  const int64_t tx = static_cast<int64_t>(std::floor(ex / res));
-  const int64_t ty = static_cast<int64_t>(std::floor(ey / res));
-  EnsureContains(tx, ty);
+  int64_t tx = 0, ty = 0;
+  if (!CellOf(ex, res, &tx) || !CellOf(ey, res, &ty) || !EnsureContains(tx, ty)) {
+    ++refused_beams_;
+    return false;
+  }
   // Bresenham from the sensor cell to the end cell; every cell before the end is free.
   int64_t x = sx, y = sy;
   const int64_t dx = std::abs(tx - sx), dy = -std::abs(ty - sy);

@@ -97,6 +97,10 @@ int main(int argc, char** argv) {
   hb.AddCounter("scans_lost", [&] { return c.scans_lost; });
   hb.AddCounter("odom_out_of_order", [&] { return c.odom_out_of_order; });
   hb.AddCounter("odom_invalid", [&] { return c.odom_invalid; });
+  hb.AddCounter("odom_jumps", [&] { return c.odom_jumps; });
+  hb.AddCounter("time_rebases", [&] { return c.time_rebases; });
+  hb.AddCounter("beams_beyond_grid_cap", [&] { return c.beams_beyond_grid_cap; });
+  hb.AddCounter("scans_duplicate", [&] { return c.scans_duplicate; });
   hb.AddCounter("sweeps_corrected", [&] { return c.sweeps_corrected; });
   hb.AddCounter("sweeps_uncorrected", [&] { return c.sweeps_uncorrected; });
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
@@ -169,13 +173,16 @@ int main(int argc, char** argv) {
   }
   std::printf(
       "odom_mapper: mapped %lld of %lld scans received (%lld lost on the bus, %lld without pose, "
-      "%lld too few beams, %lld invalid beams, "
-      "%lld decode errors); map %dx%d cells at %.3f m -> %s.{pgm,yaml,png}, "
-      "%s/odom_trajectory.{txt,png}\n",
+      "%lld too few beams, %lld invalid beams, %lld duplicates, %lld decode errors; odometry: "
+      "%lld jumps bridged, %lld future stamps dropped; %lld beams beyond the grid's cap); map "
+      "%dx%d cells at %.3f m -> %s.{pgm,yaml,png}, %s/odom_trajectory.{txt,png}\n",
       static_cast<long long>(c.scans_mapped), static_cast<long long>(c.scans_in),
       static_cast<long long>(c.scans_lost), static_cast<long long>(c.scans_no_pose),
       static_cast<long long>(c.scans_too_few_beams), static_cast<long long>(c.invalid_beams),
-      static_cast<long long>(bus.counters().decode_errors.load()), map.width, map.height,
-      map.resolution_m, (out_dir + "/odom_map").c_str(), out_dir.c_str());
+      static_cast<long long>(c.scans_duplicate),
+      static_cast<long long>(bus.counters().decode_errors.load()),
+      static_cast<long long>(c.odom_jumps), static_cast<long long>(c.time_rebases),
+      static_cast<long long>(c.beams_beyond_grid_cap), map.width, map.height, map.resolution_m,
+      (out_dir + "/odom_map").c_str(), out_dir.c_str());
   return 0;
 }

@@ -11,6 +11,10 @@ Result<OdomMapperOptions> OdomMapperOptions::Load(ConfigReader& r) {
   r.Get("min_valid_beams", &o.min_valid_beams, Optional(), InRange(1, 100000));
   r.Get("max_hit_range_m", &o.max_hit_range_m, Optional(), Positive<double>());
   r.Get("publish_interval_s", &o.publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
+  r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
+  r.Get("max_grid_cells", &o.max_grid_cells, Optional(),
+        InRange<int64_t>(int64_t{1} << 16, int64_t{1} << 34));
   r.Get("scan_channel", &o.scan_channel, Optional(), NonEmpty());
   r.Get("odom_channel", &o.odom_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
@@ -23,6 +27,7 @@ io::LogOddsOptions GridOptions(const OdomMapperOptions& o) {
   io::LogOddsOptions g;
   g.resolution_m = o.resolution_m;
   g.max_hit_range_m = static_cast<float>(o.max_hit_range_m);
+  g.max_cells = o.max_grid_cells;
   return g;
 }
 }  // namespace
@@ -36,15 +41,36 @@ bool OdomMapper::AddOdometry(int64_t utime, const Pose2& pose) {
     ++counters_.odom_invalid;
     return false;
   }
-  if (!odom_.Insert(utime, pose)) {
+  // A jump against the newest sample (the order is the buffer's to judge; a sample it rejects
+  // must not move the correction).
+  Pose2 correction = correction_;
+  bool jump = false;
+  if (last_raw_ && utime >= odom_.newest_utime()) {
+    const Pose2 d = last_raw_->Between(pose);
+    if (std::hypot(d.x, d.y) > opt_.max_odom_jump_m || std::abs(d.theta) > opt_.max_odom_jump_rad) {
+      jump = true;
+      correction = (correction_ * *last_raw_) * pose.Inverse();
+    }
+  }
+  const int64_t rebases = odom_.rebases();
+  if (!odom_.Insert(utime, correction * pose)) {
     ++counters_.odom_out_of_order;
     return false;
   }
+  counters_.time_rebases += odom_.rebases() - rebases;
+  if (jump) ++counters_.odom_jumps;
+  correction_ = correction;
+  last_raw_ = pose;
   return true;
 }
 
 bool OdomMapper::AddScan(const Scan& scan) {
   ++counters_.scans_in;
+  if (scan.seq >= 0 && scan.seq == last_seq_ && scan.utime == last_scan_utime_) {
+    ++counters_.scans_duplicate;  // the same scan again (a repeating driver or bridge)
+    return false;
+  }
+  last_scan_utime_ = scan.utime;
   if (scan.seq >= 0) {
     if (last_seq_ >= 0 && scan.seq > last_seq_ + 1)
       counters_.scans_lost += scan.seq - last_seq_ - 1;
@@ -92,6 +118,7 @@ bool OdomMapper::AddScan(const Scan& scan) {
     }
     ++(beam_pose.empty() ? counters_.sweeps_uncorrected : counters_.sweeps_corrected);
   }
+  const int64_t refused = grid_.refused_beams();
   if (beam_pose.empty()) {
     grid_.IntegrateScan(*pose * scan.sensor_in_base, ranges, scan.angle_min_rad,
                         scan.angle_increment_rad, scan.range_max_m);
@@ -99,6 +126,7 @@ bool OdomMapper::AddScan(const Scan& scan) {
     grid_.IntegrateScan([&](size_t i) { return beam_pose[i]; }, ranges, scan.angle_min_rad,
                         scan.angle_increment_rad, scan.range_max_m);
   }
+  counters_.beams_beyond_grid_cap += grid_.refused_beams() - refused;
   trajectory_.push_back({scan.utime, scan.seq, *pose});
   ++counters_.scans_mapped;
   return true;

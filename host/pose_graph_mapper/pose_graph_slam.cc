@@ -167,10 +167,34 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
     ++c_.odom_invalid;
     return;
   }
-  if (have_odom_ && utime < last_odom_utime_) {
-    ++c_.odom_out_of_order;
-    return;
+  switch (odom_order_.Check(utime)) {
+    case StampOrder::Verdict::kOld:
+      if (odom_order_.run_length() == 1) odom_run_.clear();
+      odom_run_.emplace_back(utime, raw);
+      ++c_.odom_out_of_order;
+      return;
+    case StampOrder::Verdict::kRebase: {
+      // The newest samples were stamped ahead of the stream: drop them, continue from the run.
+      ++c_.time_rebases;
+      odom_.DropFrom(odom_order_.run_first());
+      have_odom_ = !odom_.empty();
+      if (have_odom_) {
+        last_odom_utime_ = last_odom_internal_ = odom_.newest_utime();
+        last_corrected_ = odom_.newest_pose();
+        last_raw_ = correction_.Inverse() * last_corrected_;
+      }
+      const std::vector<std::pair<int64_t, Pose2>> run = std::move(odom_run_);
+      odom_run_.clear();
+      for (const auto& [t, p] : run) TakeOdometry(t, p);
+      break;
+    }
+    case StampOrder::Verdict::kInOrder:
+      break;
   }
+  TakeOdometry(utime, raw);
+}
+
+void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
   const int64_t internal = have_odom_ ? std::max(utime, last_odom_internal_ + 1) : utime;
   if (have_odom_) {
     const Pose2 step = last_raw_.Between(raw);

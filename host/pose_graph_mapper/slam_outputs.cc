@@ -54,7 +54,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"scans_too_few_beams\": %lld, \"scans_bad_geometry\": %lld, \"scans_no_odom\": %lld, "
       "\"invalid_beams\": %lld, "
       "\"odom_invalid\": %lld, \"odom_out_of_order\": %lld, \"odom_jumps\": %lld, "
-      "\"decode_errors\": %lld, \"keyframes\": %lld, \"scan_match_factors\": %lld, "
+      "\"time_rebases\": %lld, \"decode_errors\": %lld, \"keyframes\": %lld, "
+      "\"scan_match_factors\": %lld, "
       "\"scan_match_failures\": %lld, \"loops_accepted\": %lld, \"loops_rejected\": %lld, "
       "\"loops_inconsistent\": %lld, \"window_updates\": %lld, \"window_failures\": %lld, "
       "\"covariance_failures\": %lld, \"latency_p50_ms\": %.3f, "
@@ -63,12 +64,12 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
       info.wall_s, ll(c.scans_in), ll(c.scans_used), ll(c.scans_time_backwards),
       ll(c.scans_too_few_beams), ll(c.scans_bad_geometry), ll(c.scans_no_odom), ll(c.invalid_beams),
-      ll(c.odom_invalid), ll(c.odom_out_of_order), ll(c.odom_jumps), ll(info.decode_errors),
-      ll(c.keyframes), ll(c.scan_match_factors), ll(c.scan_match_failures), ll(c.loops_accepted),
-      ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates), ll(c.window_failures),
-      ll(c.covariance_failures), Percentile(lat, 0.5), Percentile(lat, 0.99), Percentile(lat, 1.0),
-      ll(c.global_optimizations), ll(c.global_failures), Percentile(glat, 0.5),
-      Percentile(glat, 1.0));
+      ll(c.odom_invalid), ll(c.odom_out_of_order), ll(c.odom_jumps), ll(c.time_rebases),
+      ll(info.decode_errors), ll(c.keyframes), ll(c.scan_match_factors), ll(c.scan_match_failures),
+      ll(c.loops_accepted), ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates),
+      ll(c.window_failures), ll(c.covariance_failures), Percentile(lat, 0.5), Percentile(lat, 0.99),
+      Percentile(lat, 1.0), ll(c.global_optimizations), ll(c.global_failures),
+      Percentile(glat, 0.5), Percentile(glat, 1.0));
   std::fprintf(
       f,
       ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "

@@ -108,11 +108,15 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("frames_dropped_queue", [&pc] { return pc.frames_dropped_queue; });
   heartbeat_.AddCounter("out_of_order",
                         [&pc] { return pc.frames_out_of_order + pc.poses_out_of_order; });
+  heartbeat_.AddCounter("time_rebases",
+                        [&pc, &c] { return pc.time_rebases + c.color_time_rebases; });
+  heartbeat_.AddCounter("frames_dropped_future", [&pc] { return pc.frames_dropped_future; });
   heartbeat_.AddCounter("decode_errors", [this] {
     return depth_decode_errors_ + bus_->counters().decode_errors.load();
   });
   heartbeat_.AddCounter("frames_inserted", [&c] { return c.frames_inserted; });
   heartbeat_.AddCounter("frames_invalid", [&c] { return c.frames_invalid; });
+  heartbeat_.AddCounter("frames_out_of_range", [&c] { return c.frames_out_of_range; });
   heartbeat_.AddCounter("last_frame_us", [&c] { return c.last_frame_us; });
   if (options_.color) {
     heartbeat_.AddCounter("color_frames_in", [&c] { return c.color_frames_in; });

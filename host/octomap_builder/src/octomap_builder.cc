@@ -219,25 +219,37 @@ OctomapPipeline::OctomapPipeline(const OctomapBuilderOptions& options)
     : builder_(options), poser_(options.poser) {}
 
 void OctomapPipeline::AddPose(int64_t utime, const Pose2& robot_in_map) {
-  newest_utime_ = std::max(newest_utime_, utime);
   poser_.AddPose(utime, robot_in_map);
 }
 
 void OctomapPipeline::AddDepth(DepthImage image) {
   const int64_t t = image.utime;
-  newest_utime_ = std::max(newest_utime_, t);
   poser_.AddFrame(t, std::move(image));
+}
+
+int64_t OctomapPipeline::newest_utime() const {
+  return std::max({poser_.newest_pose_utime(), poser_.newest_frame_utime(),
+                   color_order_.have() ? color_order_.newest() : int64_t{0}});
 }
 
 void OctomapPipeline::AddColor(ColorImage image) {
   const OctomapBuilderOptions& o = builder_.options();
   if (!o.color) return;
   ++counters_.color_frames_in;
-  if (!colors_.empty() && image.utime < colors_.back().image.utime) {
-    ++counters_.color_out_of_order;
-    return;
+  switch (color_order_.Check(image.utime)) {
+    case StampOrder::Verdict::kOld:
+      ++counters_.color_out_of_order;
+      return;
+    case StampOrder::Verdict::kRebase:  // the newest colour frames were stamped in the future
+      ++counters_.color_time_rebases;
+      while (!colors_.empty() && colors_.back().image.utime > image.utime) {
+        counters_.color_dropped += !colors_.back().used;
+        colors_.pop_back();
+      }
+      break;
+    case StampOrder::Verdict::kInOrder:
+      break;
   }
-  newest_utime_ = std::max(newest_utime_, image.utime);
   colors_.push_back({std::move(image), false});
   while (colors_.size() > o.color_queue) {
     counters_.color_dropped += !colors_.front().used;
@@ -282,6 +294,12 @@ void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
     last_error_ = st.error().message;
     return;
   }
+  if (st->points > 0 && st->insert.free_keys + st->insert.occupied_keys == 0) {
+    ++counters_.frames_out_of_range;
+    last_error_ = "depth frame " + std::to_string(posed.utime) +
+                  ": no point inside the octree's key range (pose far out of the map)";
+    return;
+  }
   ++counters_.frames_inserted;
   counters_.points_inserted += static_cast<int64_t>(st->points);
   counters_.last_frame_us = ParallelKeySetInserter::NowMicros() - t0;
@@ -303,7 +321,7 @@ int OctomapPipeline::Process(int64_t now_utime) {
   return n + PairAndInsert(now_utime, false);
 }
 
-int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime_, true); }
+int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime(), true); }
 
 int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
   const OctomapBuilderOptions& o = builder_.options();

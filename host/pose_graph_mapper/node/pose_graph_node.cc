@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 
 #include "omni/bus/convert.h"
+#include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/imu_t.hpp"
 #include "omni/laser_scan_t.hpp"
@@ -26,6 +27,12 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
       heartbeat_(bus, "pose_graph_mapper", clock) {
   bus_->Subscribe<omni::laser_scan_t>(
       o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
+        if (m.seq >= 0 && m.seq == last_seq_ && m.utime == last_scan_utime_) {
+          ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
+          ++bus_->counters().drops;
+          return;
+        }
+        last_scan_utime_ = m.utime;
         if (m.seq >= 0) {
           if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
           last_seq_ = m.seq;
@@ -134,6 +141,10 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("absolute_wrong_frame", [this] { return absolute_wrong_frame_; });
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
   heartbeat_.AddCounter("scans_forced", [this] { return scans_forced_; });
+  heartbeat_.AddCounter("time_rebases",
+                        [this, &c] { return c.time_rebases + scan_order_.rebases(); });
+  heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
+  heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });
   heartbeat_.AddCounter("max_scans_queued", [this] { return max_queued_scans_; });
@@ -142,7 +153,23 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
 
 void PoseGraphNode::OnMessage(Item item) {
   // Absolute poses may come late by design: they do not advance the time scans wait against.
-  if (item.kind != Kind::kAbsolute) newest_msg_utime_ = std::max(newest_msg_utime_, item.utime);
+  if (item.kind == Kind::kScan && scan_order_.Check(item.utime) == StampOrder::Verdict::kRebase) {
+    // In-order scans older than the queue's newest keep coming: those newer than this one were
+    // stamped in the future and would hold the queue waiting for odometry that never comes.
+    const size_t before = queue_.size();
+    queue_.erase(std::remove_if(
+                     queue_.begin(), queue_.end(),
+                     [&](const Item& q) { return q.kind == Kind::kScan && q.utime > item.utime; }),
+                 queue_.end());
+    const size_t dropped = before - queue_.size();
+    queued_scans_ -= dropped;
+    scans_future_dropped_ += static_cast<int64_t>(dropped);
+    bus_->counters().drops += static_cast<int64_t>(dropped);
+    LOG_WARN << dropped
+             << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+  }
+  // The mapper re-bases its own odometry; this only keeps the staleness clock honest.
+  if (item.kind == Kind::kOdometry) (void)odom_order_.Check(item.utime);
   if (item.kind == Kind::kScan) {
     ++queued_scans_;
     max_queued_scans_ = std::max(max_queued_scans_, static_cast<int64_t>(queued_scans_));
@@ -199,7 +226,7 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
         covered = true;
       }
     }
-    const bool stale = newest_msg_utime_ - t > wait;
+    const bool stale = std::max(scan_order_.newest(), odom_order_.newest()) - t > wait;
     if (!covered && !stale && !all) break;
     if (!covered) ++scans_forced_;
     HandleScan(queue_.front().scan);
@@ -212,7 +239,7 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
 
 void PoseGraphNode::HandOdometry(const Item& odom) {
   slam_.AddOdometry(odom.utime, odom.odom);
-  handed_odom_utime_ = std::max(handed_odom_utime_, odom.utime);
+  handed_odom_utime_ = slam_.newest_odom_utime();  // moves back when the mapper re-bases
 }
 
 void PoseGraphNode::HandleScan(const LaserScan2& scan) {

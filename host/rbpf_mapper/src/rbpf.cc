@@ -171,18 +171,31 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
     ++counters_.odom_invalid;
     return false;
   }
+  const int64_t rebases = odom_buffer_.rebases();
   if (!odom_buffer_.Insert(utime, p)) {
     ++counters_.odom_out_of_order;
     return false;
   }
+  counters_.time_rebases += odom_buffer_.rebases() - rebases;
   return true;
 }
 
 bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
   ++counters_.imu_in;
-  if (!std::isfinite(rate) || (!imu_.empty() && utime < imu_.back().first)) {
+  if (!std::isfinite(rate)) {
     ++counters_.imu_invalid;
     return false;
+  }
+  switch (imu_order_.Check(utime)) {
+    case StampOrder::Verdict::kOld:
+      ++counters_.imu_invalid;
+      return false;
+    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
+      ++counters_.time_rebases;
+      while (!imu_.empty() && imu_.back().first > utime) imu_.pop_back();
+      break;
+    case StampOrder::Verdict::kInOrder:
+      break;
   }
   imu_.emplace_back(utime, rate);
   while (imu_.size() > 100000) imu_.pop_front();
@@ -208,7 +221,7 @@ std::optional<double> RbpfSlam::ImuYawIncrement(int64_t t0, int64_t t1) const {
 }
 
 std::optional<Pose2> RbpfSlam::RawOdometryAt(int64_t utime) const {
-  return odom_buffer_.At(utime, static_cast<int64_t>(opt_.max_odom_gap_s * 1e6));
+  return odom_buffer_.At(utime, static_cast<int64_t>(opt_.max_odom_gap_s * 1e6), kMaxOdomSpanUs);
 }
 
 std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
@@ -236,9 +249,12 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
   ++counters_.scans_in;
   const int64_t index = next_scan_index_++;
   res.scan_index = index;
-  if (scan.utime < last_scan_utime_) {
-    ++counters_.scans_time_backwards;
-    return res;
+  if (scan_order_.have() && scan.utime < scan_order_.newest()) {
+    if (scan_order_.Check(scan.utime) != StampOrder::Verdict::kRebase) {
+      ++counters_.scans_time_backwards;
+      return res;
+    }
+    ++counters_.time_rebases;  // the newest accepted scan was stamped in the future
   }
   if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
                              scan.range_max_m, scan.sensor_in_base)) {
@@ -250,7 +266,7 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
     ++counters_.scans_no_odom;
     return res;
   }
-  last_scan_utime_ = scan.utime;
+  (void)scan_order_.Check(scan.utime);  // accepted: in order from here on
   // Accepted: it gets a pose, from the filter or by odometry.
   res.accepted = true;
   const bool first = !have_update_;
@@ -302,7 +318,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   if (scan.scan_time_s > 0 && scan.scan_time_s <= 1.f && scan.ranges_m.size() > 1) {
     const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
     const auto a = RawOdometryAt(scan.utime);
-    const auto b = odom_buffer_.At(t1);
+    const auto b = odom_buffer_.At(t1, 0, kMaxOdomSpanUs);
     // An odometry jump inside the sweep is not motion: the scan is then used as it is.
     const std::optional<Pose2> m = a && b ? std::optional<Pose2>(a->Between(*b)) : std::nullopt;
     if (m && std::hypot(m->x, m->y) <= opt_.max_odom_jump_m &&

@@ -1,9 +1,11 @@
 #include "omni/rbpf_mapper/rbpf_node.h"
 
+#include <algorithm>
 #include <climits>
 #include <cmath>
 
 #include "omni/bus/convert.h"
+#include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/imu_t.hpp"
 #include "omni/io/grid.h"
@@ -38,9 +40,9 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
     if (!slam_.AddOdometry(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad))) {
       ++bus_->counters().drops;
     } else {
-      newest_odom_utime_ = std::max(newest_odom_utime_, m.utime);
+      // The buffer's newest, which moves back when a future-stamped sample is dropped.
+      newest_odom_utime_ = slam_.newest_odom_utime();
     }
-    newest_msg_utime_ = std::max(newest_msg_utime_, m.utime);
     AttachOdometry();
     if (!deferred_) Drain(false, INT32_MAX);
   });
@@ -55,6 +57,10 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("scans_gated", [&c] { return c.scans_gated; });
   heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
   heartbeat_.AddCounter("scans_time_backwards", [&c] { return c.scans_time_backwards; });
+  heartbeat_.AddCounter("time_rebases",
+                        [this, &c] { return c.time_rebases + scan_order_.rebases(); });
+  heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
+  heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
   heartbeat_.AddCounter("scans_bad_geometry", [&c] { return c.scans_bad_geometry; });
   heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
@@ -75,11 +81,28 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
 }
 
 void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
+  if (seq >= 0 && seq == last_seq_ && scan.utime == last_scan_utime_) {
+    ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
+    ++bus_->counters().drops;
+    return;
+  }
+  last_scan_utime_ = scan.utime;
   if (seq >= 0) {
     if (last_seq_ >= 0 && seq > last_seq_ + 1) scans_lost_ += seq - last_seq_ - 1;
     last_seq_ = seq;
   }
-  newest_msg_utime_ = std::max(newest_msg_utime_, scan.utime);
+  if (scan_order_.Check(scan.utime) == StampOrder::Verdict::kRebase) {
+    // In-order scans older than the queue's newest keep coming: those newer than this one were
+    // stamped in the future and would block the queue waiting for odometry that never comes.
+    const size_t before = pending_.size();
+    pending_.erase(std::remove_if(pending_.begin(), pending_.end(),
+                                  [&](const ScanInput& s) { return s.utime > scan.utime; }),
+                   pending_.end());
+    scans_future_dropped_ += static_cast<int64_t>(before - pending_.size());
+    bus_->counters().drops += static_cast<int64_t>(before - pending_.size());
+    LOG_WARN << before - pending_.size()
+             << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+  }
   pending_.push_back(scan);
   AttachOdometry();
   max_pending_seen_ = std::max(max_pending_seen_, static_cast<int64_t>(pending_.size()));
@@ -88,6 +111,10 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
     pending_.pop_front();
   }
   if (!deferred_) Drain(false, INT32_MAX);
+}
+
+int64_t RbpfNode::NewestMessageUtime() const {
+  return std::max(newest_odom_utime_, scan_order_.newest());
 }
 
 int RbpfNode::ProcessReady(int max_scans) { return Drain(false, max_scans); }
@@ -111,7 +138,7 @@ int RbpfNode::Drain(bool all, int max_scans) {
     // Odometry up to the last beam, so a sweep can be corrected for the base's motion.
     const int64_t last_beam = s.utime + std::llround(static_cast<double>(s.scan_time_s) * 1e6);
     const bool odom_ready = newest_odom_utime_ != INT64_MIN && newest_odom_utime_ >= last_beam;
-    const bool stale = newest_msg_utime_ - s.utime > gap;
+    const bool stale = NewestMessageUtime() - s.utime > gap;
     if (!all && !odom_ready && !stale) break;
     Process(s);
     pending_.pop_front();

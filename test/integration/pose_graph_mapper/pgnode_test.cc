@@ -262,6 +262,49 @@ struct MemqNode {
 // The process defers the mapper and drains the socket first; a scan must still use the odometry
 // that had arrived when it was covered, not a later sample with the same stamp (Intel's log
 // repeats stamps).
+// One odometry message and one scan stamped an hour ahead, and one scan published twice, in
+// the middle of a run: the node drops them, says so in its heartbeat, and maps on as if they
+// had not come (before, the future odometry froze the odometry and the future scan held the
+// queue until the queue's cap forced it).
+TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  constexpr int kScans = 120;
+  auto run = [&](bool glitch, std::vector<omni::pose2d_t>* poses, omni::heartbeat_t* hb) {
+    auto bus_or = bus::Bus::Create("memq://");
+    ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+    auto& b = **bus_or;
+    ManualClock clock(1000000);
+    pgm::PoseGraphNode node(&b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{},
+                            pgm::BatchOptions{}, &clock);
+    b.Subscribe<omni::pose2d_t>("POSE_PG",
+                                [&](const omni::pose2d_t& p, int64_t) { poses->push_back(p); });
+    b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
+                                   [&](const omni::heartbeat_t& h, int64_t) { *hb = h; });
+    testing::PublishCarmenWithGlitches(b, clf, kScans, glitch ? 40 : -1, glitch ? 70 : -1,
+                                       glitch ? 90 : -1, [&](int) { clock.Advance(100000); });
+    node.Flush();
+    node.heartbeat().Tick(true);
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  std::vector<omni::pose2d_t> clean, glitched;
+  omni::heartbeat_t hb_clean{}, hb{};
+  run(false, &clean, &hb_clean);
+  run(true, &glitched, &hb);
+  ASSERT_GE(clean.size(), static_cast<size_t>(kScans - 1));
+  EXPECT_EQ(testing::HeartbeatCounter(hb_clean, "time_rebases"), 0);
+  EXPECT_EQ(glitched.size(), clean.size());
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "time_rebases"), 2);  // the odometry's and the scans'
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 1);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_duplicate"), 1);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_forced"), 0);
+  for (const auto& p : glitched) EXPECT_LT(p.utime, clean.back().utime + 1000000);
+  EXPECT_EQ(glitched.back().utime, clean.back().utime);
+  EXPECT_LT(
+      std::hypot(glitched.back().x_m - clean.back().x_m, glitched.back().y_m - clean.back().y_m),
+      0.05);
+}
+
 TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   MemqNode n;
   n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));

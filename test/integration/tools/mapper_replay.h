@@ -6,16 +6,21 @@
 
 #include <cstdint>
 #include <fstream>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
+#include "omni/common/geometry.h"
 #include "omni/eval/eval.h"
+#include "omni/heartbeat_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
+#include "omni/odometry_t.hpp"
 #include "run.h"
 
 namespace omni::testing {
@@ -77,6 +82,65 @@ inline RunResult RunReplayInNetns(const std::string& dir, const std::vector<std:
       << "\nrc=$?\nfor p in $pids; do wait $p || rc=$((rc + 1)); done\nexit $rc\n";
   }
   return Run("timeout 250 unshare -n bash " + dir + "/run.sh");
+}
+
+// The value of a heartbeat's counter `name` (a test failure when it has none).
+inline int64_t HeartbeatCounter(const omni::heartbeat_t& h, const std::string& name) {
+  for (size_t i = 0; i < h.counter_names.size(); ++i)
+    if (h.counter_names[i] == name) return h.counter_values[i];
+  ADD_FAILURE() << "no heartbeat counter " << name;
+  return -1;
+}
+
+// Publishes the first `scans` laser scans of a CARMEN log on `bus`, each after five WHEEL_ODOM
+// messages interpolated from the previous scan's robot pose to its own (odometry at about five
+// times the scan rate, as on the robot), handling the bus after each scan and calling
+// `step(i)`. After scan `future_odom_at` one extra odometry message stamped an hour ahead is
+// published, after scan `future_scan_at` one extra scan stamped so, and scan `duplicate_at` is
+// published twice (-1: none): the bad stamps a glitching clock or a corrupt field produce.
+template <typename Step>
+void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans, int future_odom_at,
+                               int future_scan_at, int duplicate_at, Step step) {
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  constexpr int64_t kHourUs = 3600LL * 1000000;
+  constexpr int kOdomPerScan = 5;
+  int64_t seq = 0, odom_seq = 0;
+  std::optional<io::CarmenOdom> prev;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    omni::odometry_t odom{};
+    for (int k = prev ? 1 : kOdomPerScan; k <= kOdomPerScan; ++k) {
+      io::CarmenOdom at = o;
+      if (prev) {
+        const double f = static_cast<double>(k) / kOdomPerScan;
+        at.timestamp_s = prev->timestamp_s + f * (o.timestamp_s - prev->timestamp_s);
+        at.pose = Interpolate(prev->pose, o.pose, f);
+      }
+      odom = bus::ToOdometry(at, odom_seq++);
+      bus.Publish("WHEEL_ODOM", odom);
+    }
+    prev = o;
+    const auto scan = bus::ToLaserScan(r.laser, seq);
+    for (int k = 0; k < (seq == duplicate_at ? 2 : 1); ++k) bus.Publish("LIDAR_SCAN", scan);
+    if (seq == future_odom_at) {
+      auto late = odom;
+      late.utime += kHourUs;
+      bus.Publish("WHEEL_ODOM", late);
+    }
+    if (seq == future_scan_at) {
+      auto late = scan;
+      late.utime += kHourUs;
+      bus.Publish("LIDAR_SCAN", late);
+    }
+    while (bus.HandleTimeout(0) > 0) {
+    }
+    step(static_cast<int>(seq));
+    if (++seq >= scans) break;
+  }
 }
 
 }  // namespace omni::testing

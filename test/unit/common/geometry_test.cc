@@ -50,6 +50,47 @@ TEST(Geometry, StampedBufferInterpolatesAndRejectsOutOfOrder) {
   EXPECT_FALSE(buf.At(100, 0));
 }
 
+// One sample stamped an hour ahead must not shut the stream out: after five in-order samples
+// older than it, the buffer drops it and keeps the five (nothing of the real stream is lost).
+TEST(Geometry, StampedBufferRecoversFromAFutureStamp) {
+  StampedBuffer<Pose2> buf;
+  for (int i = 0; i < 10; ++i) EXPECT_TRUE(buf.Insert(i * 1000, Pose2(i, 0, 0)));
+  EXPECT_TRUE(buf.Insert(3600000000LL, Pose2(99, 99, 0)));  // the glitch
+  for (int i = 10; i < 14; ++i) EXPECT_FALSE(buf.Insert(i * 1000, Pose2(i, 0, 0)));
+  EXPECT_EQ(buf.rebases(), 0);
+  EXPECT_TRUE(buf.Insert(14000, Pose2(14, 0, 0)));  // fifth in a row: re-based
+  EXPECT_EQ(buf.rebases(), 1);
+  EXPECT_EQ(buf.dropped_on_rebase(), 1);
+  EXPECT_EQ(buf.newest_utime(), 14000);
+  EXPECT_EQ(buf.size(), 15u);
+  auto p = buf.At(12500);
+  ASSERT_TRUE(p);
+  EXPECT_NEAR(p->x, 12.5, 1e-12);
+  EXPECT_TRUE(buf.Insert(15000, Pose2(15, 0, 0)));
+  // A single late sample stays a rejection, and so do runs broken by disorder.
+  EXPECT_FALSE(buf.Insert(9500, Pose2(0, 0, 0)));
+  for (int i = 0; i < 8; ++i) EXPECT_FALSE(buf.Insert(i % 2 ? 9000 : 8000, Pose2(0, 0, 0)));
+  EXPECT_EQ(buf.rebases(), 1);
+}
+
+TEST(StampOrder, RebasesOnlyOnAConsistentRun) {
+  StampOrder o(3);
+  EXPECT_EQ(o.Check(100), StampOrder::Verdict::kInOrder);
+  EXPECT_EQ(o.Check(100), StampOrder::Verdict::kInOrder);  // equal stamps are in order
+  EXPECT_EQ(o.Check(50), StampOrder::Verdict::kOld);
+  EXPECT_EQ(o.Check(40), StampOrder::Verdict::kOld);  // goes back within the run: new run
+  EXPECT_EQ(o.Check(41), StampOrder::Verdict::kOld);
+  EXPECT_EQ(o.run_length(), 2);
+  EXPECT_EQ(o.Check(120), StampOrder::Verdict::kInOrder);  // an in-order stamp ends the run
+  EXPECT_EQ(o.Check(60), StampOrder::Verdict::kOld);
+  EXPECT_EQ(o.Check(61), StampOrder::Verdict::kOld);
+  EXPECT_EQ(o.Check(62), StampOrder::Verdict::kRebase);  // the source's clock went back
+  EXPECT_EQ(o.run_first(), 60);
+  EXPECT_EQ(o.newest(), 62);
+  EXPECT_EQ(o.rebases(), 1);
+  EXPECT_EQ(o.Check(63), StampOrder::Verdict::kInOrder);
+}
+
 TEST(Geometry, Se3InterpolationSlerps) {
   Eigen::Isometry3d a = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d b = Eigen::Isometry3d::Identity();

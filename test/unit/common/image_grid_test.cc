@@ -69,6 +69,23 @@ TEST(Grid, NanAndNegativeRangesAreIgnored) {
   EXPECT_EQ(g.IntegrateScan(Pose2(), ranges, 0.f, 0.1f, 30.f), 0);
 }
 
+TEST(Grid, AbsurdPosesAreRefusedNotAllocated) {
+  LogOddsOptions o;
+  o.max_cells = 1 << 20;
+  LogOddsGrid g(o);
+  std::vector<float> ranges(100, 2.f);
+  EXPECT_EQ(g.IntegrateScan(Pose2(), ranges, -0.5f, 0.01f, 30.f), 100);
+  const size_t cells = g.allocated_cells();
+  EXPECT_EQ(g.IntegrateScan(Pose2(1e4, 0, 0), ranges, -0.5f, 0.01f, 30.f), 0);  // 10 km out
+  EXPECT_EQ(g.IntegrateScan(Pose2(1e300, 0, 0), ranges, -0.5f, 0.01f, 30.f), 0);
+  EXPECT_EQ(g.IntegrateScan(Pose2(0, -1e18, 0), ranges, -0.5f, 0.01f, 30.f), 0);
+  EXPECT_EQ(g.refused_beams(), 300);
+  EXPECT_EQ(g.allocated_cells(), cells);
+  // Nearby, the grid grows as before, up to the cap.
+  EXPECT_EQ(g.IntegrateScan(Pose2(20, 0, 0), ranges, -0.5f, 0.01f, 30.f), 100);
+  EXPECT_LE(static_cast<int64_t>(g.allocated_cells()), o.max_cells);
+}
+
 TEST(Grid, MapServerRoundTrip) {
   GridMap m;
   m.resolution_m = 0.1;

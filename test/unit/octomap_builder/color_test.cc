@@ -392,6 +392,29 @@ TEST(MapOutput, ColorTreeSavesAndLoadsBackAsColorOcTree) {
   EXPECT_GT(view.width, 10);
 }
 
+// A pose 10^7 m out puts every point of the frame outside the octree's key range (about
+// +-1638 m at 5 cm): nothing is mapped, and the frame is counted as such, not as inserted.
+TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
+  OctomapBuilderOptions opt = ColorOptions();
+  opt.color = false;
+  OctomapPipeline p(opt);
+  const int64_t t0 = 1000000000;
+  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+  p.AddPose(t0, Pose2(0, 0, 0));
+  p.AddPose(t0 + 100000, Pose2(0, 0, 0));
+  d.utime = t0 + 50000;
+  p.AddDepth(d);
+  EXPECT_EQ(p.Process(t0 + 100000), 1);
+  p.AddPose(t0 + 200000, Pose2(1e7, 0, 0));
+  p.AddPose(t0 + 300000, Pose2(1e7, 0, 0));
+  d.utime = t0 + 250000;
+  p.AddDepth(d);
+  EXPECT_EQ(p.Process(t0 + 300000), 0);
+  EXPECT_EQ(p.counters().frames_inserted, 1);
+  EXPECT_EQ(p.counters().frames_out_of_range, 1);
+  EXPECT_NE(p.last_error().find("key range"), std::string::npos) << p.last_error();
+}
+
 // Pipeline pairing: poses every 100 ms, depth frames at 50 ms offsets.
 TEST(ColorOctomap, PipelinePairsNearestColorAndCountsTheRest) {
   OctomapBuilderOptions opt = ColorOptions();

@@ -115,6 +115,22 @@ TEST(DepthDecode, RawZlibAndDeltaZlibRoundTrip) {
   EXPECT_FALSE(DecodeDepthData(7, raw.data(), raw.size(), w, h, &out).ok());
 }
 
+// A header claiming 16384 x 16384 (512 MB once inflated) is refused before anything is
+// allocated, whatever the payload; real cameras' sizes pass.
+TEST(DepthDecode, RefusesFramesLargerThanAnyDepthCamera) {
+  std::vector<uint8_t> z(64, 0);
+  std::vector<uint16_t> out;
+  const Status s = DecodeDepthData(1, z.data(), z.size(), 16384, 16384, &out);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("not plausible"), std::string::npos) << s.message();
+  EXPECT_TRUE(out.empty());
+  EXPECT_FALSE(DecodeDepthData(1, z.data(), z.size(), 4096, 2048, &out).ok());
+  for (auto [w, h] : {std::pair{640, 480}, {512, 424}, {1024, 1024}, {1280, 720}}) {
+    std::vector<uint8_t> raw(static_cast<size_t>(w) * h * 2, 0);
+    EXPECT_TRUE(DecodeDepthData(0, raw.data(), raw.size(), w, h, &out).ok()) << w << "x" << h;
+  }
+}
+
 TEST(DepthIo, Reads16BitBigEndianPgmAndRejectsTruncation) {
   const std::string path = testing::TempDir() + "/octo_depth16.pgm";
   {

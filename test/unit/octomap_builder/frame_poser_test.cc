@@ -93,6 +93,32 @@ TEST(FramePoser, CountsOutOfOrderAndQueueOverflow) {
   EXPECT_EQ(p.counters().frames_in, 8);
 }
 
+// One pose and one frame stamped an hour ahead: the five in-order messages after each prove
+// it, the stream goes on from them, and the future frame no longer holds the queue.
+TEST(FramePoser, RecoversFromAPoseAndAFrameStampedInTheFuture) {
+  FramePoser<int> p(Opts());
+  constexpr int64_t kHour = 3600000000LL;
+  ASSERT_TRUE(p.AddPose(1000000, Pose2(0, 0, 0)));
+  ASSERT_TRUE(p.AddPose(1000000 + kHour, Pose2(9, 9, 0)));
+  for (int i = 1; i <= 5; ++i) p.AddPose(1000000 + 100000 * i, Pose2(0.1 * i, 0, 0));
+  EXPECT_EQ(p.counters().time_rebases, 1);
+  EXPECT_EQ(p.counters().poses_out_of_order, 4);  // held, then taken by the re-base
+  EXPECT_EQ(p.newest_pose_utime(), 1500000);
+  auto pose = p.PoseAt(1250000);
+  ASSERT_TRUE(pose);
+  EXPECT_NEAR(pose->x, 0.25, 1e-12);
+
+  ASSERT_TRUE(p.AddFrame(1100000 + kHour, 1));  // waits for a pose that never comes
+  for (int i = 0; i < 4; ++i) EXPECT_FALSE(p.AddFrame(1100000 + 50000 * i, 10 + i));
+  ASSERT_TRUE(p.AddFrame(1300000, 20));  // the fifth: the future frame is dropped
+  EXPECT_EQ(p.counters().time_rebases, 2);
+  EXPECT_EQ(p.counters().frames_dropped_future, 1);
+  const auto out = p.Poll(1500000);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_EQ(out[0].frame, 20);
+  EXPECT_NEAR(out[0].robot_in_map.x, 0.3, 1e-12);
+}
+
 TEST(CameraMount, OpticalAxesOnTheBase) {
   CameraMount m;
   m.x_m = 0.1;

@@ -78,5 +78,63 @@ TEST(OdomMapper, ASweepBeyondTheOdometryIsMappedAsItIsAndCounted) {
   EXPECT_EQ(m.counters().scans_mapped, 1);
 }
 
+// Odometry that glitches (one sample 10 km out), repeats a scan, is stamped an hour ahead
+// once: the map stays where the robot is, the grid stays small, each event is counted.
+TEST(OdomMapper, OdometryGlitchesAndRepeatsNeitherCorruptNorGrowTheMap) {
+  OdomMapper m(OdomMapperOptions{});
+  auto scan = [](int64_t utime, int64_t seq) {
+    Scan s;
+    s.utime = utime;
+    s.seq = seq;
+    s.angle_min_rad = -1.f;
+    s.angle_increment_rad = 0.01f;
+    s.range_max_m = 20;
+    s.ranges_m.assign(201, 3.f);
+    return s;
+  };
+  int64_t t = 0;
+  for (int k = 0; k < 20; ++k, t += 100000) ASSERT_TRUE(m.AddOdometry(t, Pose2(0.01 * k, 0, 0)));
+  ASSERT_TRUE(m.AddOdometry(t, Pose2(1e4, 0, 0)));  // a corrupt sample: bridged
+  t += 100000;
+  for (int k = 20; k < 25; ++k, t += 100000) ASSERT_TRUE(m.AddOdometry(t, Pose2(0.01 * k, 0, 0)));
+  EXPECT_EQ(m.counters().odom_jumps, 2);  // out and back
+  // Mapped where the robot really is: the last odometry pose continues from x = 0.19 m.
+  ASSERT_TRUE(m.AddScan(scan(t - 100000, 1)));
+  EXPECT_NEAR(m.trajectory().back().base_pose.x, 0.23, 1e-9);
+  EXPECT_FALSE(m.AddScan(scan(t - 100000, 1)));  // the same scan again
+  EXPECT_EQ(m.counters().scans_duplicate, 1);
+  // One sample an hour ahead: five in-order samples after it prove it wrong.
+  ASSERT_TRUE(m.AddOdometry(t + 3600000000LL, Pose2(0.25, 0, 0)));
+  for (int k = 25; k < 29; ++k, t += 100000) EXPECT_FALSE(m.AddOdometry(t, Pose2(0.01 * k, 0, 0)));
+  EXPECT_TRUE(m.AddOdometry(t, Pose2(0.29, 0, 0)));
+  EXPECT_EQ(m.counters().time_rebases, 1);
+  ASSERT_TRUE(m.AddScan(scan(t, 2)));
+  EXPECT_NEAR(m.trajectory().back().base_pose.x, 0.28, 1e-9);  // the bridge stays
+  EXPECT_LT(m.Map().width * m.Map().height, 1000000);
+  EXPECT_EQ(m.counters().beams_beyond_grid_cap, 0);
+}
+
+TEST(OdomMapper, TheGridNeverOutgrowsItsCap) {
+  OdomMapperOptions o;
+  o.max_grid_cells = 1 << 20;  // 51 m x 51 m at 5 cm
+  OdomMapper m(o);
+  Scan s;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_max_m = 20;
+  s.ranges_m.assign(201, 3.f);
+  // Far steps, each under the jump limit, take the robot 300 m out.
+  for (int k = 0; k <= 150; ++k) {
+    ASSERT_TRUE(m.AddOdometry(100000 * k, Pose2(2.0 * k, 0, 0)));
+    s.utime = 100000 * k;
+    s.seq = k;
+    ASSERT_TRUE(m.AddScan(s));
+  }
+  EXPECT_GT(m.counters().beams_beyond_grid_cap, 0);
+  const io::GridMap g = m.Map();
+  EXPECT_LE(static_cast<int64_t>(g.width) * g.height, o.max_grid_cells);
+  EXPECT_EQ(m.counters().scans_mapped, 151);
+}
+
 }  // namespace
 }  // namespace omni::odom_mapper

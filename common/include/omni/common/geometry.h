@@ -4,10 +4,15 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <optional>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+
+#include "omni/common/stamp_order.h"
 
 namespace omni {
 
@@ -74,21 +79,38 @@ class StampedBuffer {
  public:
   explicit StampedBuffer(size_t capacity = 10000) : capacity_(capacity) {}
 
-  // Returns false when utime is older than the newest entry (out of order).
+  // Returns false when utime is older than the newest entry (out of order). Rejected entries
+  // that run in order among themselves are held; when a run reaches StampOrder's length, the
+  // newest entries were stamped in the future (or the source's clock went back): they are
+  // dropped and the run is taken in their place (`rebases()` counts it, `dropped_on_rebase()`
+  // the entries dropped).
   bool Insert(int64_t utime, const PoseT& pose) {
-    if (!items_.empty() && utime < items_.back().first) return false;
-    if (!items_.empty() && utime == items_.back().first) {
-      items_.back().second = pose;
-      return true;
+    switch (order_.Check(utime)) {
+      case StampOrder::Verdict::kOld:
+        if (order_.run_length() == 1) run_.clear();
+        run_.emplace_back(utime, pose);
+        return false;
+      case StampOrder::Verdict::kRebase:
+        while (!items_.empty() && items_.back().first >= run_.front().first) {
+          items_.pop_back();
+          ++dropped_on_rebase_;
+        }
+        for (const auto& r : run_) Append(r.first, r.second);
+        run_.clear();
+        break;
+      case StampOrder::Verdict::kInOrder:
+        break;
     }
-    items_.emplace_back(utime, pose);
-    while (items_.size() > capacity_) items_.pop_front();
+    Append(utime, pose);
     return true;
   }
 
   // Interpolated pose at `utime`; nullopt when outside [oldest, newest] by more than `slack_us`
-  // (within the slack the nearest end is returned).
-  std::optional<PoseT> At(int64_t utime, int64_t slack_us = 0) const {
+  // (within the slack the nearest end is returned). Two neighbouring samples more than
+  // `max_span_us` apart bound a gap (the source was down, or the later one was stamped in the
+  // future): inside it the same rule as at the ends applies instead of interpolation.
+  std::optional<PoseT> At(int64_t utime, int64_t slack_us = 0,
+                          int64_t max_span_us = std::numeric_limits<int64_t>::max()) const {
     if (items_.empty()) return std::nullopt;
     if (utime <= items_.front().first) {
       if (items_.front().first - utime > slack_us) return std::nullopt;
@@ -108,6 +130,11 @@ class StampedBuffer {
     }
     const auto& a = items_[lo];
     const auto& b = items_[hi];
+    if (b.first - a.first > max_span_us) {
+      if (utime - a.first <= slack_us) return a.second;
+      if (b.first - utime <= slack_us) return b.second;
+      return std::nullopt;
+    }
     const double f = static_cast<double>(utime - a.first) / static_cast<double>(b.first - a.first);
     return Interpolate(a.second, b.second, f);
   }
@@ -116,10 +143,24 @@ class StampedBuffer {
   size_t size() const { return items_.size(); }
   int64_t newest_utime() const { return items_.empty() ? 0 : items_.back().first; }
   int64_t oldest_utime() const { return items_.empty() ? 0 : items_.front().first; }
+  int64_t rebases() const { return order_.rebases(); }
+  int64_t dropped_on_rebase() const { return dropped_on_rebase_; }
 
  private:
+  void Append(int64_t utime, const PoseT& pose) {
+    if (!items_.empty() && utime == items_.back().first) {
+      items_.back().second = pose;
+      return;
+    }
+    items_.emplace_back(utime, pose);
+    while (items_.size() > capacity_) items_.pop_front();
+  }
+
   size_t capacity_;
   std::deque<std::pair<int64_t, PoseT>> items_;
+  StampOrder order_;
+  std::vector<std::pair<int64_t, PoseT>> run_;
+  int64_t dropped_on_rebase_ = 0;
 };
 
 }  // namespace omni

@@ -38,6 +38,10 @@ struct LogOddsOptions {
   float max_log_odds = 3.5f;
   float max_free_range_m = 0.f;  // > 0: beams without a return clear free space up to this range
   float max_hit_range_m = 1e9f;  // returns beyond this are treated as no return
+  // The grid never holds more cells than this (5 bytes each; 64 M cells is 400 m x 400 m at
+  // 5 cm): a beam that would grow it further is refused and counted (refused_beams()), so one
+  // absurd pose cannot take the machine's memory.
+  int64_t max_cells = 64LL << 20;
 };
 
 class LogOddsGrid {
@@ -58,10 +62,13 @@ class LogOddsGrid {
   // Occupancy in percent with -1 for never-observed cells, cropped to the observed area.
   GridMap ToGridMap() const;
   size_t allocated_cells() const { return logodds_.size(); }
+  // Beams not integrated because the grid would have outgrown `max_cells`.
+  int64_t refused_beams() const { return refused_beams_; }
   const LogOddsOptions& options() const { return opt_; }
 
  private:
-  void EnsureContains(int64_t cx, int64_t cy);
+  // False (and the grid unchanged) when holding the cell would exceed max_cells.
+  bool EnsureContains(int64_t cx, int64_t cy);
   // One beam at map angle `a` from `sensor`, whose cell (sx, sy) the grid already contains;
   // false when the beam marks nothing.
   bool IntegrateBeam(const Pose2& sensor, int64_t sx, int64_t sy, double a, float r,
@@ -73,6 +80,7 @@ class LogOddsGrid {
   int64_t w_ = 0, h_ = 0;
   std::vector<float> logodds_;
   std::vector<uint8_t> seen_;
+  int64_t refused_beams_ = 0;
 };
 
 // map_server form: trinary PGM (0 occupied, 254 free, 205 unknown) + YAML beside it.

@@ -9,6 +9,7 @@
 // `now` is passed in (the newest data time seen, so a log replay decides the same way).
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <deque>
 #include <optional>
@@ -17,6 +18,7 @@
 #include <Eigen/Geometry>
 
 #include "omni/common/geometry.h"
+#include "omni/common/stamp_order.h"
 
 namespace omni::octo {
 
@@ -52,6 +54,10 @@ struct FramePoserCounters {
   int64_t frames_out_of_order = 0;     // frame older than the previous frame: rejected
   int64_t poses_in = 0;
   int64_t poses_out_of_order = 0;  // pose older than the newest pose: rejected
+  // Poses or frames whose newest stamp was followed by a run of older, in-order ones: it was
+  // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).
+  int64_t time_rebases = 0;
+  int64_t frames_dropped_future = 0;  // queued frames dropped by such a re-base
 };
 
 // Queues frames (any payload T) until they can be posed.
@@ -64,31 +70,42 @@ class FramePoser {
     Pose2 robot_in_map;
   };
 
-  explicit FramePoser(const FramePoserOptions& options) : options_(options) {}
+  explicit FramePoser(const FramePoserOptions& options)
+      : options_(options), poses_(options.pose_capacity) {}
 
   // Returns false (and counts) for a pose older than the newest one.
   bool AddPose(int64_t utime, const Pose2& pose) {
     ++counters_.poses_in;
-    if (!poses_.empty() && utime < poses_.back().first) {
+    const int64_t rebases = poses_.rebases();
+    if (!poses_.Insert(utime, pose)) {
       ++counters_.poses_out_of_order;
       return false;
     }
-    if (!poses_.empty() && utime == poses_.back().first)
-      poses_.back().second = pose;
-    else
-      poses_.emplace_back(utime, pose);
-    while (poses_.size() > options_.pose_capacity) poses_.pop_front();
+    counters_.time_rebases += poses_.rebases() - rebases;
     return true;
   }
 
   // Returns false (and counts) for a frame older than the previous frame.
   bool AddFrame(int64_t utime, T frame) {
     ++counters_.frames_in;
-    if (last_frame_utime_ && utime < *last_frame_utime_) {
-      ++counters_.frames_out_of_order;
-      return false;
+    switch (frame_order_.Check(utime)) {
+      case StampOrder::Verdict::kOld:
+        ++counters_.frames_out_of_order;
+        return false;
+      case StampOrder::Verdict::kRebase: {
+        // Queued frames newer than this one were stamped in the future: they would wait for a
+        // pose that never comes.
+        ++counters_.time_rebases;
+        const size_t before = frames_.size();
+        frames_.erase(std::remove_if(frames_.begin(), frames_.end(),
+                                     [&](const Queued& q) { return q.utime > utime; }),
+                      frames_.end());
+        counters_.frames_dropped_future += static_cast<int64_t>(before - frames_.size());
+        break;
+      }
+      case StampOrder::Verdict::kInOrder:
+        break;
     }
-    last_frame_utime_ = utime;
     frames_.push_back({std::move(frame), utime});
     while (frames_.size() > options_.max_queued_frames) {
       frames_.pop_front();
@@ -117,28 +134,13 @@ class FramePoser {
 
   // Interpolated robot pose at `utime`, if bracketed by poses no further apart than the gap.
   std::optional<Pose2> PoseAt(int64_t utime) const {
-    if (poses_.empty() || utime < poses_.front().first || utime > poses_.back().first)
-      return std::nullopt;
-    size_t lo = 0, hi = poses_.size() - 1;
-    if (poses_[hi].first == utime) return poses_[hi].second;
-    while (hi - lo > 1) {
-      const size_t mid = (lo + hi) / 2;
-      if (poses_[mid].first <= utime)
-        lo = mid;
-      else
-        hi = mid;
-    }
-    const auto& a = poses_[lo];
-    const auto& b = poses_[hi];
-    if (a.first == utime) return a.second;
-    if (b.first - a.first > options_.max_pose_gap_us) return std::nullopt;
-    const double f = static_cast<double>(utime - a.first) / static_cast<double>(b.first - a.first);
-    return Interpolate(a.second, b.second, f);
+    return poses_.At(utime, 0, options_.max_pose_gap_us);
   }
 
   const FramePoserCounters& counters() const { return counters_; }
   size_t queued() const { return frames_.size(); }
-  int64_t newest_pose_utime() const { return poses_.empty() ? 0 : poses_.back().first; }
+  int64_t newest_pose_utime() const { return poses_.newest_utime(); }
+  int64_t newest_frame_utime() const { return frame_order_.have() ? frame_order_.newest() : 0; }
 
  private:
   struct Queued {
@@ -151,7 +153,7 @@ class FramePoser {
   };
   Decision Decide(int64_t utime, int64_t now) const {
     Decision d;
-    if (!poses_.empty() && utime <= poses_.back().first) {
+    if (!poses_.empty() && utime <= poses_.newest_utime()) {
       d.pose = PoseAt(utime);  // nullopt: older than the poses, or a gap
       return d;
     }
@@ -162,9 +164,9 @@ class FramePoser {
 
   FramePoserOptions options_;
   FramePoserCounters counters_;
-  std::deque<std::pair<int64_t, Pose2>> poses_;
+  StampedBuffer<Pose2> poses_;
   std::deque<Queued> frames_;
-  std::optional<int64_t> last_frame_utime_;
+  StampOrder frame_order_;
 };
 
 }  // namespace omni::octo

@@ -147,17 +147,23 @@ class OctomapPipeline {
   // Inserts the posed frames still waiting for a colour partner with the best one buffered (or
   // uncoloured), e.g. on exit. Returns the number inserted.
   int FlushAwaitingColor();
-  // Newest time of any pose or frame given so far (the default `now`).
-  int64_t newest_utime() const { return newest_utime_; }
+  // Newest time of any pose or frame taken so far (the default `now`); it moves back when a
+  // stream's future-stamped message is dropped (stamp_order.h), so one such message cannot
+  // expire every frame's latency.
+  int64_t newest_utime() const;
 
   struct Counters {
     int64_t frames_inserted = 0;
     int64_t frames_invalid = 0;  // posed but rejected by DepthToPoints (bad intrinsics, size)
+    // Points, but not one of them (nor its ray) inside the octree's key range (a pose
+    // thousands of km out): nothing was mapped.
+    int64_t frames_out_of_range = 0;
     int64_t points_inserted = 0;
     int64_t last_frame_us = 0;  // time the last insertion took (monotonic clock)
     // Colour option only:
     int64_t color_frames_in = 0;
     int64_t color_out_of_order = 0;  // older than the previous colour frame: rejected
+    int64_t color_time_rebases = 0;  // a future-stamped colour frame dropped (stamp_order.h)
     int64_t color_dropped = 0;       // discarded without pairing with any depth frame
     int64_t frames_colored = 0;      // inserted with a colour partner
     int64_t frames_uncolored = 0;    // inserted without one (none within color_max_dt_us)
@@ -189,7 +195,7 @@ class OctomapPipeline {
   };
   std::deque<BufferedColor> colors_;  // recent colour frames, in time order
   Counters counters_;
-  int64_t newest_utime_ = 0;
+  StampOrder color_order_;
   int64_t newest_inserted_utime_ = 0;
   std::string last_error_;
 };

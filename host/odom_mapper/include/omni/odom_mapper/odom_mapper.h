@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,11 @@ struct OdomMapperOptions {
   int min_valid_beams = 10;         // scans with fewer valid beams are rejected
   double max_hit_range_m = 25.0;    // returns beyond this are not trusted as obstacles
   double publish_interval_s = 2.0;  // grid publication period (node)
+  // Odometry that moves further than this between two samples jumped (a reset or a corrupt
+  // value): the map continues from the last good pose instead (counted as odom_jumps).
+  double max_odom_jump_m = 3.0;
+  double max_odom_jump_rad = 2.0;
+  int64_t max_grid_cells = 64LL << 20;  // the grid's size cap (io::LogOddsOptions::max_cells)
   std::string scan_channel = "LIDAR_SCAN";
   std::string odom_channel = "WHEEL_ODOM";
   std::string grid_channel = "GRID_ODOM";
@@ -36,7 +42,12 @@ struct OdomMapperCounters {
   int64_t odom_in = 0;
   int64_t odom_out_of_order = 0;  // older than the newest odometry: rejected
   int64_t odom_invalid = 0;       // non-finite pose
-  int64_t scans_lost = 0;         // gaps in the driver's scan sequence numbers
+  int64_t odom_jumps = 0;         // jumps between samples, bridged (max_odom_jump_*)
+  int64_t time_rebases = 0;       // a future-stamped sample dropped (common/stamp_order.h)
+  int64_t beams_beyond_grid_cap = 0;
+  int64_t scans_duplicate = 0;  // same seq and stamp as the scan before: mapped once  // not
+                                // mapped: the grid would outgrow max_grid_cells
+  int64_t scans_lost = 0;       // gaps in the driver's scan sequence numbers
   // A spinning lidar's scans (scan_time_s > 0): each beam placed at the odometry pose of its own
   // time, or (no odometry over the whole sweep) the scan mapped at its first beam's pose.
   int64_t sweeps_corrected = 0, sweeps_uncorrected = 0;
@@ -77,6 +88,9 @@ class OdomMapper {
   std::vector<MappedScan> trajectory_;
   OdomMapperCounters counters_;
   int64_t last_seq_ = -1;
+  int64_t last_scan_utime_ = INT64_MIN;
+  std::optional<Pose2> last_raw_;  // the newest accepted raw sample, for jump detection
+  Pose2 correction_;               // raw odometry -> jump-free odometry
 };
 
 }  // namespace omni::odom_mapper

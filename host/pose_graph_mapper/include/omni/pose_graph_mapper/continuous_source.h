@@ -90,6 +90,13 @@ class OdometrySource final : public ContinuousPoseSource {
   int64_t newest_utime() const { return samples_.empty() ? 0 : samples_.back().first; }
   int64_t oldest_utime() const { return samples_.empty() ? 0 : samples_.front().first; }
   bool empty() const { return samples_.empty(); }
+  Pose2 newest_pose() const { return samples_.empty() ? Pose2() : samples_.back().second; }
+  // Drops the samples stamped at or after `utime` (they were stamped in the future); how many.
+  int64_t DropFrom(int64_t utime) {
+    int64_t n = 0;
+    for (; !samples_.empty() && samples_.back().first >= utime; ++n) samples_.pop_back();
+    return n;
+  }
 
  private:
   Pose2 At(size_t upper, int64_t utime) const;  // interpolated in [upper-1, upper]

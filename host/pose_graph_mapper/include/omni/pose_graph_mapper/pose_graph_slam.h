@@ -35,12 +35,14 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
 #include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
+#include "omni/common/stamp_order.h"
 #include "omni/common/time.h"
 #include "omni/io/g2o.h"
 #include "omni/io/grid.h"
@@ -148,6 +150,9 @@ struct SlamCounters {
   int64_t sweeps_corrected = 0;    // used scans corrected for the base's motion in their sweep
   int64_t sweeps_uncorrected = 0;  // used scans with a sweep but no (jump-free) odometry over it
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
+  // Odometry whose newest sample was followed by a run of older, in-order samples: it was
+  // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).
+  int64_t time_rebases = 0;
   int64_t keyframes = 0;
   int64_t scan_match_factors = 0, scan_match_failures = 0;
   int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
@@ -227,6 +232,8 @@ class PoseGraphSlam {
   // Runs a last global optimisation if loops are pending.
   void Finish();
 
+  // Stamp of the newest odometry sample taken (INT64_MIN before the first).
+  int64_t newest_odom_utime() const { return have_odom_ ? last_odom_utime_ : INT64_MIN; }
   const SlamCounters& counters() const { return c_; }
   // The odometry self-calibration (enabled or not: its counters stay 0 when off).
   const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
@@ -279,6 +286,7 @@ class PoseGraphSlam {
   void OptimizeGlobal();
   void ResetWindow();
   double NowMs() const;
+  void TakeOdometry(int64_t utime, const Pose2& raw);  // in order: into the buffer
 
   PoseGraphSlamOptions o_;
   BatchOptions batch_;
@@ -294,7 +302,10 @@ class PoseGraphSlam {
   bool have_odom_ = false;
   // Logs such as intel.clf stamp several messages with one time: equal stamps are nudged by
   // 1 us so the odometry buffer stays strictly ordered (internal time).
-  int64_t last_odom_utime_ = 0;     // as received
+  int64_t last_odom_utime_ = 0;  // as received
+  StampOrder odom_order_;
+  std::vector<std::pair<int64_t, Pose2>>
+      odom_run_;                    // rejected samples in order: a rebase takes them
   int64_t last_odom_internal_ = 0;  // after nudging
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;

@@ -22,6 +22,7 @@
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
 #include "omni/common/result.h"
+#include "omni/common/stamp_order.h"
 #include "omni/common/time.h"
 #include "omni/io/grid.h"
 #include "omni/rbpf_mapper/motion_model.h"
@@ -85,6 +86,10 @@ struct RbpfCounters {
   int64_t scans_gated = 0;         // not enough motion since the last update (pose from odometry)
   int64_t scans_too_few_beams = 0;
   int64_t scans_time_backwards = 0;
+  // A stream (scans, odometry, IMU) whose newest stamp was followed by a run of older, in-order
+  // stamps: the newest was stamped in the future or the source's clock went back, and the stream
+  // continues from the run (common/stamp_order.h).
+  int64_t time_rebases = 0;
   int64_t scans_no_odom = 0;
   int64_t scans_bad_geometry = 0;  // non-finite angles / mount
   int64_t invalid_beams = 0;       // NaN, inf, negative or below range_min
@@ -170,7 +175,12 @@ class RbpfSlam {
   bool AddOdometry(int64_t utime, const Pose2& pose);
   // The raw odometry at `utime` from what AddOdometry has received so far (interpolated, or
   // the nearest sample within max_odom_gap_s), as AddScan would look it up now.
+  // Odometry samples further apart than this bound a gap (the driver was down, or the later
+  // sample is stamped in the future): no pose is interpolated across it.
+  static constexpr int64_t kMaxOdomSpanUs = 10000000;
   std::optional<Pose2> RawOdometryAt(int64_t utime) const;
+  // Stamp of the newest odometry sample held (0 before the first).
+  int64_t newest_odom_utime() const { return odom_buffer_.newest_utime(); }
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   ScanResult AddScan(const ScanInput& scan);
@@ -214,7 +224,7 @@ class RbpfSlam {
   std::deque<std::pair<int64_t, double>> imu_;  // (utime, yaw rate)
   std::vector<ScanRecord> records_;
   int64_t next_scan_index_ = 0;
-  int64_t last_scan_utime_ = INT64_MIN;
+  StampOrder scan_order_, imu_order_;
   std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;

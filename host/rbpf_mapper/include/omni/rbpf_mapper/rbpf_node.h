@@ -55,6 +55,8 @@ class RbpfNode {
   int Drain(bool all, int max_scans);
   void AttachOdometry();
   void PublishGrid();
+  // The time stale scans are measured against: the newest scan or odometry stamp.
+  int64_t NewestMessageUtime() const;
 
   bus::Bus* bus_;
   RbpfOptions opt_;
@@ -63,7 +65,11 @@ class RbpfNode {
   bus::Heartbeat heartbeat_;
   std::deque<ScanInput> pending_;
   int64_t newest_odom_utime_ = INT64_MIN;
-  int64_t newest_msg_utime_ = INT64_MIN;
+  // Newest scan stamp, re-based when a scan stamped in the future is followed by in-order ones.
+  StampOrder scan_order_;
+  int64_t scans_future_dropped_ = 0;  // queued scans dropped by such a re-base
+  int64_t last_scan_utime_ = INT64_MIN;
+  int64_t scans_duplicate_ = 0;  // same seq and stamp as the scan before: dropped
   int64_t last_seq_ = -1;
   int64_t scans_lost_ = 0;
   int64_t poses_published_ = 0;

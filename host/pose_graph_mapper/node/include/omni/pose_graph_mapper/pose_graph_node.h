@@ -96,7 +96,12 @@ class PoseGraphNode {
   std::deque<Item> queue_;
   size_t queued_scans_ = 0;
   int64_t max_queued_scans_ = 0;
-  int64_t newest_msg_utime_ = INT64_MIN;
+  // Newest scan and odometry stamps (stale scans are measured against them), re-based when a
+  // message stamped in the future is followed by in-order ones (common/stamp_order.h).
+  StampOrder scan_order_, odom_order_;
+  int64_t scans_future_dropped_ = 0;  // queued scans dropped by such a re-base
+  int64_t last_scan_utime_ = INT64_MIN;
+  int64_t scans_duplicate_ = 0;            // same seq and stamp as the scan before: dropped
   int64_t handed_odom_utime_ = INT64_MIN;  // newest odometry given to the mapper
   int64_t last_seq_ = -1;
   int64_t scan_index_ = 0;
