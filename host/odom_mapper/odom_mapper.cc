@@ -41,32 +41,50 @@ bool OdomMapper::AddOdometry(int64_t utime, const Pose2& pose) {
     ++counters_.odom_invalid;
     return false;
   }
-  // A jump against the newest sample (the order is the buffer's to judge; a sample it rejects
-  // must not move the correction).
-  Pose2 correction = correction_;
-  bool jump = false;
-  if (last_raw_ && utime >= odom_.newest_utime()) {
+  switch (order_.Check(utime)) {
+    case StampOrder::Verdict::kOld:  // held: a run of these re-bases the stream
+      if (order_.run_length() == 1) run_.clear();
+      run_.emplace_back(utime, pose);
+      ++counters_.odom_out_of_order;
+      return false;
+    case StampOrder::Verdict::kRebase: {
+      // The newest samples were stamped in the future (or the clock went back): drop them,
+      // put the jump bridge back as it was before them, and take the run.
+      ++counters_.time_rebases;
+      odom_.DropFrom(order_.run_first());
+      if (const auto s = history_.Restore(order_.run_first())) {
+        correction_ = s->correction;
+        last_raw_ = s->raw;
+      }
+      const std::vector<std::pair<int64_t, Pose2>> run = std::move(run_);
+      run_.clear();
+      for (const auto& [t, p] : run) Take(t, p);
+      break;
+    }
+    case StampOrder::Verdict::kInOrder:
+      break;
+  }
+  Take(utime, pose);
+  return true;
+}
+
+void OdomMapper::Take(int64_t utime, const Pose2& pose) {
+  if (last_raw_) {
     const Pose2 d = last_raw_->Between(pose);
     if (std::hypot(d.x, d.y) > opt_.max_odom_jump_m || std::abs(d.theta) > opt_.max_odom_jump_rad) {
-      jump = true;
-      correction = (correction_ * *last_raw_) * pose.Inverse();
+      // A reset or a corrupt value: the map continues from the last good pose.
+      ++counters_.odom_jumps;
+      correction_ = (correction_ * *last_raw_) * pose.Inverse();
     }
   }
-  const int64_t rebases = odom_.rebases();
-  if (!odom_.Insert(utime, correction * pose)) {
-    ++counters_.odom_out_of_order;
-    return false;
-  }
-  counters_.time_rebases += odom_.rebases() - rebases;
-  if (jump) ++counters_.odom_jumps;
-  correction_ = correction;
   last_raw_ = pose;
-  return true;
+  odom_.Insert(utime, correction_ * pose);
+  history_.Push(utime, {correction_, pose});
 }
 
 bool OdomMapper::AddScan(const Scan& scan) {
   ++counters_.scans_in;
-  if (scan.seq >= 0 && scan.seq == last_seq_ && scan.utime == last_scan_utime_) {
+  if (scan.seq > 0 && scan.seq == last_seq_ && scan.utime == last_scan_utime_) {
     ++counters_.scans_duplicate;  // the same scan again (a repeating driver or bridge)
     return false;
   }

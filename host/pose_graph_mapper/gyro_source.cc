@@ -7,7 +7,16 @@ namespace omni::pgm {
 
 bool GyroYawSource::AddSample(int64_t utime, double rate) {
   if (!std::isfinite(rate)) return false;
-  if (!samples_.empty() && utime <= samples_.back().utime) return false;
+  switch (order_.Check(utime)) {
+    case StampOrder::Verdict::kOld:
+      return false;
+    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
+      while (!samples_.empty() && samples_.back().utime >= utime) samples_.pop_back();
+      break;
+    case StampOrder::Verdict::kInOrder:
+      if (!samples_.empty() && utime == samples_.back().utime) return false;  // strictly newer
+      break;
+  }
   double integral = 0.0;
   if (!samples_.empty()) {
     const Sample& last = samples_.back();

@@ -4,10 +4,13 @@
 #include <cmath>
 #include <cstddef>
 #include <iterator>
+#include <limits>
+#include <optional>
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 
+#include "omni/common/log.h"
 #include "omni/common/scan_checks.h"
 #include "omni/pose_graph_mapper/chi2.h"
 #include "omni/pose_graph_mapper/lie.h"
@@ -174,14 +177,22 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
       ++c_.odom_out_of_order;
       return;
     case StampOrder::Verdict::kRebase: {
-      // The newest samples were stamped ahead of the stream: drop them, continue from the run.
+      // The newest samples were stamped ahead of the stream (or its clock went back): drop
+      // them, put the state back as it was after the newest sample kept, take the run.
       ++c_.time_rebases;
-      odom_.DropFrom(odom_order_.run_first());
-      have_odom_ = !odom_.empty();
-      if (have_odom_) {
-        last_odom_utime_ = last_odom_internal_ = odom_.newest_utime();
-        last_corrected_ = odom_.newest_pose();
-        last_raw_ = correction_.Inverse() * last_corrected_;
+      const int64_t first = odom_order_.run_first();
+      const std::optional<OdomState> st = odom_history_.Restore(first);
+      // Kept: drop what came after it (by internal time, which nudging may have moved past
+      // `first`); none kept: every sample held is newer than the run.
+      const bool kept = st && st->received < first;
+      odom_.DropFrom(kept ? st->internal + 1 : std::numeric_limits<int64_t>::min());
+      have_odom_ = kept;
+      if (st) {  // the newest dropped one when none is kept: jumps stay bridged across
+        last_odom_utime_ = st->received;
+        last_odom_internal_ = st->internal;
+        last_raw_ = st->raw;
+        last_corrected_ = st->corrected;
+        correction_ = st->correction;
       }
       const std::vector<std::pair<int64_t, Pose2>> run = std::move(odom_run_);
       odom_run_.clear();
@@ -212,14 +223,17 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
   last_odom_internal_ = internal;
   last_raw_ = raw;
   last_corrected_ = corrected;
+  odom_history_.Push(utime, {utime, internal, raw, corrected, correction_});
 }
 
 bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {
   ++c_.imu_in;
+  const int64_t rebases = gyro_.rebases();
   if (!gyro_.AddSample(utime, rate)) {
     ++c_.imu_rejected;
     return false;
   }
+  c_.time_rebases += gyro_.rebases() - rebases;
   return true;
 }
 
@@ -254,6 +268,14 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   }
   if (!have_odom_ || scan.utime < odom_.oldest_utime() ||
       static_cast<double>(scan.utime - last_odom_utime_) > o_.max_scan_odom_gap_s * 1e6) {
+    ++c_.scans_no_odom;
+    return false;
+  }
+  // While older odometry keeps coming in order behind the newest sample, that sample is in
+  // doubt (stamped in the future?): a scan beyond what the older run covers waits no odometry
+  // from it, or it would become a keyframe that every later scan is older than.
+  if (odom_order_.run_length() > 0 &&
+      static_cast<double>(scan.utime - odom_order_.run_last()) > o_.max_scan_odom_gap_s * 1e6) {
     ++c_.scans_no_odom;
     return false;
   }
@@ -678,6 +700,11 @@ io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
           return kf * Interpolate(Pose2(), *sweep, static_cast<double>(b) / last) * s.laser_in_base;
         },
         s.ranges_m, s.angle_min_rad, s.angle_increment_rad, s.max_range_m);
+  }
+  if (grid.refused_beams() > 0) {
+    LOG_WARN << "map: " << grid.refused_beams()
+             << " beams left out: the grid would have outgrown its cap of " << options.max_cells
+             << " cells (a keyframe estimate far from the others?)";
   }
   return grid.ToGridMap();
 }

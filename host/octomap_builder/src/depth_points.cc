@@ -80,8 +80,8 @@ std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>&
 
 Status DecodeDepthData(int8_t encoding, const uint8_t* data, size_t size, int width, int height,
                        std::vector<uint16_t>* out) {
-  // 4 Mpixel: twice the largest depth camera we know of (Azure Kinect's 1024 x 1024 passive IR
-  // mode is 1 Mpixel); beyond it a frame is a corrupt header or a decompression bomb.
+  // 4 Mpixel: four times the largest depth camera we know of (Azure Kinect's 1024 x 1024
+  // passive IR mode is 1 Mpixel); beyond it a frame is a corrupt header or a decompression bomb.
   constexpr size_t kMaxPixels = size_t{1} << 22;
   if (width <= 0 || height <= 0 || width > 16384 || height > 16384 ||
       static_cast<size_t>(width) * static_cast<size_t>(height) > kMaxPixels) {

@@ -27,7 +27,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
       heartbeat_(bus, "pose_graph_mapper", clock) {
   bus_->Subscribe<omni::laser_scan_t>(
       o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
-        if (m.seq >= 0 && m.seq == last_seq_ && m.utime == last_scan_utime_) {
+        if (m.seq > 0 && m.seq == last_seq_ && m.utime == last_scan_utime_) {
           ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
           ++bus_->counters().drops;
           return;
@@ -154,19 +154,30 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
 void PoseGraphNode::OnMessage(Item item) {
   // Absolute poses may come late by design: they do not advance the time scans wait against.
   if (item.kind == Kind::kScan && scan_order_.Check(item.utime) == StampOrder::Verdict::kRebase) {
-    // In-order scans older than the queue's newest keep coming: those newer than this one were
-    // stamped in the future and would hold the queue waiting for odometry that never comes.
+    // In-order scans older than the queue's newest keep coming: those newer than this one that
+    // no odometry covers were stamped in the future and would hold the queue waiting for
+    // odometry that never comes. (Covered ones are real: the clock went back behind them.) Only
+    // odometry up to its own stream's newest counts: odometry stamped in the future with the
+    // scan covers nothing.
+    int64_t odom_reach = handed_odom_utime_;
+    for (const Item& q : queue_)
+      if (q.kind == Kind::kOdometry) odom_reach = std::max(odom_reach, q.utime);
+    odom_reach = std::min(odom_reach, odom_order_.newest());
     const size_t before = queue_.size();
-    queue_.erase(std::remove_if(
-                     queue_.begin(), queue_.end(),
-                     [&](const Item& q) { return q.kind == Kind::kScan && q.utime > item.utime; }),
+    queue_.erase(std::remove_if(queue_.begin(), queue_.end(),
+                                [&](const Item& q) {
+                                  return q.kind == Kind::kScan && q.utime > item.utime &&
+                                         q.utime > odom_reach;
+                                }),
                  queue_.end());
     const size_t dropped = before - queue_.size();
     queued_scans_ -= dropped;
     scans_future_dropped_ += static_cast<int64_t>(dropped);
     bus_->counters().drops += static_cast<int64_t>(dropped);
-    LOG_WARN << dropped
-             << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+    if (dropped > 0) {
+      LOG_WARN << dropped
+               << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+    }
   }
   // The mapper re-bases its own odometry; this only keeps the staleness clock honest.
   if (item.kind == Kind::kOdometry) (void)odom_order_.Check(item.utime);

@@ -61,6 +61,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
                         [this, &c] { return c.time_rebases + scan_order_.rebases(); });
   heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
+  heartbeat_.AddCounter("scans_late", [this] { return scans_late_; });
   heartbeat_.AddCounter("scans_no_odom", [&c] { return c.scans_no_odom; });
   heartbeat_.AddCounter("scans_bad_geometry", [&c] { return c.scans_bad_geometry; });
   heartbeat_.AddCounter("invalid_beams", [&c] { return c.invalid_beams; });
@@ -81,7 +82,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
 }
 
 void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
-  if (seq >= 0 && seq == last_seq_ && scan.utime == last_scan_utime_) {
+  if (seq > 0 && seq == last_seq_ && scan.utime == last_scan_utime_) {
     ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
     ++bus_->counters().drops;
     return;
@@ -91,17 +92,39 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
     if (last_seq_ >= 0 && seq > last_seq_ + 1) scans_lost_ += seq - last_seq_ - 1;
     last_seq_ = seq;
   }
-  if (scan_order_.Check(scan.utime) == StampOrder::Verdict::kRebase) {
-    // In-order scans older than the queue's newest keep coming: those newer than this one were
-    // stamped in the future and would block the queue waiting for odometry that never comes.
+  const StampOrder::Verdict order = scan_order_.Check(scan.utime);
+  if (order == StampOrder::Verdict::kOld) {
+    // Older than the newest scan: held. Alone it is a late scan and is dropped; five in order
+    // re-base the stream below and are all mapped.
+    ++scans_late_;
+    if (scan_order_.run_length() == 1) {
+      bus_->counters().drops += static_cast<int64_t>(held_.size());
+      held_.clear();
+    }
+    held_.push_back(scan);
+    return;
+  }
+  if (order == StampOrder::Verdict::kRebase) {
+    // In-order scans older than the queue's newest keep coming: those newer than this one that
+    // no odometry covers were stamped in the future and would block the queue waiting for
+    // odometry that never comes. (Covered ones are real: the clock went back behind them.)
     const size_t before = pending_.size();
-    pending_.erase(std::remove_if(pending_.begin(), pending_.end(),
-                                  [&](const ScanInput& s) { return s.utime > scan.utime; }),
-                   pending_.end());
+    pending_.erase(
+        std::remove_if(pending_.begin(), pending_.end(),
+                       [&](const ScanInput& s) { return s.utime > scan.utime && !s.odom; }),
+        pending_.end());
     scans_future_dropped_ += static_cast<int64_t>(before - pending_.size());
     bus_->counters().drops += static_cast<int64_t>(before - pending_.size());
-    LOG_WARN << before - pending_.size()
-             << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+    if (before > pending_.size()) {
+      LOG_WARN << before - pending_.size()
+               << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
+    }
+    // What is queued from before goes first, with the odometry it has; then the filter takes
+    // the stream from the held run on.
+    Drain(true, INT32_MAX);
+    slam_.RestartScanOrder();
+    for (auto& h : held_) pending_.push_back(std::move(h));
+    held_.clear();
   }
   pending_.push_back(scan);
   AttachOdometry();

@@ -238,6 +238,47 @@ TEST(RbpfMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
       0.05);
 }
 
+// The clock set back an hour mid-run (an NTP step, a driver PC's reboot): the node and the
+// filter re-base their streams and map on from the new stamps; the scans that prove it are
+// held and mapped too.
+TEST(RbpfMapperNode, FollowsAClockSetBack) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  constexpr int kPairs = 120;
+  auto run = [&](int clock_back_at, std::vector<omni::pose2d_t>* poses, omni::heartbeat_t* hb) {
+    auto bus_or = bus::Bus::Create("memq://");
+    ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+    auto& b = **bus_or;
+    rbpf::RbpfOptions opt;
+    opt.particles = 8;
+    opt.threads = 1;
+    ManualClock clock(1000000);
+    rbpf::RbpfNode node(&b, opt, &clock);
+    b.Subscribe<omni::pose2d_t>("POSE_RBPF",
+                                [&](const omni::pose2d_t& p, int64_t) { poses->push_back(p); });
+    b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
+                                   [&](const omni::heartbeat_t& h, int64_t) { *hb = h; });
+    testing::PublishCarmenWithGlitches(
+        b, clf, kPairs, -1, -1, -1, [&](int) { clock.Advance(100000); }, clock_back_at);
+    node.Flush();
+    node.heartbeat().Tick(true);
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  std::vector<omni::pose2d_t> clean, stepped;
+  omni::heartbeat_t hb_clean{}, hb{};
+  run(-1, &clean, &hb_clean);
+  run(60, &stepped, &hb);
+  ASSERT_EQ(clean.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(stepped.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_late"), 4);
+  EXPECT_GE(testing::HeartbeatCounter(hb, "time_rebases"), 2);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 0);
+  EXPECT_EQ(stepped.back().utime, clean.back().utime - 3600LL * 1000000);
+  EXPECT_LT(
+      std::hypot(stepped.back().x_m - clean.back().x_m, stepped.back().y_m - clean.back().y_m),
+      0.3);
+}
+
 TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   const std::string dir = testing::TempDir();

@@ -98,9 +98,11 @@ inline int64_t HeartbeatCounter(const omni::heartbeat_t& h, const std::string& n
 // `step(i)`. After scan `future_odom_at` one extra odometry message stamped an hour ahead is
 // published, after scan `future_scan_at` one extra scan stamped so, and scan `duplicate_at` is
 // published twice (-1: none): the bad stamps a glitching clock or a corrupt field produce.
+// From scan `clock_back_at` on, every stamp is an hour earlier (a clock set back).
 template <typename Step>
 void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans, int future_odom_at,
-                               int future_scan_at, int duplicate_at, Step step) {
+                               int future_scan_at, int duplicate_at, Step step,
+                               int clock_back_at = -1) {
   auto log = io::ReadCarmenLog(clf);
   ASSERT_TRUE(log.ok()) << log.error().message;
   constexpr int64_t kHourUs = 3600LL * 1000000;
@@ -111,6 +113,7 @@ void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans,
     if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
     io::CarmenOdom o;
     o.timestamp_s = r.laser.timestamp_s;
+    if (clock_back_at >= 0 && seq >= clock_back_at) o.timestamp_s -= 3600.0;
     o.pose = r.laser.robot_pose;
     omni::odometry_t odom{};
     for (int k = prev ? 1 : kOdomPerScan; k <= kOdomPerScan; ++k) {
@@ -124,7 +127,9 @@ void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans,
       bus.Publish("WHEEL_ODOM", odom);
     }
     prev = o;
-    const auto scan = bus::ToLaserScan(r.laser, seq);
+    auto laser = r.laser;
+    laser.timestamp_s = o.timestamp_s;
+    const auto scan = bus::ToLaserScan(laser, seq);
     for (int k = 0; k < (seq == duplicate_at ? 2 : 1); ++k) bus.Publish("LIDAR_SCAN", scan);
     if (seq == future_odom_at) {
       auto late = odom;

@@ -415,6 +415,26 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   EXPECT_NE(p.last_error().find("key range"), std::string::npos) << p.last_error();
 }
 
+// A depth frame stamped an hour ahead must not become the pipeline's `now`: the frame before
+// it, still waiting for its pose, would expire at once.
+TEST(OctomapPipeline, AFutureDepthFrameDoesNotExpireTheWaitingOnes) {
+  OctomapBuilderOptions opt = ColorOptions();
+  opt.color = false;
+  OctomapPipeline p(opt);
+  const int64_t t0 = 1000000000;
+  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+  p.AddPose(t0, Pose2(0, 0, 0));
+  d.utime = t0 + 50000;
+  p.AddDepth(d);
+  d.utime = t0 + 3600000000LL;
+  p.AddDepth(d);
+  EXPECT_EQ(p.newest_utime(), t0 + 50000);
+  EXPECT_EQ(p.Process(p.newest_utime()), 0);  // waits for a pose at or after its time
+  p.AddPose(t0 + 100000, Pose2(0, 0, 0));
+  EXPECT_EQ(p.Process(p.newest_utime()), 1);
+  EXPECT_EQ(p.poser_counters().frames_dropped_no_pose, 0);
+}
+
 // Pipeline pairing: poses every 100 ms, depth frames at 50 ms offsets.
 TEST(ColorOctomap, PipelinePairsNearestColorAndCountsTheRest) {
   OctomapBuilderOptions opt = ColorOptions();

@@ -114,6 +114,40 @@ TEST(OdomMapper, OdometryGlitchesAndRepeatsNeitherCorruptNorGrowTheMap) {
   EXPECT_EQ(m.counters().beams_beyond_grid_cap, 0);
 }
 
+// A sample both corrupt (10 km out) and stamped an hour ahead: its jump bridge leaves with it,
+// so the samples that prove it continue where the robot was. Then the odometry's clock and
+// counters restart (a reboot): the restart is bridged, not mapped 25 m back.
+TEST(OdomMapper, ARebaseUndoesTheDroppedSamplesJumpBridge) {
+  OdomMapper m(OdomMapperOptions{});
+  Scan s;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_max_m = 20;
+  s.ranges_m.assign(201, 3.f);
+  int64_t t = 1000000000;
+  double x = 25;  // 25 m from where the odometry started
+  for (int k = 0; k < 20; ++k, t += 100000, x += 0.01)
+    ASSERT_TRUE(m.AddOdometry(t, Pose2(x, 0, 0)));
+  ASSERT_TRUE(m.AddOdometry(t + 3600000000LL, Pose2(1e4, 0, 0)));
+  for (int k = 0; k < 5; ++k, t += 100000, x += 0.01) m.AddOdometry(t, Pose2(x, 0, 0));
+  EXPECT_EQ(m.counters().time_rebases, 1);
+  EXPECT_EQ(m.counters().odom_jumps, 1);  // only the corrupt sample's
+  s.utime = t - 100000;
+  s.seq = 1;
+  ASSERT_TRUE(m.AddScan(s));
+  EXPECT_NEAR(m.trajectory().back().base_pose.x, x - 0.01, 1e-9);
+  // Reboot: stamps from 1 s again, odometry from 0.
+  const double before = x - 0.01;
+  for (int k = 0; k < 6; ++k) m.AddOdometry(1000000 + 100000 * k, Pose2(0.01 * k, 0, 0));
+  EXPECT_EQ(m.counters().time_rebases, 2);
+  EXPECT_EQ(m.counters().odom_jumps, 2);  // the restart, bridged
+  s.utime = 1500000;
+  s.seq = 2;
+  ASSERT_TRUE(m.AddScan(s));
+  EXPECT_NEAR(m.trajectory().back().base_pose.x, before + 0.05, 1e-9);
+  EXPECT_LT(static_cast<int64_t>(m.Map().width) * m.Map().height, 1000000);
+}
+
 TEST(OdomMapper, TheGridNeverOutgrowsItsCap) {
   OdomMapperOptions o;
   o.max_grid_cells = 1 << 20;  // 51 m x 51 m at 5 cm

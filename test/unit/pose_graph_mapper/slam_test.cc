@@ -94,6 +94,45 @@ TEST(PoseGraphSlam, BadInputIsCounted) {
   EXPECT_EQ(slam.Trajectory().size(), 2u);
 }
 
+// Odometry and then a scan stamped an hour ahead (a clock glitch), with in-order odometry in
+// between: the scan gets no odometry from the doubtful sample (else it would become a keyframe
+// every later scan is older than), the odometry re-bases after five samples, mapping goes on.
+TEST(PoseGraphSlam, AFutureOdometrySampleMakesNoFutureKeyframe) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
+  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };  // odometry at 50 Hz
+  auto run = [&](bool glitch, int* used) {
+    PoseGraphSlamOptions o;
+    o.keyframe_distance_m = 0.2;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    *used = 0;
+    for (int i = 0; i <= 80; ++i) {
+      slam->AddOdometry(t(i), at(i));
+      if (glitch && i == 40) slam->AddOdometry(t(i) + kHour, Pose2(500, -80, 2.5));  // and corrupt
+      if (glitch && i == 42) {
+        EXPECT_FALSE(slam->AddScan(1000, BoxScan(t(i) + kHour, at(i))));
+      }
+      if (i % 5 == 0) *used += slam->AddScan(i, BoxScan(t(i), at(i))) ? 1 : 0;
+    }
+    return slam;
+  };
+  int used_clean = 0, used = 0;
+  const auto clean = run(false, &used_clean);
+  const auto slam = run(true, &used);
+  const auto& c = slam->counters();
+  EXPECT_EQ(c.time_rebases, 1);
+  EXPECT_EQ(c.odom_out_of_order, 4);
+  EXPECT_EQ(used, 17);  // every in-order scan
+  EXPECT_EQ(used_clean, 17);
+  EXPECT_EQ(c.scans_no_odom, 1);
+  EXPECT_EQ(c.odom_jumps, 1);  // the corrupt sample's; its bridge went with it
+  const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
+  ASSERT_FALSE(traj.empty());
+  EXPECT_EQ(traj.back().utime, t(80));
+  EXPECT_NEAR(traj.back().pose.x, traj_clean.back().pose.x, 0.01);
+  EXPECT_NEAR(traj.back().pose.y, traj_clean.back().pose.y, 0.01);
+}
+
 TEST(PoseGraphSlam, OptionsAreChecked) {
   PoseGraphSlamOptions o;
   EXPECT_TRUE(o.Validate().ok());

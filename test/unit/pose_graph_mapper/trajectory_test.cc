@@ -97,6 +97,22 @@ TEST(PoseGraphGyro, IntegratesTheRateLinearBetweenSamples) {
   EXPECT_EQ(gyro.size(), 201u);
 }
 
+// One sample stamped an hour ahead: the five in-order samples after it re-base the gyro, so
+// the heading over later intervals is integrated from real samples, not toward the future one.
+TEST(PoseGraphGyro, AFutureStampedSampleIsDroppedAfterFiveInOrder) {
+  GyroYawSource gyro;
+  for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.5));
+  EXPECT_TRUE(gyro.AddSample(3'600'000'000LL, 50.0));
+  for (int k = 101; k <= 104; ++k) EXPECT_FALSE(gyro.AddSample(10'000 * k, 0.5));
+  EXPECT_EQ(gyro.rebases(), 0);
+  EXPECT_TRUE(gyro.AddSample(1'050'000, 0.5));
+  EXPECT_EQ(gyro.rebases(), 1);
+  for (int k = 106; k <= 200; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.5));
+  const auto y = gyro.Between(0, 2'000'000);
+  ASSERT_TRUE(y);
+  EXPECT_NEAR(y->delta_rad, 1.0, 1e-9);  // 0.5 rad/s for 2 s; the four held samples are skipped
+}
+
 TEST(PoseGraphGyro, BiasIsRemoved) {
   GyroYawSource gyro(GyroNoise{}, 0.02);
   for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.02));

@@ -91,7 +91,7 @@ class StampedBuffer {
         run_.emplace_back(utime, pose);
         return false;
       case StampOrder::Verdict::kRebase:
-        while (!items_.empty() && items_.back().first >= run_.front().first) {
+        while (!items_.empty() && items_.back().first >= order_.run_first()) {
           items_.pop_back();
           ++dropped_on_rebase_;
         }
@@ -144,6 +144,13 @@ class StampedBuffer {
   int64_t newest_utime() const { return items_.empty() ? 0 : items_.back().first; }
   int64_t oldest_utime() const { return items_.empty() ? 0 : items_.front().first; }
   int64_t rebases() const { return order_.rebases(); }
+  // Drops the entries stamped at or after `utime` (the caller re-bases the stream itself).
+  void DropFrom(int64_t utime) {
+    while (!items_.empty() && items_.back().first >= utime) items_.pop_back();
+    order_.Reset();
+    run_.clear();
+    if (!items_.empty()) (void)order_.Check(items_.back().first);
+  }
   int64_t dropped_on_rebase() const { return dropped_on_rebase_; }
 
  private:

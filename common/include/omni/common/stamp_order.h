@@ -1,7 +1,11 @@
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <limits>
+#include <optional>
+#include <utility>
 
 namespace omni {
 
@@ -47,6 +51,7 @@ class StampOrder {
   // While a run is open (the last Check was kOld): how many stamps it holds and the first.
   int run_length() const { return run_; }
   int64_t run_first() const { return run_first_; }
+  int64_t run_last() const { return run_last_; }
   int64_t rebases() const { return rebases_; }
   void Reset() {
     have_ = false;
@@ -66,6 +71,33 @@ class StampOrder {
   int run_ = 0;
   int64_t run_first_ = 0, run_last_ = 0;
   int64_t rebases_ = 0;
+};
+
+// The state a stream's consumer had after each of its last samples (e.g. an odometry jump
+// correction), so a re-base can put it back as it was before the dropped samples: Restore()
+// pops the entries stamped at or after `utime` and returns the newest one left, or — when every
+// remembered entry was dropped (a source whose clock went back) — the newest dropped one.
+template <class State>
+class StateHistory {
+ public:
+  explicit StateHistory(size_t capacity = 256) : capacity_(capacity) {}
+  void Push(int64_t utime, const State& s) {
+    items_.emplace_back(utime, s);
+    while (items_.size() > capacity_) items_.pop_front();
+  }
+  std::optional<State> Restore(int64_t utime) {
+    std::optional<State> newest_dropped;
+    while (!items_.empty() && items_.back().first >= utime) {
+      if (!newest_dropped) newest_dropped = items_.back().second;
+      items_.pop_back();
+    }
+    if (!items_.empty()) return items_.back().second;
+    return newest_dropped;
+  }
+
+ private:
+  size_t capacity_;
+  std::deque<std::pair<int64_t, State>> items_;
 };
 
 }  // namespace omni

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <algorithm>
+#include <climits>
 #include <cstdint>
 #include <deque>
 #include <optional>
@@ -101,11 +102,17 @@ class FramePoser {
                                      [&](const Queued& q) { return q.utime > utime; }),
                       frames_.end());
         counters_.frames_dropped_future += static_cast<int64_t>(before - frames_.size());
+        trusted_frame_utime_ = utime;
         break;
       }
       case StampOrder::Verdict::kInOrder:
+        // A frame long after the one before it (a glitch, or the camera was off) moves the
+        // frames' time only once the next frame confirms it.
+        if (last_frame_utime_ == INT64_MIN || utime - last_frame_utime_ <= kMaxFrameStepUs)
+          trusted_frame_utime_ = utime;
         break;
     }
+    last_frame_utime_ = utime;
     frames_.push_back({std::move(frame), utime});
     while (frames_.size() > options_.max_queued_frames) {
       frames_.pop_front();
@@ -140,7 +147,10 @@ class FramePoser {
   const FramePoserCounters& counters() const { return counters_; }
   size_t queued() const { return frames_.size(); }
   int64_t newest_pose_utime() const { return poses_.newest_utime(); }
-  int64_t newest_frame_utime() const { return frame_order_.have() ? frame_order_.newest() : 0; }
+  // The newest frame's stamp as far as it can be trusted (the pipeline's `now` follows it):
+  // one frame stamped far ahead does not expire every waiting frame's latency.
+  int64_t newest_frame_utime() const { return trusted_frame_utime_; }
+  static constexpr int64_t kMaxFrameStepUs = 10000000;
 
  private:
   struct Queued {
@@ -167,6 +177,8 @@ class FramePoser {
   StampedBuffer<Pose2> poses_;
   std::deque<Queued> frames_;
   StampOrder frame_order_;
+  int64_t last_frame_utime_ = INT64_MIN;
+  int64_t trusted_frame_utime_ = 0;
 };
 
 }  // namespace omni::octo

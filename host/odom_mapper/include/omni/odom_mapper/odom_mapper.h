@@ -5,11 +5,13 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
 #include "omni/common/result.h"
+#include "omni/common/stamp_order.h"
 #include "omni/io/grid.h"
 
 namespace omni::odom_mapper {
@@ -40,14 +42,14 @@ struct OdomMapperCounters {
   int64_t scans_too_few_beams = 0;  // empty or mostly invalid
   int64_t invalid_beams = 0;        // NaN/inf/negative ranges
   int64_t odom_in = 0;
-  int64_t odom_out_of_order = 0;  // older than the newest odometry: rejected
-  int64_t odom_invalid = 0;       // non-finite pose
-  int64_t odom_jumps = 0;         // jumps between samples, bridged (max_odom_jump_*)
-  int64_t time_rebases = 0;       // a future-stamped sample dropped (common/stamp_order.h)
-  int64_t beams_beyond_grid_cap = 0;
-  int64_t scans_duplicate = 0;  // same seq and stamp as the scan before: mapped once  // not
-                                // mapped: the grid would outgrow max_grid_cells
-  int64_t scans_lost = 0;       // gaps in the driver's scan sequence numbers
+  int64_t odom_out_of_order = 0;      // older than the newest odometry: rejected
+  int64_t odom_invalid = 0;           // non-finite pose
+  int64_t odom_jumps = 0;             // jumps between samples, bridged (max_odom_jump_*)
+  int64_t time_rebases = 0;           // a future-stamped sample dropped (common/stamp_order.h)
+  int64_t beams_beyond_grid_cap = 0;  // not mapped: the grid would outgrow max_grid_cells
+  int64_t scans_duplicate = 0;        // same seq and stamp as the scan before: mapped once  // not
+                                      // mapped: the grid would outgrow max_grid_cells
+  int64_t scans_lost = 0;             // gaps in the driver's scan sequence numbers
   // A spinning lidar's scans (scan_time_s > 0): each beam placed at the odometry pose of its own
   // time, or (no odometry over the whole sweep) the scan mapped at its first beam's pose.
   int64_t sweeps_corrected = 0, sweeps_uncorrected = 0;
@@ -89,8 +91,15 @@ class OdomMapper {
   OdomMapperCounters counters_;
   int64_t last_seq_ = -1;
   int64_t last_scan_utime_ = INT64_MIN;
+  void Take(int64_t utime, const Pose2& pose);  // an in-order sample: jump check, buffer
   std::optional<Pose2> last_raw_;  // the newest accepted raw sample, for jump detection
   Pose2 correction_;               // raw odometry -> jump-free odometry
+  StampOrder order_;
+  std::vector<std::pair<int64_t, Pose2>> run_;  // rejected samples in order (raw)
+  struct JumpState {
+    Pose2 correction, raw;
+  };
+  StateHistory<JumpState> history_;  // after each taken sample, for a re-base
 };
 
 }  // namespace omni::odom_mapper

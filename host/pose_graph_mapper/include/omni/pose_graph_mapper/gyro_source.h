@@ -14,6 +14,7 @@
 #include <optional>
 #include <string>
 
+#include "omni/common/stamp_order.h"
 #include "omni/pose_graph_mapper/continuous_source.h"
 
 namespace omni::pgm {
@@ -31,8 +32,10 @@ class GyroYawSource {
   explicit GyroYawSource(GyroNoise noise = {}, double bias_rad_s = 0.0, size_t capacity = 200000)
       : noise_(noise), bias_(bias_rad_s), capacity_(capacity) {}
   // False (to be counted by the caller) for a non-finite rate or a time older than the newest
-  // sample; a repeated time replaces nothing and is also refused.
+  // sample; a repeated time replaces nothing and is also refused. A run of older samples in
+  // order re-bases the stream (the newest was stamped in the future; stamp_order.h).
   bool AddSample(int64_t utime, double yaw_rate_rad_s);
+  int64_t rebases() const { return order_.rebases(); }
   struct Yaw {
     double delta_rad = 0;
     double variance = 0;
@@ -55,6 +58,7 @@ class GyroYawSource {
   double bias_;
   size_t capacity_;
   std::deque<Sample> samples_;
+  StampOrder order_;
 };
 
 // Wheel odometry with the gyro's heading fused in, step by step (see the top of this file).

@@ -304,8 +304,13 @@ class PoseGraphSlam {
   // 1 us so the odometry buffer stays strictly ordered (internal time).
   int64_t last_odom_utime_ = 0;  // as received
   StampOrder odom_order_;
-  std::vector<std::pair<int64_t, Pose2>>
-      odom_run_;                    // rejected samples in order: a rebase takes them
+  // Rejected samples in order: a re-base takes them.
+  std::vector<std::pair<int64_t, Pose2>> odom_run_;
+  struct OdomState {  // after one taken sample, for a re-base to return to
+    int64_t received, internal;
+    Pose2 raw, corrected, correction;
+  };
+  StateHistory<OdomState> odom_history_;
   int64_t last_odom_internal_ = 0;  // after nudging
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;

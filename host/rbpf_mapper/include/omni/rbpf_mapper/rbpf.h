@@ -179,6 +179,9 @@ class RbpfSlam {
   // sample is stamped in the future): no pose is interpolated across it.
   static constexpr int64_t kMaxOdomSpanUs = 10000000;
   std::optional<Pose2> RawOdometryAt(int64_t utime) const;
+  // Forgets the newest scan stamp: the next scan is in order whatever its time (the process
+  // calls it when its scan stream re-based, so the held run is not refused again here).
+  void RestartScanOrder() { scan_order_.Reset(); }
   // Stamp of the newest odometry sample held (0 before the first).
   int64_t newest_odom_utime() const { return odom_buffer_.newest_utime(); }
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
