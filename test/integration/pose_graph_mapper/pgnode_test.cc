@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -269,40 +270,31 @@ struct MemqNode {
 TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kScans = 120;
-  auto run = [&](bool glitch, std::vector<omni::pose2d_t>* poses, omni::heartbeat_t* hb) {
-    auto bus_or = bus::Bus::Create("memq://");
-    ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
-    auto& b = **bus_or;
-    ManualClock clock(1000000);
-    pgm::PoseGraphNode node(&b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{},
-                            pgm::BatchOptions{}, &clock);
-    b.Subscribe<omni::pose2d_t>("POSE_PG",
-                                [&](const omni::pose2d_t& p, int64_t) { poses->push_back(p); });
-    b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
-                                   [&](const omni::heartbeat_t& h, int64_t) { *hb = h; });
-    testing::PublishCarmenWithGlitches(b, clf, kScans, glitch ? 40 : -1, glitch ? 70 : -1,
-                                       glitch ? 90 : -1, [&](int) { clock.Advance(100000); });
-    node.Flush();
-    node.heartbeat().Tick(true);
-    while (b.HandleTimeout(0) > 0) {
-    }
+  auto replay = [&](const testing::Glitches& g) {
+    return testing::ReplayToNode(clf, kScans, g, "POSE_PG", [](bus::Bus* b, const Clock* clock) {
+      return std::make_unique<pgm::PoseGraphNode>(
+          b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, clock);
+    });
   };
-  std::vector<omni::pose2d_t> clean, glitched;
-  omni::heartbeat_t hb_clean{}, hb{};
-  run(false, &clean, &hb_clean);
-  run(true, &glitched, &hb);
-  ASSERT_GE(clean.size(), static_cast<size_t>(kScans - 1));
-  EXPECT_EQ(testing::HeartbeatCounter(hb_clean, "time_rebases"), 0);
-  EXPECT_EQ(glitched.size(), clean.size());
+  testing::Glitches g;
+  g.future_odom_at = 40;
+  g.future_scan_at = 70;
+  g.duplicate_at = 90;
+  const auto clean = replay({});
+  const auto glitched = replay(g);
+  ASSERT_GE(clean.poses.size(), static_cast<size_t>(kScans - 1));
+  EXPECT_EQ(testing::HeartbeatCounter(clean.heartbeat, "time_rebases"), 0);
+  EXPECT_EQ(glitched.poses.size(), clean.poses.size());
+  const auto& hb = glitched.heartbeat;
   EXPECT_EQ(testing::HeartbeatCounter(hb, "time_rebases"), 2);  // the odometry's and the scans'
   EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 1);
   EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_duplicate"), 1);
   EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_forced"), 0);
-  for (const auto& p : glitched) EXPECT_LT(p.utime, clean.back().utime + 1000000);
-  EXPECT_EQ(glitched.back().utime, clean.back().utime);
-  EXPECT_LT(
-      std::hypot(glitched.back().x_m - clean.back().x_m, glitched.back().y_m - clean.back().y_m),
-      0.05);
+  for (const auto& p : glitched.poses) EXPECT_LT(p.utime, clean.poses.back().utime + 1000000);
+  EXPECT_EQ(glitched.poses.back().utime, clean.poses.back().utime);
+  EXPECT_LT(std::hypot(glitched.poses.back().x_m - clean.poses.back().x_m,
+                       glitched.poses.back().y_m - clean.poses.back().y_m),
+            0.05);
 }
 
 TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {

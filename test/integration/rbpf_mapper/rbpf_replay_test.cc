@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -190,6 +191,16 @@ TEST(RbpfMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   EXPECT_EQ(node.slam().counters().odom_jumps, 0);
 }
 
+testing::NodeReplay ReplayToRbpfNode(const std::string& clf, int scans,
+                                     const testing::Glitches& g) {
+  return testing::ReplayToNode(clf, scans, g, "POSE_RBPF", [](bus::Bus* b, const Clock* clock) {
+    rbpf::RbpfOptions opt;
+    opt.particles = 8;
+    opt.threads = 1;
+    return std::make_unique<rbpf::RbpfNode>(b, opt, clock);
+  });
+}
+
 // One odometry message and one scan stamped an hour ahead, and one pair published twice, in
 // the middle of a run: the node drops them, says so in its heartbeat, and maps on as if they
 // had not come (before, the future odometry froze the odometry and the future scan held the
@@ -197,45 +208,28 @@ TEST(RbpfMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
 TEST(RbpfMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kPairs = 120;
-  auto run = [&](bool glitch, std::vector<omni::pose2d_t>* poses, omni::heartbeat_t* hb) {
-    auto bus_or = bus::Bus::Create("memq://");
-    ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
-    auto& b = **bus_or;
-    rbpf::RbpfOptions opt;
-    opt.particles = 8;
-    opt.threads = 1;
-    ManualClock clock(1000000);
-    rbpf::RbpfNode node(&b, opt, &clock);
-    b.Subscribe<omni::pose2d_t>("POSE_RBPF",
-                                [&](const omni::pose2d_t& p, int64_t) { poses->push_back(p); });
-    b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
-                                   [&](const omni::heartbeat_t& h, int64_t) { *hb = h; });
-    testing::PublishCarmenWithGlitches(b, clf, kPairs, glitch ? 40 : -1, glitch ? 70 : -1,
-                                       glitch ? 90 : -1, [&](int) { clock.Advance(100000); });
-    node.Flush();
-    node.heartbeat().Tick(true);
-    while (b.HandleTimeout(0) > 0) {
-    }
-  };
-  std::vector<omni::pose2d_t> clean, glitched;
-  omni::heartbeat_t hb_clean{}, hb{};
-  run(false, &clean, &hb_clean);
-  run(true, &glitched, &hb);
-  ASSERT_EQ(clean.size(), static_cast<size_t>(kPairs));
-  EXPECT_EQ(testing::HeartbeatCounter(hb_clean, "time_rebases"), 0);
+  testing::Glitches g;
+  g.future_odom_at = 40;
+  g.future_scan_at = 70;
+  g.duplicate_at = 90;
+  const auto clean = ReplayToRbpfNode(clf, kPairs, {});
+  const auto glitched = ReplayToRbpfNode(clf, kPairs, g);
+  ASSERT_EQ(clean.poses.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(testing::HeartbeatCounter(clean.heartbeat, "time_rebases"), 0);
   // The five odometry messages after the future one prove it (stamp_order.h) and are kept; the
   // scans behind the future scan wait in the queue until five of them prove it: none is lost.
-  EXPECT_EQ(glitched.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(glitched.poses.size(), static_cast<size_t>(kPairs));
+  const auto& hb = glitched.heartbeat;
   EXPECT_EQ(testing::HeartbeatCounter(hb, "time_rebases"), 2);  // the odometry's and the scans'
   EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 1);
   EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_duplicate"), 1);
   // No stamp of an hour ahead went out, and the robot kept moving: the last pose is where the
   // clean run's is.
-  for (const auto& p : glitched) EXPECT_LT(p.utime, clean.back().utime + 1000000);
-  EXPECT_EQ(glitched.back().utime, clean.back().utime);
-  EXPECT_LT(
-      std::hypot(glitched.back().x_m - clean.back().x_m, glitched.back().y_m - clean.back().y_m),
-      0.05);
+  for (const auto& p : glitched.poses) EXPECT_LT(p.utime, clean.poses.back().utime + 1000000);
+  EXPECT_EQ(glitched.poses.back().utime, clean.poses.back().utime);
+  EXPECT_LT(std::hypot(glitched.poses.back().x_m - clean.poses.back().x_m,
+                       glitched.poses.back().y_m - clean.poses.back().y_m),
+            0.05);
 }
 
 // The clock set back an hour mid-run (an NTP step, a driver PC's reboot): the node and the
@@ -244,39 +238,19 @@ TEST(RbpfMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
 TEST(RbpfMapperNode, FollowsAClockSetBack) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kPairs = 120;
-  auto run = [&](int clock_back_at, std::vector<omni::pose2d_t>* poses, omni::heartbeat_t* hb) {
-    auto bus_or = bus::Bus::Create("memq://");
-    ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
-    auto& b = **bus_or;
-    rbpf::RbpfOptions opt;
-    opt.particles = 8;
-    opt.threads = 1;
-    ManualClock clock(1000000);
-    rbpf::RbpfNode node(&b, opt, &clock);
-    b.Subscribe<omni::pose2d_t>("POSE_RBPF",
-                                [&](const omni::pose2d_t& p, int64_t) { poses->push_back(p); });
-    b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
-                                   [&](const omni::heartbeat_t& h, int64_t) { *hb = h; });
-    testing::PublishCarmenWithGlitches(
-        b, clf, kPairs, -1, -1, -1, [&](int) { clock.Advance(100000); }, clock_back_at);
-    node.Flush();
-    node.heartbeat().Tick(true);
-    while (b.HandleTimeout(0) > 0) {
-    }
-  };
-  std::vector<omni::pose2d_t> clean, stepped;
-  omni::heartbeat_t hb_clean{}, hb{};
-  run(-1, &clean, &hb_clean);
-  run(60, &stepped, &hb);
-  ASSERT_EQ(clean.size(), static_cast<size_t>(kPairs));
-  EXPECT_EQ(stepped.size(), static_cast<size_t>(kPairs));
-  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_late"), 4);
-  EXPECT_GE(testing::HeartbeatCounter(hb, "time_rebases"), 2);
-  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 0);
-  EXPECT_EQ(stepped.back().utime, clean.back().utime - 3600LL * 1000000);
-  EXPECT_LT(
-      std::hypot(stepped.back().x_m - clean.back().x_m, stepped.back().y_m - clean.back().y_m),
-      0.3);
+  testing::Glitches g;
+  g.clock_back_at = 60;
+  const auto clean = ReplayToRbpfNode(clf, kPairs, {});
+  const auto stepped = ReplayToRbpfNode(clf, kPairs, g);
+  ASSERT_EQ(clean.poses.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(stepped.poses.size(), static_cast<size_t>(kPairs));
+  EXPECT_EQ(testing::HeartbeatCounter(stepped.heartbeat, "scans_late"), 4);
+  EXPECT_GE(testing::HeartbeatCounter(stepped.heartbeat, "time_rebases"), 2);
+  EXPECT_EQ(testing::HeartbeatCounter(stepped.heartbeat, "scans_future_dropped"), 0);
+  EXPECT_EQ(stepped.poses.back().utime, clean.poses.back().utime - 3600LL * 1000000);
+  EXPECT_LT(std::hypot(stepped.poses.back().x_m - clean.poses.back().x_m,
+                       stepped.poses.back().y_m - clean.poses.back().y_m),
+            0.3);
 }
 
 TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {

@@ -15,12 +15,14 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
 #include "omni/common/geometry.h"
+#include "omni/common/time.h"
 #include "omni/eval/eval.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
 #include "omni/odometry_t.hpp"
+#include "omni/pose2d_t.hpp"
 #include "run.h"
 
 namespace omni::testing {
@@ -92,17 +94,21 @@ inline int64_t HeartbeatCounter(const omni::heartbeat_t& h, const std::string& n
   return -1;
 }
 
+// The bad stamps a glitching clock or a corrupt field produce, by scan index (-1: none): after
+// scan `future_odom_at` one extra odometry message stamped an hour ahead, after scan
+// `future_scan_at` one extra scan stamped so, scan `duplicate_at` published twice, and from
+// scan `clock_back_at` on every stamp an hour earlier (a clock set back).
+struct Glitches {
+  int future_odom_at = -1, future_scan_at = -1, duplicate_at = -1, clock_back_at = -1;
+};
+
 // Publishes the first `scans` laser scans of a CARMEN log on `bus`, each after five WHEEL_ODOM
 // messages interpolated from the previous scan's robot pose to its own (odometry at about five
 // times the scan rate, as on the robot), handling the bus after each scan and calling
-// `step(i)`. After scan `future_odom_at` one extra odometry message stamped an hour ahead is
-// published, after scan `future_scan_at` one extra scan stamped so, and scan `duplicate_at` is
-// published twice (-1: none): the bad stamps a glitching clock or a corrupt field produce.
-// From scan `clock_back_at` on, every stamp is an hour earlier (a clock set back).
+// `step(i)`, with the glitches `g` asks for.
 template <typename Step>
-void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans, int future_odom_at,
-                               int future_scan_at, int duplicate_at, Step step,
-                               int clock_back_at = -1) {
+void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans, const Glitches& g,
+                               Step step) {
   auto log = io::ReadCarmenLog(clf);
   ASSERT_TRUE(log.ok()) << log.error().message;
   constexpr int64_t kHourUs = 3600LL * 1000000;
@@ -113,7 +119,7 @@ void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans,
     if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
     io::CarmenOdom o;
     o.timestamp_s = r.laser.timestamp_s;
-    if (clock_back_at >= 0 && seq >= clock_back_at) o.timestamp_s -= 3600.0;
+    if (g.clock_back_at >= 0 && seq >= g.clock_back_at) o.timestamp_s -= 3600.0;
     o.pose = r.laser.robot_pose;
     omni::odometry_t odom{};
     for (int k = prev ? 1 : kOdomPerScan; k <= kOdomPerScan; ++k) {
@@ -130,13 +136,13 @@ void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans,
     auto laser = r.laser;
     laser.timestamp_s = o.timestamp_s;
     const auto scan = bus::ToLaserScan(laser, seq);
-    for (int k = 0; k < (seq == duplicate_at ? 2 : 1); ++k) bus.Publish("LIDAR_SCAN", scan);
-    if (seq == future_odom_at) {
+    for (int k = 0; k < (seq == g.duplicate_at ? 2 : 1); ++k) bus.Publish("LIDAR_SCAN", scan);
+    if (seq == g.future_odom_at) {
       auto late = odom;
       late.utime += kHourUs;
       bus.Publish("WHEEL_ODOM", late);
     }
-    if (seq == future_scan_at) {
+    if (seq == g.future_scan_at) {
       auto late = scan;
       late.utime += kHourUs;
       bus.Publish("LIDAR_SCAN", late);
@@ -146,6 +152,37 @@ void PublishCarmenWithGlitches(bus::Bus& bus, const std::string& clf, int scans,
     step(static_cast<int>(seq));
     if (++seq >= scans) break;
   }
+}
+
+// What a mapper node published over such a replay: its poses and its last heartbeat.
+struct NodeReplay {
+  std::vector<omni::pose2d_t> poses;
+  omni::heartbeat_t heartbeat{};
+};
+
+// Replays the first `scans` scans of `clf` with `g` to the node `make_node(bus, clock)` builds
+// on memq:// (a manual clock advancing 0.1 s per scan), flushes it and collects what it
+// published on `pose_channel` and HEARTBEAT.
+template <typename MakeNode>
+NodeReplay ReplayToNode(const std::string& clf, int scans, const Glitches& g,
+                        const std::string& pose_channel, MakeNode make_node) {
+  NodeReplay out;
+  auto bus_or = bus::Bus::Create("memq://");
+  EXPECT_TRUE(bus_or.ok()) << bus_or.error().message;
+  if (!bus_or.ok()) return out;
+  auto& b = **bus_or;
+  ManualClock clock(1000000);
+  auto node = make_node(&b, &clock);
+  b.Subscribe<omni::pose2d_t>(pose_channel,
+                              [&](const omni::pose2d_t& p, int64_t) { out.poses.push_back(p); });
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT",
+                                 [&](const omni::heartbeat_t& h, int64_t) { out.heartbeat = h; });
+  PublishCarmenWithGlitches(b, clf, scans, g, [&](int) { clock.Advance(100000); });
+  node->Flush();
+  node->heartbeat().Tick(true);
+  while (b.HandleTimeout(0) > 0) {
+  }
+  return out;
 }
 
 }  // namespace omni::testing

@@ -392,14 +392,23 @@ TEST(MapOutput, ColorTreeSavesAndLoadsBackAsColorOcTree) {
   EXPECT_GT(view.width, 10);
 }
 
+// A depth-only pipeline (colour off) and a flat depth frame of the wall 2.03 m ahead.
+struct DepthOnlyPipeline {
+  static OctomapBuilderOptions Options() {
+    OctomapBuilderOptions opt = ColorOptions();
+    opt.color = false;
+    return opt;
+  }
+  OctomapPipeline p{Options()};
+  const int64_t t0 = 1000000000;
+  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+};
+
 // A pose 10^7 m out puts every point of the frame outside the octree's key range (about
 // +-1638 m at 5 cm): nothing is mapped, and the frame is counted as such, not as inserted.
 TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
-  OctomapBuilderOptions opt = ColorOptions();
-  opt.color = false;
-  OctomapPipeline p(opt);
-  const int64_t t0 = 1000000000;
-  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+  DepthOnlyPipeline f;
+  auto& [p, t0, d] = f;
   p.AddPose(t0, Pose2(0, 0, 0));
   p.AddPose(t0 + 100000, Pose2(0, 0, 0));
   d.utime = t0 + 50000;
@@ -418,11 +427,8 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
 // A depth frame stamped an hour ahead must not become the pipeline's `now`: the frame before
 // it, still waiting for its pose, would expire at once.
 TEST(OctomapPipeline, AFutureDepthFrameDoesNotExpireTheWaitingOnes) {
-  OctomapBuilderOptions opt = ColorOptions();
-  opt.color = false;
-  OctomapPipeline p(opt);
-  const int64_t t0 = 1000000000;
-  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+  DepthOnlyPipeline f;
+  auto& [p, t0, d] = f;
   p.AddPose(t0, Pose2(0, 0, 0));
   d.utime = t0 + 50000;
   p.AddDepth(d);
