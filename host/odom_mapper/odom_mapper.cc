@@ -41,30 +41,22 @@ bool OdomMapper::AddOdometry(int64_t utime, const Pose2& pose) {
     ++counters_.odom_invalid;
     return false;
   }
-  switch (order_.Check(utime)) {
-    case StampOrder::Verdict::kOld:  // held: a run of these re-bases the stream
-      if (order_.run_length() == 1) run_.clear();
-      run_.emplace_back(utime, pose);
-      ++counters_.odom_out_of_order;
-      return false;
-    case StampOrder::Verdict::kRebase: {
-      // The newest samples were stamped in the future (or the clock went back): drop them,
-      // put the jump bridge back as it was before them, and take the run.
-      ++counters_.time_rebases;
-      odom_.DropFrom(order_.run_first());
-      if (const auto s = history_.Restore(order_.run_first())) {
-        correction_ = s->correction;
-        last_raw_ = s->raw;
-      }
-      const std::vector<std::pair<int64_t, Pose2>> run = std::move(run_);
-      run_.clear();
-      for (const auto& [t, p] : run) Take(t, p);
-      break;
+  // Older samples are held; a run of them re-bases the stream: the newest samples were stamped
+  // in the future (or the clock went back), so they are dropped and the jump bridge is put
+  // back as it was before them.
+  const auto rebase = [this](int64_t from) {
+    ++counters_.time_rebases;
+    odom_.DropFrom(from);
+    if (const auto s = history_.Restore(from)) {
+      correction_ = s->correction;
+      last_raw_ = s->raw;
     }
-    case StampOrder::Verdict::kInOrder:
-      break;
+  };
+  const auto take = [this](int64_t t, const Pose2& p) { Take(t, p); };
+  if (stream_.Add(utime, pose, rebase, take) == StampOrder::Verdict::kOld) {
+    ++counters_.odom_out_of_order;
+    return false;
   }
-  Take(utime, pose);
   return true;
 }
 

@@ -170,39 +170,28 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
     ++c_.odom_invalid;
     return;
   }
-  switch (odom_order_.Check(utime)) {
-    case StampOrder::Verdict::kOld:
-      if (odom_order_.run_length() == 1) odom_run_.clear();
-      odom_run_.emplace_back(utime, raw);
-      ++c_.odom_out_of_order;
-      return;
-    case StampOrder::Verdict::kRebase: {
-      // The newest samples were stamped ahead of the stream (or its clock went back): drop
-      // them, put the state back as it was after the newest sample kept, take the run.
-      ++c_.time_rebases;
-      const int64_t first = odom_order_.run_first();
-      const std::optional<OdomState> st = odom_history_.Restore(first);
-      // Kept: drop what came after it (by internal time, which nudging may have moved past
-      // `first`); none kept: every sample held is newer than the run.
-      const bool kept = st && st->received < first;
-      odom_.DropFrom(kept ? st->internal + 1 : std::numeric_limits<int64_t>::min());
-      have_odom_ = kept;
-      if (st) {  // the newest dropped one when none is kept: jumps stay bridged across
-        last_odom_utime_ = st->received;
-        last_odom_internal_ = st->internal;
-        last_raw_ = st->raw;
-        last_corrected_ = st->corrected;
-        correction_ = st->correction;
-      }
-      const std::vector<std::pair<int64_t, Pose2>> run = std::move(odom_run_);
-      odom_run_.clear();
-      for (const auto& [t, p] : run) TakeOdometry(t, p);
-      break;
+  // Older samples are held; a run of them re-bases the stream: the newest samples were stamped
+  // ahead of it (or its clock went back), so they are dropped and the state is put back as it
+  // was after the newest sample kept.
+  const auto rebase = [this](int64_t first) {
+    ++c_.time_rebases;
+    const std::optional<OdomState> st = odom_history_.Restore(first);
+    // Kept: drop what came after it (by internal time, which nudging may have moved past
+    // `first`); none kept: every sample held is newer than the run.
+    const bool kept = st && st->received < first;
+    odom_.DropFrom(kept ? st->internal + 1 : std::numeric_limits<int64_t>::min());
+    have_odom_ = kept;
+    if (st) {  // the newest dropped one when none is kept: jumps stay bridged across
+      last_odom_utime_ = st->received;
+      last_odom_internal_ = st->internal;
+      last_raw_ = st->raw;
+      last_corrected_ = st->corrected;
+      correction_ = st->correction;
     }
-    case StampOrder::Verdict::kInOrder:
-      break;
-  }
-  TakeOdometry(utime, raw);
+  };
+  const auto take = [this](int64_t t, const Pose2& p) { TakeOdometry(t, p); };
+  if (odom_stream_.Add(utime, raw, rebase, take) == StampOrder::Verdict::kOld)
+    ++c_.odom_out_of_order;
 }
 
 void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
@@ -274,8 +263,9 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   // While older odometry keeps coming in order behind the newest sample, that sample is in
   // doubt (stamped in the future?): a scan beyond what the older run covers waits no odometry
   // from it, or it would become a keyframe that every later scan is older than.
-  if (odom_order_.run_length() > 0 &&
-      static_cast<double>(scan.utime - odom_order_.run_last()) > o_.max_scan_odom_gap_s * 1e6) {
+  const StampOrder& odom_order = odom_stream_.order();
+  if (odom_order.run_length() > 0 &&
+      static_cast<double>(scan.utime - odom_order.run_last()) > o_.max_scan_odom_gap_s * 1e6) {
     ++c_.scans_no_odom;
     return false;
   }

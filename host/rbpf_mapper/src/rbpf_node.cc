@@ -58,7 +58,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("scans_too_few_beams", [&c] { return c.scans_too_few_beams; });
   heartbeat_.AddCounter("scans_time_backwards", [&c] { return c.scans_time_backwards; });
   heartbeat_.AddCounter("time_rebases",
-                        [this, &c] { return c.time_rebases + scan_order_.rebases(); });
+                        [this, &c] { return c.time_rebases + scan_stream_.order().rebases(); });
   heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("scans_late", [this] { return scans_late_; });
@@ -92,19 +92,9 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
     if (last_seq_ >= 0 && seq > last_seq_ + 1) scans_lost_ += seq - last_seq_ - 1;
     last_seq_ = seq;
   }
-  const StampOrder::Verdict order = scan_order_.Check(scan.utime);
-  if (order == StampOrder::Verdict::kOld) {
-    // Older than the newest scan: held. Alone it is a late scan and is dropped; five in order
-    // re-base the stream below and are all mapped.
-    ++scans_late_;
-    if (scan_order_.run_length() == 1) {
-      bus_->counters().drops += static_cast<int64_t>(held_.size());
-      held_.clear();
-    }
-    held_.push_back(scan);
-    return;
-  }
-  if (order == StampOrder::Verdict::kRebase) {
+  // A scan older than the newest is held: alone it is a late scan and is given up; five in
+  // order re-base the stream and are all mapped.
+  const auto rebase = [this, &scan](int64_t) {
     // In-order scans older than the queue's newest keep coming: those newer than this one that
     // no odometry covers were stamped in the future and would block the queue waiting for
     // odometry that never comes. (Covered ones are real: the clock went back behind them.)
@@ -123,10 +113,15 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
     // the stream from the held run on.
     Drain(true, INT32_MAX);
     slam_.RestartScanOrder();
-    for (auto& h : held_) pending_.push_back(std::move(h));
-    held_.clear();
+  };
+  const int64_t abandoned = scan_stream_.abandoned();
+  const StampOrder::Verdict order = scan_stream_.Add(
+      scan.utime, scan, rebase, [this](int64_t, ScanInput s) { pending_.push_back(std::move(s)); });
+  bus_->counters().drops += scan_stream_.abandoned() - abandoned;
+  if (order == StampOrder::Verdict::kOld) {
+    ++scans_late_;
+    return;
   }
-  pending_.push_back(scan);
   AttachOdometry();
   max_pending_seen_ = std::max(max_pending_seen_, static_cast<int64_t>(pending_.size()));
   while (pending_.size() > kMaxPending) {  // filter far behind or odometry stopped: stay bounded
@@ -137,7 +132,7 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
 }
 
 int64_t RbpfNode::NewestMessageUtime() const {
-  return std::max(newest_odom_utime_, scan_order_.newest());
+  return std::max(newest_odom_utime_, scan_stream_.order().newest());
 }
 
 int RbpfNode::ProcessReady(int max_scans) { return Drain(false, max_scans); }

@@ -85,24 +85,12 @@ class StampedBuffer {
   // dropped and the run is taken in their place (`rebases()` counts it, `dropped_on_rebase()`
   // the entries dropped).
   bool Insert(int64_t utime, const PoseT& pose) {
-    switch (order_.Check(utime)) {
-      case StampOrder::Verdict::kOld:
-        if (order_.run_length() == 1) run_.clear();
-        run_.emplace_back(utime, pose);
-        return false;
-      case StampOrder::Verdict::kRebase:
-        while (!items_.empty() && items_.back().first >= order_.run_first()) {
-          items_.pop_back();
-          ++dropped_on_rebase_;
-        }
-        for (const auto& r : run_) Append(r.first, r.second);
-        run_.clear();
-        break;
-      case StampOrder::Verdict::kInOrder:
-        break;
-    }
-    Append(utime, pose);
-    return true;
+    const auto drop_from = [this](int64_t from) {
+      for (; !items_.empty() && items_.back().first >= from; ++dropped_on_rebase_)
+        items_.pop_back();
+    };
+    const auto append = [this](int64_t t, const PoseT& p) { Append(t, p); };
+    return stream_.Add(utime, pose, drop_from, append) != StampOrder::Verdict::kOld;
   }
 
   // Interpolated pose at `utime`; nullopt when outside [oldest, newest] by more than `slack_us`
@@ -143,13 +131,12 @@ class StampedBuffer {
   size_t size() const { return items_.size(); }
   int64_t newest_utime() const { return items_.empty() ? 0 : items_.back().first; }
   int64_t oldest_utime() const { return items_.empty() ? 0 : items_.front().first; }
-  int64_t rebases() const { return order_.rebases(); }
+  int64_t rebases() const { return stream_.order().rebases(); }
   // Drops the entries stamped at or after `utime` (the caller re-bases the stream itself).
   void DropFrom(int64_t utime) {
     while (!items_.empty() && items_.back().first >= utime) items_.pop_back();
-    order_.Reset();
-    run_.clear();
-    if (!items_.empty()) (void)order_.Check(items_.back().first);
+    stream_.Reset();
+    if (!items_.empty()) stream_.Seed(items_.back().first);
   }
   int64_t dropped_on_rebase() const { return dropped_on_rebase_; }
 
@@ -165,8 +152,7 @@ class StampedBuffer {
 
   size_t capacity_;
   std::deque<std::pair<int64_t, PoseT>> items_;
-  StampOrder order_;
-  std::vector<std::pair<int64_t, PoseT>> run_;
+  HeldRun<PoseT> stream_;
   int64_t dropped_on_rebase_ = 0;
 };
 

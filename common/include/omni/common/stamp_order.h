@@ -6,6 +6,7 @@
 #include <limits>
 #include <optional>
 #include <utility>
+#include <vector>
 
 namespace omni {
 
@@ -71,6 +72,54 @@ class StampOrder {
   int run_ = 0;
   int64_t run_first_ = 0, run_last_ = 0;
   int64_t rebases_ = 0;
+};
+
+// A StampOrder that also holds the rejected run's samples, so a re-base loses none of them.
+// Add() hands the samples to take, in order, to `take(utime, sample)`: the sample itself when
+// in order; nothing when it is older (it is held); on a re-base first `on_rebase(run_first)`
+// (the caller drops what it holds stamped at or after it), then the held run and the sample.
+// A run broken before it re-bases is given up (`abandoned()` counts its samples).
+template <class Sample>
+class HeldRun {
+ public:
+  template <class OnRebase, class Take>
+  StampOrder::Verdict Add(int64_t utime, Sample sample, OnRebase on_rebase, Take take) {
+    const StampOrder::Verdict v = order_.Check(utime);
+    switch (v) {
+      case StampOrder::Verdict::kOld:
+        if (order_.run_length() == 1) {
+          abandoned_ += static_cast<int64_t>(run_.size());
+          run_.clear();
+        }
+        run_.emplace_back(utime, std::move(sample));
+        return v;
+      case StampOrder::Verdict::kRebase: {
+        on_rebase(order_.run_first());
+        std::vector<std::pair<int64_t, Sample>> run;
+        run.swap(run_);
+        for (auto& [t, s] : run) take(t, std::move(s));
+        break;
+      }
+      case StampOrder::Verdict::kInOrder:
+        break;
+    }
+    take(utime, std::move(sample));
+    return v;
+  }
+  const StampOrder& order() const { return order_; }
+  int64_t abandoned() const { return abandoned_; }
+  // Forgets the order and the held run (the caller dropped what it held).
+  void Reset() {
+    order_.Reset();
+    run_.clear();
+  }
+  // Orders from `utime` on (e.g. the newest sample the caller still holds).
+  void Seed(int64_t utime) { (void)order_.Check(utime); }
+
+ private:
+  StampOrder order_;
+  std::vector<std::pair<int64_t, Sample>> run_;
+  int64_t abandoned_ = 0;
 };
 
 // The state a stream's consumer had after each of its last samples (e.g. an odometry jump

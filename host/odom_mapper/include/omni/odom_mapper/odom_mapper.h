@@ -94,8 +94,7 @@ class OdomMapper {
   void Take(int64_t utime, const Pose2& pose);  // an in-order sample: jump check, buffer
   std::optional<Pose2> last_raw_;  // the newest accepted raw sample, for jump detection
   Pose2 correction_;               // raw odometry -> jump-free odometry
-  StampOrder order_;
-  std::vector<std::pair<int64_t, Pose2>> run_;  // rejected samples in order (raw)
+  HeldRun<Pose2> stream_;          // raw samples: older ones held until they re-base or give up
   struct JumpState {
     Pose2 correction, raw;
   };

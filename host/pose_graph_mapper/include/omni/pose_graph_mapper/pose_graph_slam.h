@@ -303,10 +303,8 @@ class PoseGraphSlam {
   // Logs such as intel.clf stamp several messages with one time: equal stamps are nudged by
   // 1 us so the odometry buffer stays strictly ordered (internal time).
   int64_t last_odom_utime_ = 0;  // as received
-  StampOrder odom_order_;
-  // Rejected samples in order: a re-base takes them.
-  std::vector<std::pair<int64_t, Pose2>> odom_run_;
-  struct OdomState {  // after one taken sample, for a re-base to return to
+  HeldRun<Pose2> odom_stream_;   // raw samples: older ones held until they re-base or give up
+  struct OdomState {             // after one taken sample, for a re-base to return to
     int64_t received, internal;
     Pose2 raw, corrected, correction;
   };

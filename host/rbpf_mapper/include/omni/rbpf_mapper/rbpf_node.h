@@ -65,13 +65,12 @@ class RbpfNode {
   bus::Heartbeat heartbeat_;
   std::deque<ScanInput> pending_;
   int64_t newest_odom_utime_ = INT64_MIN;
-  // Newest scan stamp, re-based when a scan stamped in the future is followed by in-order ones.
-  StampOrder scan_order_;
+  // The scans' order: older ones are held, and five in order re-base it (stamp_order.h).
+  HeldRun<ScanInput> scan_stream_;
   int64_t scans_future_dropped_ = 0;  // queued scans dropped by such a re-base
   int64_t last_scan_utime_ = INT64_MIN;
   int64_t scans_duplicate_ = 0;  // same seq and stamp as the scan before: dropped
   int64_t scans_late_ = 0;       // older than the newest scan on arrival (held, see OnScan)
-  std::vector<ScanInput> held_;  // the current run of such scans
   int64_t last_seq_ = -1;
   int64_t scans_lost_ = 0;
   int64_t poses_published_ = 0;
