@@ -170,32 +170,69 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
     ++c_.odom_invalid;
     return;
   }
-  // Older samples are held; a run of them re-bases the stream: the newest samples were stamped
-  // ahead of it (or its clock went back), so they are dropped and the state is put back as it
-  // was after the newest sample kept.
-  const auto rebase = [this](int64_t first) {
-    ++c_.time_rebases;
-    const std::optional<OdomState> st = odom_history_.Restore(first);
-    // Kept: drop what came after it (by internal time, which nudging may have moved past
-    // `first`); none kept: every sample held is newer than the run.
-    const bool kept = st && st->received < first;
-    odom_.DropFrom(kept ? st->internal + 1 : std::numeric_limits<int64_t>::min());
-    have_odom_ = kept;
-    if (st) {  // the newest dropped one when none is kept: jumps stay bridged across
-      last_odom_utime_ = st->received;
-      last_odom_internal_ = st->internal;
-      last_raw_ = st->raw;
-      last_corrected_ = st->corrected;
-      correction_ = st->correction;
-    }
-  };
+  // Older samples are held; a run of them re-bases the stream (RebaseOdometry).
+  const auto rebase = [this](int64_t first) { RebaseOdometry(first); };
   const auto take = [this](int64_t t, const Pose2& p) { TakeOdometry(t, p); };
   if (odom_stream_.Add(utime, raw, rebase, take) == StampOrder::Verdict::kOld)
     ++c_.odom_out_of_order;
+  if (replay_held_scans_) {
+    // The scans that came with the new clock before the step was proven are covered now.
+    replay_held_scans_ = false;
+    std::vector<std::pair<int64_t, LaserScan2>> held;
+    held.swap(held_scans_);
+    for (auto& [index, scan] : held)
+      if (AcceptScan(index, scan)) ++c_.scans_replayed;
+  }
+}
+
+int64_t PoseGraphSlam::OnTimeLine(int64_t utime) const {
+  int64_t t = 0;
+  if (__builtin_add_overflow(utime, time_offset_, &t))
+    return time_offset_ > 0 ? std::numeric_limits<int64_t>::max()
+                            : std::numeric_limits<int64_t>::min();
+  return t;
+}
+
+void PoseGraphSlam::RebaseOdometry(int64_t first) {
+  ++c_.time_rebases;
+  const int64_t at = OnTimeLine(first);
+  // A mapped scan stands on odometry at or after the run's start: the samples the run would
+  // drop were real, and the source's clock went back (an NTP step, a reboot; or a future stamp
+  // already mapped with its scan, which then stays). Nothing is dropped: from now on stamps are
+  // shifted so the run starts one odometry period after the newest sample, and the keyframes,
+  // odometry and loops keep their times. The gyro's samples were on the old clock and it
+  // restarts; scans that came with the new clock before this was proven are replayed.
+  constexpr int64_t kFar = std::numeric_limits<int64_t>::max() / 4;  // ~73,000 years in us
+  if (at <= last_scan_utime_ && have_odom_ && last_odom_internal_ < kFar && first > -kFar) {
+    ++c_.clock_steps_back;
+    const int64_t period = std::clamp<int64_t>(last_odom_period_us_, 1000, 1000000);
+    time_offset_ = last_odom_internal_ + period - first;
+    gyro_.Reset();
+    replay_held_scans_ = true;
+    return;
+  }
+  // Otherwise the newest samples were stamped ahead of the run: they are dropped and the state
+  // is put back as it was after the newest sample kept.
+  const std::optional<OdomState> st = odom_history_.Restore(at);
+  // Kept: drop what came after it (by internal time, which nudging may have moved past `at`);
+  // none kept: every sample held is newer than the run.
+  const bool kept = st && st->stamp < at;
+  odom_.DropFrom(kept ? st->internal + 1 : std::numeric_limits<int64_t>::min());
+  have_odom_ = kept;
+  if (st) {  // the newest dropped one when none is kept: jumps stay bridged across
+    last_odom_utime_ = st->received;
+    last_odom_stamp_ = st->stamp;
+    last_odom_internal_ = st->internal;
+    last_raw_ = st->raw;
+    last_corrected_ = st->corrected;
+    correction_ = st->correction;
+  }
 }
 
 void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
-  const int64_t internal = have_odom_ ? std::max(utime, last_odom_internal_ + 1) : utime;
+  const int64_t stamp = OnTimeLine(utime);
+  const int64_t internal = have_odom_ ? std::max(stamp, last_odom_internal_ + 1) : stamp;
+  if (have_odom_) last_odom_period_us_ = internal - last_odom_internal_;
   if (have_odom_) {
     const Pose2 step = last_raw_.Between(raw);
     if (std::hypot(step.x, step.y) > o_.max_odom_jump_m ||
@@ -209,16 +246,17 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
   odom_.AddSample(internal, corrected);
   have_odom_ = true;
   last_odom_utime_ = utime;
+  last_odom_stamp_ = stamp;
   last_odom_internal_ = internal;
   last_raw_ = raw;
   last_corrected_ = corrected;
-  odom_history_.Push(utime, {utime, internal, raw, corrected, correction_});
+  odom_history_.Push(stamp, {utime, stamp, internal, raw, corrected, correction_});
 }
 
 bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {
   ++c_.imu_in;
   const int64_t rebases = gyro_.rebases();
-  if (!gyro_.AddSample(utime, rate)) {
+  if (!gyro_.AddSample(OnTimeLine(utime), rate)) {
     ++c_.imu_rejected;
     return false;
   }
@@ -228,8 +266,16 @@ bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {
 
 bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   ++c_.scans_in;
-  if (scan.utime < last_scan_utime_) {
+  return AcceptScan(scan_index, scan);
+}
+
+bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
+  const int64_t su = OnTimeLine(scan.utime);  // the scan's time on the mapper's time line
+  if (su < last_scan_utime_) {
     ++c_.scans_time_backwards;
+    // Kept a while: if the odometry's clock went back, this scan came on the new clock.
+    if (held_scans_.size() >= kMaxHeldScans) held_scans_.erase(held_scans_.begin());
+    held_scans_.emplace_back(scan_index, scan);
     return false;
   }
   if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
@@ -240,9 +286,9 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
   // The base's motion from the first beam to the last (a spinning lidar's sweep).
   std::optional<Pose2> sweep;
   if (scan.scan_time_s > 0 && scan.scan_time_s <= 1.f) {  // a plausible sweep (bus::SweepTime)
-    const int64_t t1 = scan.utime + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
-    if (have_odom_ && scan.utime >= odom_.oldest_utime() && t1 <= last_odom_utime_) {
-      auto m = Motion().Between(scan.utime, t1);
+    const int64_t t1 = su + std::llround(static_cast<double>(scan.scan_time_s) * 1e6);
+    if (have_odom_ && su >= odom_.oldest_utime() && t1 <= last_odom_stamp_) {
+      auto m = Motion().Between(su, t1);
       // An odometry jump inside the sweep is not motion: the scan is then used as it is.
       if (m && std::hypot(m->delta.x, m->delta.y) <= o_.max_odom_jump_m &&
           std::abs(m->delta.theta) <= o_.max_odom_jump_rad)
@@ -255,8 +301,8 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
     ++c_.scans_too_few_beams;
     return false;
   }
-  if (!have_odom_ || scan.utime < odom_.oldest_utime() ||
-      static_cast<double>(scan.utime - last_odom_utime_) > o_.max_scan_odom_gap_s * 1e6) {
+  if (!have_odom_ || su < odom_.oldest_utime() ||
+      static_cast<double>(su - last_odom_stamp_) > o_.max_scan_odom_gap_s * 1e6) {
     ++c_.scans_no_odom;
     return false;
   }
@@ -270,7 +316,7 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
     return false;
   }
   // A scan at or slightly after the newest odometry sample uses that sample's pose.
-  const int64_t t = scan.utime >= last_odom_utime_ ? last_odom_internal_ : scan.utime;
+  const int64_t t = su >= last_odom_stamp_ ? last_odom_internal_ : su;
   RelativeMotion motion;
   if (!keyframes_.empty()) {
     const int64_t kt = keyframes_.back().utime;
@@ -285,7 +331,8 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
     }
     motion = *m;
   }
-  last_scan_utime_ = scan.utime;
+  last_scan_utime_ = su;
+  held_scans_.clear();  // older than this one for good
   ++c_.scans_used;
   c_.invalid_beams += st.not_finite + st.out_of_range;
   if (scan.scan_time_s > 0) ++(sweep ? c_.sweeps_corrected : c_.sweeps_uncorrected);
@@ -293,9 +340,9 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
                      std::hypot(motion.delta.x, motion.delta.y) >= o_.keyframe_distance_m ||
                      std::abs(motion.delta.theta) >= o_.keyframe_angle_rad;
   // A fix that has waited its time window for a keyframe at or after it gets one now.
-  const bool fix_waiting = !absolute_queue_.empty() && absolute_queue_.begin()->first <= t &&
-                           static_cast<double>(scan.utime - absolute_queue_.begin()->first) >=
-                               o_.absolute_max_wait_s * 1e6;
+  const bool fix_waiting =
+      !absolute_queue_.empty() && absolute_queue_.begin()->first <= t &&
+      static_cast<double>(su - absolute_queue_.begin()->first) >= o_.absolute_max_wait_s * 1e6;
   const bool make_kf = moved || fix_waiting;
   if (make_kf && !moved) ++c_.keyframes_for_absolute;
   last_scan_motion_covariance_ = make_kf ? Eigen::Matrix3d::Zero() : motion.covariance;
@@ -455,6 +502,7 @@ AbsoluteOutcome PoseGraphSlam::AddAbsolutePose(int64_t utime, const Pose2& z,
     ++c_.absolute_invalid;
     return AbsoluteOutcome::kInvalid;
   }
+  utime = OnTimeLine(utime);
   if (keyframes_.empty() || utime > keyframes_.back().utime) {
     // No pose at or after this time yet: wait for the keyframe that covers it.
     if (absolute_queue_.size() >= kMaxQueuedAbsolute) {

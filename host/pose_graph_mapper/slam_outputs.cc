@@ -77,6 +77,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"keyframes_for_absolute\": %lld",
       ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced), ll(c.absolute_queued),
       ll(c.absolute_rejected), ll(c.absolute_invalid), ll(c.keyframes_for_absolute));
+  std::fprintf(f, ", \"clock_steps_back\": %lld, \"scans_replayed\": %lld", ll(c.clock_steps_back),
+               ll(c.scans_replayed));
   std::fprintf(f, ", \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld",
                ll(c.sweeps_corrected), ll(c.sweeps_uncorrected));
   std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",

@@ -143,6 +143,8 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_forced", [this] { return scans_forced_; });
   heartbeat_.AddCounter("time_rebases",
                         [this, &c] { return c.time_rebases + scan_order_.rebases(); });
+  heartbeat_.AddCounter("clock_steps_back", [&c] { return c.clock_steps_back; });
+  heartbeat_.AddCounter("scans_replayed", [&c] { return c.scans_replayed; });
   heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
@@ -249,8 +251,12 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
 }
 
 void PoseGraphNode::HandOdometry(const Item& odom) {
+  const int64_t replayed = slam_.counters().scans_replayed;
   slam_.AddOdometry(odom.utime, odom.odom);
   handed_odom_utime_ = slam_.newest_odom_utime();  // moves back when the mapper re-bases
+  // A clock step back proven: the scans the mapper held meanwhile are mapped now (the newest
+  // one's pose goes out; the others are in the trajectory).
+  if (slam_.counters().scans_replayed > replayed) PublishLastPose();
 }
 
 void PoseGraphNode::HandleScan(const LaserScan2& scan) {
@@ -258,6 +264,10 @@ void PoseGraphNode::HandleScan(const LaserScan2& scan) {
     ++bus_->counters().drops;  // the reason is in the mapper's counters
     return;
   }
+  PublishLastPose();
+}
+
+void PoseGraphNode::PublishLastPose() {
   ScanPose sp;
   Eigen::Matrix3d cov;
   if (!slam_.LastScanPose(&sp) || !slam_.LastScanCovariance(&cov)) return;

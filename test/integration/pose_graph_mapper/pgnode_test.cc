@@ -297,6 +297,37 @@ TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
             0.05);
 }
 
+// The clock set back an hour mid-run (an NTP step, a driver PC's reboot): the mapper lays the
+// new clock after the old one instead of refusing every later scan as older than its keyframes;
+// the scan that came before the step was proven is held and mapped. Poses keep the scans' own
+// stamps.
+TEST(PoseGraphMapperNode, FollowsAClockSetBack) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  constexpr int kScans = 120;
+  auto replay = [&](const testing::Glitches& g) {
+    return testing::ReplayToNode(clf, kScans, g, "POSE_PG", [](bus::Bus* b, const Clock* clock) {
+      return std::make_unique<pgm::PoseGraphNode>(
+          b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, clock);
+    });
+  };
+  testing::Glitches g;
+  g.clock_back_at = 60;
+  const auto clean = replay({});
+  const auto stepped = replay(g);
+  ASSERT_GE(clean.poses.size(), static_cast<size_t>(kScans - 1));
+  EXPECT_EQ(stepped.poses.size(), clean.poses.size());
+  const auto& hb = stepped.heartbeat;
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "clock_steps_back"), 1);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_replayed"), 1);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_future_dropped"), 0);
+  EXPECT_EQ(testing::HeartbeatCounter(hb, "scans_forced"), 0);
+  constexpr int64_t kHourUs = 3600LL * 1000000;
+  EXPECT_EQ(stepped.poses.back().utime, clean.poses.back().utime - kHourUs);
+  EXPECT_LT(std::hypot(stepped.poses.back().x_m - clean.poses.back().x_m,
+                       stepped.poses.back().y_m - clean.poses.back().y_m),
+            0.1);
+}
+
 TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   MemqNode n;
   n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));

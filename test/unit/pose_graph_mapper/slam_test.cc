@@ -183,6 +183,95 @@ TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
   EXPECT_LE(gated->Graph().edges2.size(), static_cast<size_t>(2 * (c.keyframes - 1)));
   EXPECT_GT(open->Graph().edges2.size(), static_cast<size_t>(2 * (open->counters().keyframes - 1)));
 }
+// The odometry's and the lidar's clock set back an hour at sample 40 (an NTP step): the scan
+// that comes with the new clock before five samples prove the step is held and replayed, every
+// scan is mapped, and the trajectory keeps each scan's own stamp and matches the clean run's.
+// (Before, the keyframes kept the old clock and every later scan was refused as older.)
+TEST(PoseGraphSlam, FollowsAClockSetBack) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3 + 0.01 * i, 0.004 * i); };
+  for (const bool gyro : {false, true}) {
+    SCOPED_TRACE(gyro ? "with the gyro" : "odometry only");
+    auto run = [&](int64_t back) {
+      auto t = [&](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? back : 0); };
+      PoseGraphSlamOptions o;
+      o.keyframe_distance_m = 0.2;
+      o.use_gyro = gyro;
+      auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+      for (int i = 0; i <= 100; ++i) {
+        if (gyro) {  // 0.2 rad/s at twice the odometry's rate, ahead of it
+          (void)slam->AddImuYawRate(t(i), 0.2);
+          (void)slam->AddImuYawRate(t(i) + 10000, 0.2);
+        }
+        slam->AddOdometry(t(i), at(i));
+        if (i % 5 == 0) (void)slam->AddScan(i, BoxScan(t(i), at(i)));
+      }
+      return slam;
+    };
+    const auto clean = run(0), slam = run(kHour);
+    const auto& c = slam->counters();
+    EXPECT_EQ(c.clock_steps_back, 1);
+    EXPECT_EQ(c.time_rebases, gyro ? 2 : 1);  // the gyro's own, then the odometry's
+    EXPECT_EQ(c.scans_time_backwards, 1);     // scan 40, then replayed
+    EXPECT_EQ(c.scans_replayed, 1);
+    EXPECT_EQ(c.scans_used, 21);
+    // The gyro refuses the new clock's first samples until they re-base it; then the step
+    // restarts it on the mapper's time line.
+    EXPECT_LE(c.imu_rejected, gyro ? 5 : 0);
+    EXPECT_EQ(clean->counters().scans_used, 21);
+    const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
+    ASSERT_EQ(traj.size(), traj_clean.size());
+    for (size_t k = 0; k < traj.size(); ++k) {
+      EXPECT_EQ(traj[k].scan_index, traj_clean[k].scan_index);
+      EXPECT_EQ(traj[k].utime, traj_clean[k].utime - (traj[k].scan_index >= 40 ? kHour : 0));
+      EXPECT_LT(
+          std::hypot(traj[k].pose.x - traj_clean[k].pose.x, traj[k].pose.y - traj_clean[k].pose.y),
+          0.01)
+          << k;
+    }
+    // The keyframes' time line goes on after the step instead of going back.
+    const auto& kf = slam->keyframes();
+    for (size_t k = 1; k < kf.size(); ++k) EXPECT_GT(kf[k].utime, kf[k - 1].utime);
+  }
+}
+
+// Odometry and a scan both stamped an hour ahead with nothing between them (offline, where the
+// log is read in order): the scan is mapped on that sample, so when the in-order odometry
+// re-bases the stream the sample stays and the clock is taken as stepped back; mapping goes on
+// with every later scan (before, each one was refused as older than the future scan).
+TEST(PoseGraphSlam, AFutureOdometryAndScanPairDoesNotStopMapping) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
+  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
+  auto run = [&](bool glitch, int* used) {
+    PoseGraphSlamOptions o;
+    o.keyframe_distance_m = 0.2;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    *used = 0;
+    for (int i = 0; i <= 80; ++i) {
+      slam->AddOdometry(t(i), at(i));
+      if (i % 5 == 0) *used += slam->AddScan(i, BoxScan(t(i), at(i))) ? 1 : 0;
+      if (glitch && i == 42) {
+        slam->AddOdometry(t(i) + kHour, at(i));
+        *used += slam->AddScan(1000, BoxScan(t(i) + kHour, at(i))) ? 1 : 0;
+      }
+    }
+    return slam;
+  };
+  int used_clean = 0, used = 0;
+  const auto clean = run(false, &used_clean);
+  const auto slam = run(true, &used);
+  const auto& c = slam->counters();
+  EXPECT_EQ(c.clock_steps_back, 1);
+  EXPECT_EQ(used_clean, 17);
+  EXPECT_EQ(used, 17);             // the in-order ones but scan 45, and the future one
+  EXPECT_EQ(c.scans_replayed, 1);  // scan 45, which came before the run proved the step
+  const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
+  ASSERT_EQ(traj.size(), 18u);
+  EXPECT_EQ(traj.back().utime, t(80));
+  EXPECT_NEAR(traj.back().pose.x, traj_clean.back().pose.x, 0.02);
+  EXPECT_NEAR(traj.back().pose.y, traj_clean.back().pose.y, 0.02);
+}
 
 // The straight drive of KeyframeGatingAndPosePerScan: scan i at 1 s + 0.1 s * i.
 Pose2 DriveTruth(int i) { return Pose2(2 + 0.1 * i, 3 + 0.02 * std::sin(0.3 * i), 0.01 * i); }

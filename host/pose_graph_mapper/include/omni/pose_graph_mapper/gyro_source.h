@@ -36,6 +36,11 @@ class GyroYawSource {
   // order re-bases the stream (the newest was stamped in the future; stamp_order.h).
   bool AddSample(int64_t utime, double yaw_rate_rad_s);
   int64_t rebases() const { return order_.rebases(); }
+  // Forgets every sample and the stream's order (the caller moved to another time line).
+  void Reset() {
+    samples_.clear();
+    order_.Reset();
+  }
   struct Yaw {
     double delta_rad = 0;
     double variance = 0;

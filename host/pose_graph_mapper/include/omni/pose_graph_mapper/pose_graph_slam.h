@@ -153,6 +153,13 @@ struct SlamCounters {
   // Odometry whose newest sample was followed by a run of older, in-order samples: it was
   // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).
   int64_t time_rebases = 0;
+  // Of those, the re-bases that were the odometry source's clock set back (an NTP step, a
+  // reboot): a keyframe already stood on the newer samples, so they were real. Nothing is
+  // dropped; the new clock's stamps are laid after the old ones (see AddOdometry).
+  int64_t clock_steps_back = 0;
+  // Scans refused as older than the last one (counted scans_time_backwards) that such a clock
+  // step then put back in order, and mapped.
+  int64_t scans_replayed = 0;
   int64_t keyframes = 0;
   int64_t scan_match_factors = 0, scan_match_failures = 0;
   int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
@@ -186,7 +193,11 @@ class PoseGraphSlam {
   // `clock` (may be null) times the window updates for the latency figures.
   PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOptions& batch, const Clock* clock);
 
-  // Odometry pose of the robot base in the odometry frame.
+  // Odometry pose of the robot base in the odometry frame. Stamps are the sources' own; the
+  // mapper keeps its own time line, equal to them until the odometry's clock is set back
+  // (counters().clock_steps_back): from then on every input's stamp is shifted by one offset so
+  // the new clock continues after the old one. Outputs (Trajectory, LastScanPose) keep the
+  // scans' own stamps; keyframes().utime is on the mapper's time line.
   void AddOdometry(int64_t utime, const Pose2& odom_pose);
   // The gyro's yaw rate (rad/s, about the base's up axis) at `utime`; used with `use_gyro`.
   // False (counted) for a non-finite rate or a time not newer than the previous sample's.
@@ -287,6 +298,12 @@ class PoseGraphSlam {
   void ResetWindow();
   double NowMs() const;
   void TakeOdometry(int64_t utime, const Pose2& raw);  // in order: into the buffer
+  // A stamp on the mapper's time line (saturating).
+  int64_t OnTimeLine(int64_t utime) const;
+  // The odometry's re-base at source stamp `first` (stamp_order.h): a clock set back, or
+  // samples stamped in the future to drop.
+  void RebaseOdometry(int64_t first);
+  bool AcceptScan(int64_t scan_index, const LaserScan2& scan);  // AddScan without scans_in
 
   PoseGraphSlamOptions o_;
   BatchOptions batch_;
@@ -305,11 +322,20 @@ class PoseGraphSlam {
   int64_t last_odom_utime_ = 0;  // as received
   HeldRun<Pose2> odom_stream_;   // raw samples: older ones held until they re-base or give up
   struct OdomState {             // after one taken sample, for a re-base to return to
-    int64_t received, internal;
+    int64_t received;            // the source's stamp
+    int64_t stamp, internal;     // on the mapper's time line, before and after nudging
     Pose2 raw, corrected, correction;
   };
-  StateHistory<OdomState> odom_history_;
-  int64_t last_odom_internal_ = 0;  // after nudging
+  StateHistory<OdomState> odom_history_;  // by `stamp`
+  int64_t last_odom_stamp_ = 0;           // on the mapper's time line, before nudging
+  int64_t last_odom_internal_ = 0;        // after nudging
+  int64_t last_odom_period_us_ = 0;       // between the last two samples (internal)
+  // Added to every input's stamp: the sum of the clock steps back (see AddOdometry).
+  int64_t time_offset_ = 0;
+  // Scans refused as older than the last accepted one since it; a clock step back replays them.
+  std::vector<std::pair<int64_t, LaserScan2>> held_scans_;
+  static constexpr size_t kMaxHeldScans = 16;
+  bool replay_held_scans_ = false;
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;
   int64_t last_scan_utime_ = INT64_MIN;

@@ -85,6 +85,7 @@ class PoseGraphNode {
   int Drain(bool all, int max_scans);
   void HandOdometry(const Item& odom);
   void HandleScan(const LaserScan2& scan);
+  void PublishLastPose();  // the mapper's newest scan pose on the pose channel
   void PublishGrid();
   void PublishTrajectory();
 
