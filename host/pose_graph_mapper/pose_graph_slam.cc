@@ -18,6 +18,11 @@
 namespace omni::pgm {
 namespace {
 
+// Stamps beyond +-73,000 years (us) are corrupt: refused, so that no sum of a stamp and the
+// time line's offset (at most twice this, AddOdometry) can overflow.
+constexpr int64_t kMaxStamp = std::numeric_limits<int64_t>::max() / 4;
+bool StampInRange(int64_t utime) { return utime <= kMaxStamp && utime >= -kMaxStamp; }
+
 // Anchors the window's oldest pose (1 mm, 1 mrad): the global solution places the window.
 Eigen::Matrix3d AnchorInformation() { return 1e6 * Eigen::Matrix3d::Identity(); }
 
@@ -170,19 +175,32 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
     ++c_.odom_invalid;
     return;
   }
+  if (!StampInRange(utime)) {
+    ++c_.odom_invalid;
+    return;
+  }
   // Older samples are held; a run of them re-bases the stream (RebaseOdometry).
   const auto rebase = [this](int64_t first) { RebaseOdometry(first); };
   const auto take = [this](int64_t t, const Pose2& p) { TakeOdometry(t, p); };
   if (odom_stream_.Add(utime, raw, rebase, take) == StampOrder::Verdict::kOld)
     ++c_.odom_out_of_order;
+  if (odom_stream_.order().run_length() > 0) return;  // a run still open: nothing decided
+  // The run re-based or broke: the clock of what waited on it is known now.
+  std::vector<std::pair<int64_t, LaserScan2>> held;
+  held.swap(held_scans_);
   if (replay_held_scans_) {
     // The scans that came with the new clock before the step was proven are covered now.
     replay_held_scans_ = false;
-    std::vector<std::pair<int64_t, LaserScan2>> held;
-    held.swap(held_scans_);
+    std::stable_sort(held.begin(), held.end(),
+                     [](const auto& a, const auto& b) { return a.second.utime < b.second.utime; });
+    replaying_ = true;
     for (auto& [index, scan] : held)
       if (AcceptScan(index, scan)) ++c_.scans_replayed;
-  }
+    replaying_ = false;
+  }  // else they were late for good (counted scans_time_backwards)
+  std::vector<HeldAbsolute> fixes;
+  fixes.swap(held_absolute_);
+  for (const HeldAbsolute& f : fixes) (void)PlaceAbsolute(f.utime, f.z, f.information, false);
 }
 
 int64_t PoseGraphSlam::OnTimeLine(int64_t utime) const {
@@ -196,16 +214,22 @@ int64_t PoseGraphSlam::OnTimeLine(int64_t utime) const {
 void PoseGraphSlam::RebaseOdometry(int64_t first) {
   ++c_.time_rebases;
   const int64_t at = OnTimeLine(first);
-  // A mapped scan stands on odometry at or after the run's start: the samples the run would
-  // drop were real, and the source's clock went back (an NTP step, a reboot; or a future stamp
-  // already mapped with its scan, which then stays). Nothing is dropped: from now on stamps are
-  // shifted so the run starts one odometry period after the newest sample, and the keyframes,
-  // odometry and loops keep their times. The gyro's samples were on the old clock and it
-  // restarts; scans that came with the new clock before this was proven are replayed.
-  constexpr int64_t kFar = std::numeric_limits<int64_t>::max() / 4;  // ~73,000 years in us
-  if (at <= last_scan_utime_ && have_odom_ && last_odom_internal_ < kFar && first > -kFar) {
+  // A mapped scan is at or after the oldest sample the run would drop, so it stands on them:
+  // they were real, and the source's clock went back (an NTP step, a reboot; or a future stamp
+  // already mapped with its scan, which then stays). (A scan merely interpolated towards a
+  // future sample is older than it: that sample is dropped as below.) Nothing is dropped: from
+  // now on stamps are shifted so the run starts one odometry period after the newest sample,
+  // and the keyframes, odometry and loops keep their times. The gyro's samples were on the old
+  // clock and it restarts; scans that came with the new clock before this was proven are
+  // replayed. Inputs are within +-kMaxStamp and a step needs the time line below it, so the
+  // offset stays below 2 kMaxStamp + 1 s.
+  const std::optional<int64_t> oldest_dropped = odom_history_.OldestFrom(at);
+  if (have_odom_ && oldest_dropped && last_scan_utime_ >= *oldest_dropped &&
+      last_odom_internal_ < kMaxStamp) {
     ++c_.clock_steps_back;
     const int64_t period = std::clamp<int64_t>(last_odom_period_us_, 1000, 1000000);
+    prev_time_offset_ = time_offset_;
+    old_clock_newest_ = last_odom_utime_;
     time_offset_ = last_odom_internal_ + period - first;
     gyro_.Reset();
     replay_held_scans_ = true;
@@ -256,7 +280,7 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
 bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {
   ++c_.imu_in;
   const int64_t rebases = gyro_.rebases();
-  if (!gyro_.AddSample(OnTimeLine(utime), rate)) {
+  if (!StampInRange(utime) || !gyro_.AddSample(OnTimeLine(utime), rate)) {
     ++c_.imu_rejected;
     return false;
   }
@@ -270,12 +294,23 @@ bool PoseGraphSlam::AddScan(int64_t scan_index, const LaserScan2& scan) {
 }
 
 bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
+  if (!StampInRange(scan.utime)) {
+    ++c_.scans_no_odom;  // no odometry can be stamped there
+    return false;
+  }
   const int64_t su = OnTimeLine(scan.utime);  // the scan's time on the mapper's time line
+  const int64_t gap_us = static_cast<int64_t>(o_.max_scan_odom_gap_s * 1e6);
+  const StampOrder& odom_order = odom_stream_.order();
   if (su < last_scan_utime_) {
     ++c_.scans_time_backwards;
-    // Kept a while: if the odometry's clock went back, this scan came on the new clock.
-    if (held_scans_.size() >= kMaxHeldScans) held_scans_.erase(held_scans_.begin());
-    held_scans_.emplace_back(scan_index, scan);
+    // Older odometry is coming in order too (a run is open) and this scan is of its time: the
+    // odometry's clock may have gone back, and then this scan is on the new clock. Held until
+    // the run decides (AddOdometry); the oldest held one gives way.
+    if (!replaying_ && odom_order.run_length() > 0 &&
+        scan.utime >= odom_order.run_first() - gap_us) {
+      if (held_scans_.size() >= kMaxHeldScans) held_scans_.erase(held_scans_.begin());
+      held_scans_.emplace_back(scan_index, scan);
+    }
     return false;
   }
   if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
@@ -307,11 +342,12 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
     return false;
   }
   // While older odometry keeps coming in order behind the newest sample, that sample is in
-  // doubt (stamped in the future?): a scan beyond what the older run covers waits no odometry
-  // from it, or it would become a keyframe that every later scan is older than.
-  const StampOrder& odom_order = odom_stream_.order();
-  if (odom_order.run_length() > 0 &&
-      static_cast<double>(scan.utime - odom_order.run_last()) > o_.max_scan_odom_gap_s * 1e6) {
+  // doubt (stamped in the future?): a scan beyond what the older run covers, and beyond the
+  // sample before the doubtful one, takes no odometry from it, or it would be mapped on a
+  // sample that is then dropped. (A scan of the old clock, just after its last samples, is
+  // fine: if the clock went back, it stands on real odometry.)
+  if (odom_order.run_length() > 0 && scan.utime - odom_order.run_last() > gap_us &&
+      su - (last_odom_internal_ - last_odom_period_us_) > gap_us) {
     ++c_.scans_no_odom;
     return false;
   }
@@ -502,7 +538,36 @@ AbsoluteOutcome PoseGraphSlam::AddAbsolutePose(int64_t utime, const Pose2& z,
     ++c_.absolute_invalid;
     return AbsoluteOutcome::kInvalid;
   }
-  utime = OnTimeLine(utime);
+  if (!StampInRange(utime)) {
+    ++c_.absolute_invalid;
+    return AbsoluteOutcome::kInvalid;
+  }
+  // While older odometry comes in order behind the newest sample, a fix older than the newest
+  // keyframe may be on a clock that went back: it waits until the run decides (AddOdometry).
+  if (odom_stream_.order().run_length() > 0 && !keyframes_.empty() &&
+      OnTimeLine(utime) <= keyframes_.back().utime) {
+    if (held_absolute_.size() >= kMaxQueuedAbsolute) {
+      ++c_.absolute_rejected;
+      return AbsoluteOutcome::kRejected;
+    }
+    held_absolute_.push_back({utime, z, info});
+    ++c_.absolute_queued;
+    return AbsoluteOutcome::kQueued;
+  }
+  return PlaceAbsolute(utime, z, info, true);
+}
+
+AbsoluteOutcome PoseGraphSlam::PlaceAbsolute(int64_t utime, const Pose2& z,
+                                             const Eigen::Matrix3d& info, bool count_queued) {
+  // After a clock step back, a fix stamped on the old clock (ahead of the new clock's newest
+  // odometry by more than a scan may be, and not after the old clock's newest sample) came
+  // late through a slower path: it keeps the old clock's place on the time line. (A step
+  // shorter than that gap cannot be told apart: such a fix is placed by the new clock.)
+  const int64_t gap_us = static_cast<int64_t>(o_.max_scan_odom_gap_s * 1e6);
+  if (c_.clock_steps_back > 0 && utime <= old_clock_newest_ && utime - last_odom_utime_ > gap_us)
+    utime += prev_time_offset_;
+  else
+    utime = OnTimeLine(utime);
   if (keyframes_.empty() || utime > keyframes_.back().utime) {
     // No pose at or after this time yet: wait for the keyframe that covers it.
     if (absolute_queue_.size() >= kMaxQueuedAbsolute) {
@@ -510,7 +575,7 @@ AbsoluteOutcome PoseGraphSlam::AddAbsolutePose(int64_t utime, const Pose2& z,
       return AbsoluteOutcome::kRejected;
     }
     absolute_queue_.emplace(utime, QueuedAbsolute{z, info});
-    ++c_.absolute_queued;
+    if (count_queued) ++c_.absolute_queued;
     return AbsoluteOutcome::kQueued;
   }
   return ApplyAbsolute(utime, z, info, true);

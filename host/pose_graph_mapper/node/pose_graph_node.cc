@@ -181,8 +181,12 @@ void PoseGraphNode::OnMessage(Item item) {
                << " queued scan(s) stamped ahead of the scan stream dropped (time re-based)";
     }
   }
-  // The mapper re-bases its own odometry; this only keeps the staleness clock honest.
-  if (item.kind == Kind::kOdometry) (void)odom_order_.Check(item.utime);
+  // The mapper re-bases its own odometry; this keeps the staleness clock honest. A scan
+  // waiting when the odometry goes back (a clock step) waits for samples that will not come on
+  // its clock: the scans queued now are handed over as they are (the mapper poses them on the
+  // odometry it has) instead of waiting to be dropped as stamped in the future.
+  if (item.kind == Kind::kOdometry && odom_order_.Check(item.utime) == StampOrder::Verdict::kRebase)
+    hand_waiting_ = queued_scans_;
   if (item.kind == Kind::kScan) {
     ++queued_scans_;
     max_queued_scans_ = std::max(max_queued_scans_, static_cast<int64_t>(queued_scans_));
@@ -240,8 +244,10 @@ int PoseGraphNode::Drain(bool all, int max_scans) {
       }
     }
     const bool stale = std::max(scan_order_.newest(), odom_order_.newest()) - t > wait;
-    if (!covered && !stale && !all) break;
-    if (!covered) ++scans_forced_;
+    const bool odom_went_back = hand_waiting_ > 0;
+    if (!covered && !stale && !all && !odom_went_back) break;
+    if (!covered && !odom_went_back) ++scans_forced_;
+    if (hand_waiting_ > 0) --hand_waiting_;
     HandleScan(queue_.front().scan);
     queue_.pop_front();
     --queued_scans_;

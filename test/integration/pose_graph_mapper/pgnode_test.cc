@@ -328,6 +328,37 @@ TEST(PoseGraphMapperNode, FollowsAClockSetBack) {
             0.1);
 }
 
+// A lidar whose scans (0.09 s sweeps, stamped at the sweep's start) come after the odometry of
+// their end: the clock goes back an hour between odometry 49 and 50, and the last scan of the
+// old clock comes after the first odometry of the new one. Its sweep's end has no odometry on
+// its clock and never will: once the odometry re-bases, the node hands it over (the mapper
+// poses it on what it has) instead of dropping it as stamped in the future.
+TEST(PoseGraphMapperNode, TheOldClocksLastScanIsMappedAcrossAClockStep) {
+  MemqNode n;
+  constexpr int64_t kHourUs = 3600LL * 1000000;
+  auto t = [&](int k) { return 1000000 + int64_t{20000} * k - (k >= 50 ? kHourUs : 0); };
+  int64_t seq = 0;
+  for (int k = 0; k < 100; ++k) {
+    n.b->Publish("WHEEL_ODOM", Odom(t(k), 0.01 * k, k));
+    if (k % 5 == 0 && k > 0) {
+      // Scan 10 is the old clock's: its sweep ends 10 ms after odometry 49, its clock's last.
+      auto scan = RingScan((k == 50 ? t(49) + 20000 : t(k)) - 100000, seq++);
+      scan.scan_time_s = 0.09f;
+      n.b->Publish("LIDAR_SCAN", scan);
+    }
+    n.Pump();
+    (void)n.node->ProcessReady(100);
+    n.Pump();
+  }
+  n.node->Flush();
+  n.Pump();
+  const auto& c = n.node->slam().counters();
+  EXPECT_EQ(c.clock_steps_back, 1);
+  EXPECT_EQ(n.node->scans_future_dropped(), 0);
+  EXPECT_EQ(c.scans_used, 19);
+  EXPECT_EQ(n.poses.size(), 19u);
+}
+
 TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   MemqNode n;
   n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));

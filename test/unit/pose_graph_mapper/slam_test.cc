@@ -121,6 +121,7 @@ TEST(PoseGraphSlam, AFutureOdometrySampleMakesNoFutureKeyframe) {
   const auto slam = run(true, &used);
   const auto& c = slam->counters();
   EXPECT_EQ(c.time_rebases, 1);
+  EXPECT_EQ(c.clock_steps_back, 0);
   EXPECT_EQ(c.odom_out_of_order, 4);
   EXPECT_EQ(used, 17);  // every in-order scan
   EXPECT_EQ(used_clean, 17);
@@ -233,6 +234,93 @@ TEST(PoseGraphSlam, FollowsAClockSetBack) {
     const auto& kf = slam->keyframes();
     for (size_t k = 1; k < kf.size(); ++k) EXPECT_GT(kf[k].utime, kf[k - 1].utime);
   }
+}
+
+// One odometry sample stamped an hour ahead, then a scan inside the in-order run that proves
+// it: the scan is posed towards the doubtful sample but is older than it, so the sample is
+// dropped as a glitch, not taken for the clock going back (which would shift the rest of the
+// run an hour along the time line).
+TEST(PoseGraphSlam, AScanInsideTheProvingRunIsNoClockStep) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
+  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
+  PoseGraphSlamOptions o;
+  o.keyframe_distance_m = 0.2;
+  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  for (int i = 0; i <= 60; ++i) {
+    slam.AddOdometry(t(i), at(i));
+    if (i == 38) slam.AddOdometry(t(i) + kHour, at(i));
+    if (i % 5 == 0 || i == 41) {
+      EXPECT_TRUE(slam.AddScan(i, BoxScan(t(i), at(i)))) << i;
+    }
+  }
+  const auto& c = slam.counters();
+  EXPECT_EQ(c.time_rebases, 1);
+  EXPECT_EQ(c.clock_steps_back, 0);
+  const auto& kf = slam.keyframes();
+  ASSERT_FALSE(kf.empty());
+  EXPECT_LE(kf.back().utime, t(60));  // no keyframe shifted along the time line
+}
+
+// A scan that came late before a (0.3 s) clock step is not replayed with the new clock's scans:
+// only scans that came while the new clock's odometry was proving the step are.
+TEST(PoseGraphSlam, OnlyTheNewClocksScansAreReplayedAfterAStep) {
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
+  auto run = [&](int64_t back) {
+    auto t = [&](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? back : 0); };
+    PoseGraphSlamOptions o;
+    o.keyframe_distance_m = 0.2;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    for (int i = 0; i <= 80; ++i) {
+      slam->AddOdometry(t(i), at(i));
+      if (i % 5 == 0) (void)slam->AddScan(i, BoxScan(t(i), at(i)));
+      if (i == 36) {
+        EXPECT_FALSE(slam->AddScan(33, BoxScan(t(33), at(33))));  // late
+      }
+    }
+    return slam;
+  };
+  const auto clean = run(0), slam = run(300000);
+  const auto& c = slam->counters();
+  EXPECT_EQ(c.clock_steps_back, 1);
+  EXPECT_EQ(c.scans_time_backwards, 2);  // the late one, and scan 40 before the step was proven
+  EXPECT_EQ(c.scans_replayed, 1);
+  const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
+  ASSERT_EQ(traj.size(), 17u);
+  ASSERT_EQ(traj_clean.size(), 17u);
+  for (size_t k = 0; k < traj.size(); ++k) {
+    EXPECT_EQ(traj[k].scan_index, traj_clean[k].scan_index);
+    EXPECT_LT(
+        std::hypot(traj[k].pose.x - traj_clean[k].pose.x, traj[k].pose.y - traj_clean[k].pose.y),
+        0.01)
+        << traj[k].scan_index;
+  }
+}
+
+// A fix stamped on the new clock that comes while the odometry is proving a clock step back
+// waits for the decision, then lands where its stamp belongs on the new clock (by the old
+// clock it would be an hour before the first pose, and rejected).
+TEST(PoseGraphSlam, AFixDuringAClockStepWaitsForTheDecision) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
+  auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? kHour : 0); };
+  PoseGraphSlamOptions o;
+  o.keyframe_distance_m = 0.2;
+  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  const Eigen::Matrix3d info = Eigen::Vector3d(1e4, 1e4, 1e4).asDiagonal();
+  for (int i = 0; i <= 80; ++i) {
+    slam.AddOdometry(t(i), at(i));
+    if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
+    if (i == 42) {
+      EXPECT_EQ(slam.AddAbsolutePose(t(41), at(41) * at(0).Inverse(), info),
+                AbsoluteOutcome::kQueued);
+    }
+  }
+  const auto& c = slam.counters();
+  EXPECT_EQ(c.clock_steps_back, 1);
+  EXPECT_EQ(c.absolute_rejected, 0);
+  EXPECT_EQ(c.absolute_attached + c.absolute_spliced, 1);
+  EXPECT_EQ(c.absolute_queued, 1);
 }
 
 // Odometry and a scan both stamped an hour ahead with nothing between them (offline, where the

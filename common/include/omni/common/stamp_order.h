@@ -134,6 +134,13 @@ class StateHistory {
     items_.emplace_back(utime, s);
     while (items_.size() > capacity_) items_.pop_front();
   }
+  // The stamp of the oldest remembered entry that Restore(utime) would drop (none: nullopt).
+  std::optional<int64_t> OldestFrom(int64_t utime) const {
+    std::optional<int64_t> oldest;
+    for (auto it = items_.rbegin(); it != items_.rend() && it->first >= utime; ++it)
+      oldest = it->first;
+    return oldest;
+  }
   std::optional<State> Restore(int64_t utime) {
     std::optional<State> newest_dropped;
     while (!items_.empty() && items_.back().first >= utime) {

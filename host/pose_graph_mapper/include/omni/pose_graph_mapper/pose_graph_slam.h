@@ -149,12 +149,13 @@ struct SlamCounters {
   int64_t invalid_beams = 0;       // NaN/inf or out-of-range beams skipped inside used scans
   int64_t sweeps_corrected = 0;    // used scans corrected for the base's motion in their sweep
   int64_t sweeps_uncorrected = 0;  // used scans with a sweep but no (jump-free) odometry over it
+  // odom_invalid: a non-finite pose, or a stamp beyond +-73,000 years (kMaxStamp).
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
   // Odometry whose newest sample was followed by a run of older, in-order samples: it was
   // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).
   int64_t time_rebases = 0;
   // Of those, the re-bases that were the odometry source's clock set back (an NTP step, a
-  // reboot): a keyframe already stood on the newer samples, so they were real. Nothing is
+  // reboot): a mapped scan already stood on the newer samples, so they were real. Nothing is
   // dropped; the new clock's stamps are laid after the old ones (see AddOdometry).
   int64_t clock_steps_back = 0;
   // Scans refused as older than the last one (counted scans_time_backwards) that such a clock
@@ -174,7 +175,10 @@ struct SlamCounters {
   // Absolute poses (AddAbsolutePose): received, attached at a node's exact time, spliced in as
   // a new pose node, queued for a future pose (each is later attached, spliced or rejected
   // too), rejected (older than the window / first pose, odometry no longer covering it, queue
-  // full), invalid (non-finite pose, information not symmetric positive definite).
+  // full), invalid (non-finite pose, information not symmetric positive definite, a stamp
+  // beyond +-73,000 years). A fix that comes while the odometry's order is in doubt (a run of
+  // older samples open) and is older than the newest keyframe is held (counted queued) until
+  // the run decides whether the clock went back.
   int64_t absolute_in = 0, absolute_attached = 0, absolute_spliced = 0, absolute_queued = 0;
   int64_t absolute_rejected = 0, absolute_invalid = 0;
   int64_t keyframes_for_absolute = 0;  // keyframes made only because a fix waited too long
@@ -204,7 +208,10 @@ class PoseGraphSlam {
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   // Odometry steps whose heading had no gyro data to fuse (use_gyro; 0 otherwise).
   uint64_t gyro_missing_steps() const { return fused_.gyro_missing_steps(); }
-  // Returns true when the scan was accepted (it then has a pose in Trajectory()).
+  // Returns true when the scan was accepted (it then has a pose in Trajectory()). A scan older
+  // than the last one while older odometry is coming in order may be on a clock that went
+  // back: it is refused (scans_time_backwards) but held, and mapped if the odometry re-bases as
+  // a clock step (scans_replayed).
   bool AddScan(int64_t scan_index, const LaserScan2& scan);
 
   // Absolute pose of the robot base at `utime` in the map frame (the frame of the first
@@ -330,12 +337,27 @@ class PoseGraphSlam {
   int64_t last_odom_stamp_ = 0;           // on the mapper's time line, before nudging
   int64_t last_odom_internal_ = 0;        // after nudging
   int64_t last_odom_period_us_ = 0;       // between the last two samples (internal)
-  // Added to every input's stamp: the sum of the clock steps back (see AddOdometry).
-  int64_t time_offset_ = 0;
-  // Scans refused as older than the last accepted one since it; a clock step back replays them.
+  // Added to every input's stamp: the sum of the clock steps back (see AddOdometry); the one
+  // before the last step, and the old clock's newest odometry stamp then (for late fixes).
+  int64_t time_offset_ = 0, prev_time_offset_ = 0, old_clock_newest_ = 0;
+  // Scans refused as older than the last accepted one that came on a new clock (an older
+  // odometry run was open); a clock step back replays them, anything else drops them.
   std::vector<std::pair<int64_t, LaserScan2>> held_scans_;
   static constexpr size_t kMaxHeldScans = 16;
   bool replay_held_scans_ = false;
+  bool replaying_ = false;
+  // Absolute poses older than the newest keyframe that came while an older odometry run was
+  // open: their clock is in doubt until the run re-bases or breaks (source stamps).
+  struct HeldAbsolute {
+    int64_t utime;
+    Pose2 z;
+    Eigen::Matrix3d information;
+  };
+  std::vector<HeldAbsolute> held_absolute_;
+  // Queues or applies a valid fix stamped `utime` by its source (AddAbsolutePose); a fix held
+  // before was counted queued already (`count_queued` false).
+  AbsoluteOutcome PlaceAbsolute(int64_t utime, const Pose2& z, const Eigen::Matrix3d& info,
+                                bool count_queued);
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;
   int64_t last_scan_utime_ = INT64_MIN;

@@ -67,6 +67,7 @@ class PoseGraphNode {
   int64_t grids_published() const { return grids_published_; }
   int64_t trajectories_published() const { return trajectories_published_; }
   int64_t scans_forced() const { return scans_forced_; }
+  int64_t scans_future_dropped() const { return scans_future_dropped_; }
   int64_t absolute_bad_covariance() const { return absolute_bad_covariance_; }
   int64_t absolute_wrong_frame() const { return absolute_wrong_frame_; }
 
@@ -101,6 +102,7 @@ class PoseGraphNode {
   // message stamped in the future is followed by in-order ones (common/stamp_order.h).
   StampOrder scan_order_, odom_order_;
   int64_t scans_future_dropped_ = 0;  // queued scans dropped by such a re-base
+  size_t hand_waiting_ = 0;  // scans queued when the odometry re-based: handed, not waited for
   int64_t last_scan_utime_ = INT64_MIN;
   int64_t scans_duplicate_ = 0;            // same seq and stamp as the scan before: dropped
   int64_t handed_odom_utime_ = INT64_MIN;  // newest odometry given to the mapper
