@@ -173,7 +173,15 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
   if (options_.voxel_filter_m > 0) world = VoxelDownsample(world, options_.voxel_filter_m);
   if (options_.keep_cloud) {
     const double inv = 1.0 / options_.cloud_voxel_m;
+    constexpr double kHalfSpan = 1 << 20;  // cloud cells per axis each side (21-bit keys)
+    octomap::OcTreeKey key;
     for (const auto& p : world) {
+      // Only points the octree can hold (a pose far out of the map puts a frame outside its key
+      // range), and inside the cloud's own key span (no wrapping, no undefined cast).
+      if (!p.allFinite() || !tree_->coordToKeyChecked(p.x(), p.y(), p.z(), key) ||
+          !(std::abs(p.x() * inv) < kHalfSpan && std::abs(p.y() * inv) < kHalfSpan &&
+            std::abs(p.z() * inv) < kHalfSpan))
+        continue;
       const auto ix =
           static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() * inv)) + (1 << 20));
       const auto iy =

@@ -397,6 +397,7 @@ struct DepthOnlyPipeline {
   static OctomapBuilderOptions Options() {
     OctomapBuilderOptions opt = ColorOptions();
     opt.color = false;
+    opt.keep_cloud = true;
     return opt;
   }
   OctomapPipeline p{Options()};
@@ -414,6 +415,8 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   d.utime = t0 + 50000;
   p.AddDepth(d);
   EXPECT_EQ(p.Process(t0 + 100000), 1);
+  const size_t cloud = p.builder().AggregateCloud().size();
+  EXPECT_GT(cloud, 0u);
   p.AddPose(t0 + 200000, Pose2(1e7, 0, 0));
   p.AddPose(t0 + 300000, Pose2(1e7, 0, 0));
   d.utime = t0 + 250000;
@@ -422,6 +425,7 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   EXPECT_EQ(p.counters().frames_inserted, 1);
   EXPECT_EQ(p.counters().frames_out_of_range, 1);
   EXPECT_NE(p.last_error().find("key range"), std::string::npos) << p.last_error();
+  EXPECT_EQ(p.builder().AggregateCloud().size(), cloud);  // nor is it in the kept cloud
 }
 
 // A depth frame stamped an hour ahead must not become the pipeline's `now`: the frame before
