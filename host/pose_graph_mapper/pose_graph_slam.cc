@@ -182,25 +182,48 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
   // Older samples are held; a run of them re-bases the stream (RebaseOdometry).
   const auto rebase = [this](int64_t first) { RebaseOdometry(first); };
   const auto take = [this](int64_t t, const Pose2& p) { TakeOdometry(t, p); };
-  if (odom_stream_.Add(utime, raw, rebase, take) == StampOrder::Verdict::kOld)
+  const StampOrder::Verdict v = odom_stream_.Add(utime, raw, rebase, take);
+  if (v == StampOrder::Verdict::kOld) {
     ++c_.odom_out_of_order;
+    if (odom_stream_.order().run_length() == 1) run_start_odom_in_ = c_.odom_in;
+  }
   if (odom_stream_.order().run_length() > 0) return;  // a run still open: nothing decided
   // The run re-based or broke: the clock of what waited on it is known now.
-  std::vector<std::pair<int64_t, LaserScan2>> held;
+  std::vector<HeldScan> held;
   held.swap(held_scans_);
   if (replay_held_scans_) {
-    // The scans that came with the new clock before the step was proven are covered now.
+    // The scans that came with the new clock before the step was proven are covered now: those
+    // that arrived from just before the run's first sample on and are stamped of its time (a
+    // scan that came late before the step is not one of them).
     replay_held_scans_ = false;
-    std::stable_sort(held.begin(), held.end(),
-                     [](const auto& a, const auto& b) { return a.second.utime < b.second.utime; });
+    const int64_t gap_us = static_cast<int64_t>(o_.max_scan_odom_gap_s * 1e6);
+    held.erase(std::remove_if(held.begin(), held.end(),
+                              [&](const HeldScan& h) {
+                                return h.odom_in + 1 < step_run_start_odom_in_ ||
+                                       h.scan.utime < step_run_first_ - gap_us;
+                              }),
+               held.end());
+    std::stable_sort(held.begin(), held.end(), [](const HeldScan& a, const HeldScan& b) {
+      return a.scan.utime < b.scan.utime;
+    });
     replaying_ = true;
-    for (auto& [index, scan] : held)
-      if (AcceptScan(index, scan)) ++c_.scans_replayed;
+    for (const HeldScan& h : held)
+      if (AcceptScan(h.index, h.scan)) ++c_.scans_replayed;
     replaying_ = false;
   }  // else they were late for good (counted scans_time_backwards)
   std::vector<HeldAbsolute> fixes;
   fixes.swap(held_absolute_);
   for (const HeldAbsolute& f : fixes) (void)PlaceAbsolute(f.utime, f.z, f.information, false);
+}
+
+bool PoseGraphSlam::CoveredBesideTheRun(int64_t su, int64_t gap_us) const {
+  // The samples the open run would drop are in doubt, unless there are as many of them as a
+  // run needs to re-base (then they are a stream too: the old clock's, if it went back). A scan
+  // near them is covered when they are that many, else only by the newest sample before them.
+  const StateHistory<OdomState>::Split split =
+      odom_history_.SplitAt(OnTimeLine(odom_stream_.order().run_first()));
+  if (split.count >= static_cast<size_t>(StampOrder::kDefaultRebaseAfter)) return true;
+  return split.newest_kept && su - *split.newest_kept <= gap_us;
 }
 
 int64_t PoseGraphSlam::OnTimeLine(int64_t utime) const {
@@ -223,10 +246,15 @@ void PoseGraphSlam::RebaseOdometry(int64_t first) {
   // clock and it restarts; scans that came with the new clock before this was proven are
   // replayed. Inputs are within +-kMaxStamp and a step needs the time line below it, so the
   // offset stays below 2 kMaxStamp + 1 s.
-  const std::optional<int64_t> oldest_dropped = odom_history_.OldestFrom(at);
-  if (have_odom_ && oldest_dropped && last_scan_utime_ >= *oldest_dropped &&
-      last_odom_internal_ < kMaxStamp) {
+  // (When it would drop every sample remembered, older ones may be forgotten: any scan at or
+  // after the run's start then counts.)
+  const StateHistory<OdomState>::Split split = odom_history_.SplitAt(at);
+  const bool stands = split.all ? last_scan_utime_ >= at
+                                : split.oldest_dropped && last_scan_utime_ >= *split.oldest_dropped;
+  if (have_odom_ && stands && last_odom_internal_ < kMaxStamp) {
     ++c_.clock_steps_back;
+    step_run_first_ = first;
+    step_run_start_odom_in_ = run_start_odom_in_;
     const int64_t period = std::clamp<int64_t>(last_odom_period_us_, 1000, 1000000);
     prev_time_offset_ = time_offset_;
     old_clock_newest_ = last_odom_utime_;
@@ -303,13 +331,12 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
   const StampOrder& odom_order = odom_stream_.order();
   if (su < last_scan_utime_) {
     ++c_.scans_time_backwards;
-    // Older odometry is coming in order too (a run is open) and this scan is of its time: the
-    // odometry's clock may have gone back, and then this scan is on the new clock. Held until
-    // the run decides (AddOdometry); the oldest held one gives way.
-    if (!replaying_ && odom_order.run_length() > 0 &&
-        scan.utime >= odom_order.run_first() - gap_us) {
+    // The odometry's clock may be going back, and then this scan is on the new clock: held
+    // until the next odometry sample that is not older than the newest (AddOdometry), which
+    // replays it if the odometry re-based as a clock step; the oldest held one gives way.
+    if (!replaying_) {
       if (held_scans_.size() >= kMaxHeldScans) held_scans_.erase(held_scans_.begin());
-      held_scans_.emplace_back(scan_index, scan);
+      held_scans_.push_back({scan_index, c_.odom_in, scan});
     }
     return false;
   }
@@ -347,7 +374,7 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
   // sample that is then dropped. (A scan of the old clock, just after its last samples, is
   // fine: if the clock went back, it stands on real odometry.)
   if (odom_order.run_length() > 0 && scan.utime - odom_order.run_last() > gap_us &&
-      su - (last_odom_internal_ - last_odom_period_us_) > gap_us) {
+      !CoveredBesideTheRun(su, gap_us)) {
     ++c_.scans_no_odom;
     return false;
   }
@@ -733,6 +760,10 @@ void PoseGraphSlam::ResetWindow() {
 }
 
 void PoseGraphSlam::Finish() {
+  // Fixes still waiting for an odometry run that never decided: placed by the current clock.
+  std::vector<HeldAbsolute> fixes;
+  fixes.swap(held_absolute_);
+  for (const HeldAbsolute& f : fixes) (void)PlaceAbsolute(f.utime, f.z, f.information, false);
   // The window after the last global optimisation holds its newest nodes to the scan-match
   // chain (its links only, the oldest anchored): the loops into it are not in the window and
   // their correction of those nodes is undone. A last solve of the whole graph restores it.

@@ -165,13 +165,20 @@ void PoseGraphNode::OnMessage(Item item) {
     for (const Item& q : queue_)
       if (q.kind == Kind::kOdometry) odom_reach = std::max(odom_reach, q.utime);
     odom_reach = std::min(odom_reach, odom_order_.newest());
+    // The scans queued when the odometry went back are the old clock's, to be handed over
+    // (hand_waiting_), not dropped.
     const size_t before = queue_.size();
-    queue_.erase(std::remove_if(queue_.begin(), queue_.end(),
-                                [&](const Item& q) {
-                                  return q.kind == Kind::kScan && q.utime > item.utime &&
-                                         q.utime > odom_reach;
-                                }),
-                 queue_.end());
+    size_t spared = hand_waiting_;
+    std::deque<Item> kept;
+    for (Item& q : queue_) {
+      if (q.kind == Kind::kScan && spared > 0) {
+        --spared;
+      } else if (q.kind == Kind::kScan && q.utime > item.utime && q.utime > odom_reach) {
+        continue;
+      }
+      kept.push_back(std::move(q));
+    }
+    queue_.swap(kept);
     const size_t dropped = before - queue_.size();
     queued_scans_ -= dropped;
     scans_future_dropped_ += static_cast<int64_t>(dropped);

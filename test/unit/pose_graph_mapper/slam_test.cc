@@ -323,6 +323,79 @@ TEST(PoseGraphSlam, AFixDuringAClockStepWaitsForTheDecision) {
   EXPECT_EQ(c.absolute_queued, 1);
 }
 
+// Corner cases of telling a clock step from a glitch (a review's findings): a step after a
+// lidar gap longer than the odometry history; a new-clock scan that comes before the new
+// clock's first odometry; two future odometry samples with a scan stamped like them; a fix
+// still waiting when the run never decides.
+TEST(PoseGraphSlam, ClockStepCornerCases) {
+  constexpr int64_t kHour = 3600000000LL;
+  auto at = [](int i) { return Pose2(2 + 0.01 * i, 3, 0); };
+  PoseGraphSlamOptions o;
+  o.keyframe_distance_m = 0.2;
+  {  // no scan for 300 samples (6 s) before the step: the history holds 256
+    auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 340 ? kHour : 0); };
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    int used_after = 0;
+    for (int i = 0; i <= 400; ++i) {
+      slam.AddOdometry(t(i), at(i));
+      if (i % 5 == 0 && (i <= 40 || i >= 340)) {
+        const bool ok = slam.AddScan(i, BoxScan(t(i), at(i)));
+        if (i > 340) used_after += ok ? 1 : 0;
+      }
+    }
+    EXPECT_EQ(slam.counters().clock_steps_back, 1);
+    EXPECT_EQ(used_after, 12);
+    EXPECT_EQ(slam.counters().scans_replayed, 1);
+  }
+  {  // each scan before its odometry sample: scan 40 comes before the new clock's odometry
+    auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? kHour : 0); };
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    for (int i = 0; i <= 80; ++i) {
+      if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
+      slam.AddOdometry(t(i), at(i));
+    }
+    EXPECT_EQ(slam.counters().clock_steps_back, 1);
+    EXPECT_EQ(slam.counters().scans_replayed, 1);
+    EXPECT_EQ(slam.counters().scans_used, 16);  // all but scan 0, which came before odometry
+  }
+  {  // two odometry samples an hour ahead and a scan stamped as the second: refused, no step
+    auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    for (int i = 0; i <= 60; ++i) {
+      slam.AddOdometry(t(i), at(i));
+      if (i == 30) {
+        slam.AddOdometry(t(i) + kHour, at(i));
+        slam.AddOdometry(t(i) + kHour + 20000, at(i));
+      }
+      if (i == 32) {
+        EXPECT_FALSE(slam.AddScan(1000, BoxScan(t(i) + kHour + 20000, at(i))));
+      }
+      if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
+    }
+    EXPECT_EQ(slam.counters().clock_steps_back, 0);
+    EXPECT_EQ(slam.counters().time_rebases, 1);
+    EXPECT_EQ(slam.counters().scans_used, 13);
+  }
+  {  // a fix that waits for a run that never decides is placed at the end
+    auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    for (int i = 0; i <= 40; ++i) {
+      slam.AddOdometry(t(i), at(i));
+      if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
+    }
+    slam.AddOdometry(t(41) + kHour, at(41));
+    slam.AddOdometry(t(41), at(41));
+    const Eigen::Matrix3d info = Eigen::Vector3d(1e4, 1e4, 1e4).asDiagonal();
+    EXPECT_EQ(slam.AddAbsolutePose(t(10), at(10) * at(0).Inverse(), info),
+              AbsoluteOutcome::kQueued);
+    EXPECT_EQ(slam.absolute_pending(), 1u);
+    slam.Finish();
+    const auto& c = slam.counters();
+    EXPECT_EQ(c.absolute_attached + c.absolute_spliced + c.absolute_rejected, 1);
+    EXPECT_EQ(slam.absolute_pending(), 0u);
+  }
+}
+
 // Odometry and a scan both stamped an hour ahead with nothing between them (offline, where the
 // log is read in order): the scan is mapped on that sample, so when the in-order odometry
 // re-bases the stream the sample stays and the clock is taken as stepped back; mapping goes on

@@ -27,7 +27,9 @@ class StampOrder {
     kRebase,   // older, and completes a run of `rebase_after`: take it, drop what is newer
   };
 
-  explicit StampOrder(int rebase_after = 5) : rebase_after_(rebase_after < 1 ? 1 : rebase_after) {}
+  static constexpr int kDefaultRebaseAfter = 5;
+  explicit StampOrder(int rebase_after = kDefaultRebaseAfter)
+      : rebase_after_(rebase_after < 1 ? 1 : rebase_after) {}
 
   Verdict Check(int64_t utime) {
     if (!have_ || utime >= newest_) {
@@ -134,12 +136,26 @@ class StateHistory {
     items_.emplace_back(utime, s);
     while (items_.size() > capacity_) items_.pop_front();
   }
-  // The stamp of the oldest remembered entry that Restore(utime) would drop (none: nullopt).
-  std::optional<int64_t> OldestFrom(int64_t utime) const {
-    std::optional<int64_t> oldest;
-    for (auto it = items_.rbegin(); it != items_.rend() && it->first >= utime; ++it)
-      oldest = it->first;
-    return oldest;
+  // What Restore(utime) would drop, without dropping it: how many remembered entries (counted
+  // up to `max_count`), the oldest one's stamp, whether every remembered entry (`all`: older
+  // ones may have been forgotten), and the stamp of the newest entry it would keep.
+  struct Split {
+    size_t count = 0;
+    std::optional<int64_t> oldest_dropped, newest_kept;
+    bool all = false;
+  };
+  Split SplitAt(int64_t utime) const {
+    Split s;
+    auto it = items_.rbegin();
+    for (; it != items_.rend() && it->first >= utime; ++it) {
+      ++s.count;
+      s.oldest_dropped = it->first;
+    }
+    if (it != items_.rend())
+      s.newest_kept = it->first;
+    else
+      s.all = s.count > 0;
+    return s;
   }
   std::optional<State> Restore(int64_t utime) {
     std::optional<State> newest_dropped;

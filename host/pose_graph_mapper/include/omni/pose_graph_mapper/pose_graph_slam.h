@@ -243,7 +243,7 @@ class PoseGraphSlam {
   const std::vector<VertexPrior2>& absolute_priors() const { return priors_; }
   size_t num_nodes() const { return nodes_.size(); }
   size_t num_pose_nodes() const { return nodes_.size() - keyframes_.size(); }
-  size_t absolute_pending() const { return absolute_queue_.size(); }
+  size_t absolute_pending() const { return absolute_queue_.size() + held_absolute_.size(); }
   static constexpr size_t kMaxQueuedAbsolute = 1000;
   // Occupancy grid of the keyframe scans at their current estimates.
   io::GridMap RenderMap(const io::LogOddsOptions& options) const;
@@ -342,7 +342,17 @@ class PoseGraphSlam {
   int64_t time_offset_ = 0, prev_time_offset_ = 0, old_clock_newest_ = 0;
   // Scans refused as older than the last accepted one that came on a new clock (an older
   // odometry run was open); a clock step back replays them, anything else drops them.
-  std::vector<std::pair<int64_t, LaserScan2>> held_scans_;
+  struct HeldScan {
+    int64_t index;
+    int64_t odom_in;  // odometry samples received when it came
+    LaserScan2 scan;
+  };
+  std::vector<HeldScan> held_scans_;
+  int64_t run_start_odom_in_ = 0;  // odom_in at the open run's first sample
+  // The last clock step's run: its first source stamp, odom_in at its first sample.
+  int64_t step_run_first_ = 0, step_run_start_odom_in_ = 0;
+  // Whether a scan at `su` (time line) has odometry not in doubt while a run is open.
+  bool CoveredBesideTheRun(int64_t su, int64_t gap_us) const;
   static constexpr size_t kMaxHeldScans = 16;
   bool replay_held_scans_ = false;
   bool replaying_ = false;
