@@ -260,9 +260,15 @@ struct MemqNode {
   std::vector<omni::pose2d_t> poses;
 };
 
-// The process defers the mapper and drains the socket first; a scan must still use the odometry
-// that had arrived when it was covered, not a later sample with the same stamp (Intel's log
-// repeats stamps).
+// A replay of the first `scans` scans of `clf` with the glitches `g` into a node with the
+// shipped options (testing::ReplayToNode).
+testing::NodeReplay ReplayToPgNode(const std::string& clf, int scans, const testing::Glitches& g) {
+  return testing::ReplayToNode(clf, scans, g, "POSE_PG", [](bus::Bus* b, const Clock* clock) {
+    return std::make_unique<pgm::PoseGraphNode>(
+        b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, clock);
+  });
+}
+
 // One odometry message and one scan stamped an hour ahead, and one scan published twice, in
 // the middle of a run: the node drops them, says so in its heartbeat, and maps on as if they
 // had not come (before, the future odometry froze the odometry and the future scan held the
@@ -270,12 +276,7 @@ struct MemqNode {
 TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kScans = 120;
-  auto replay = [&](const testing::Glitches& g) {
-    return testing::ReplayToNode(clf, kScans, g, "POSE_PG", [](bus::Bus* b, const Clock* clock) {
-      return std::make_unique<pgm::PoseGraphNode>(
-          b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, clock);
-    });
-  };
+  auto replay = [&](const testing::Glitches& g) { return ReplayToPgNode(clf, kScans, g); };
   testing::Glitches g;
   g.future_odom_at = 40;
   g.future_scan_at = 70;
@@ -304,12 +305,7 @@ TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
 TEST(PoseGraphMapperNode, FollowsAClockSetBack) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kScans = 120;
-  auto replay = [&](const testing::Glitches& g) {
-    return testing::ReplayToNode(clf, kScans, g, "POSE_PG", [](bus::Bus* b, const Clock* clock) {
-      return std::make_unique<pgm::PoseGraphNode>(
-          b, pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{}, pgm::BatchOptions{}, clock);
-    });
-  };
+  auto replay = [&](const testing::Glitches& g) { return ReplayToPgNode(clf, kScans, g); };
   testing::Glitches g;
   g.clock_back_at = 60;
   const auto clean = replay({});
@@ -364,6 +360,9 @@ TEST(PoseGraphMapperNode, TheOldClocksLastScanIsMappedAcrossAClockStep) {
   }
 }
 
+// The process defers the mapper and drains the socket first; a scan must still use the odometry
+// that had arrived when it was covered, not a later sample with the same stamp (Intel's log
+// repeats stamps).
 TEST(PoseGraphMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   MemqNode n;
   n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));

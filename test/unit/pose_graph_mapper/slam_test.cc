@@ -38,6 +38,16 @@ LaserScan2 BoxScan(int64_t utime, const Pose2& p) {
   return s;
 }
 
+// The stamp tests below: odometry at 50 Hz, a keyframe every 0.2 m, a glitch an hour off.
+constexpr int64_t kHour = 3600000000LL;
+int64_t At50Hz(int i) { return 1000000 + int64_t{20000} * i; }
+std::unique_ptr<PoseGraphSlam> FineKeyframeSlam(bool use_gyro = false) {
+  PoseGraphSlamOptions o;
+  o.keyframe_distance_m = 0.2;
+  o.use_gyro = use_gyro;
+  return std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+}
+
 TEST(PoseGraphSlam, KeyframeGatingAndPosePerScan) {
   PoseGraphSlamOptions o;
   o.keyframe_distance_m = 0.5;
@@ -98,13 +108,10 @@ TEST(PoseGraphSlam, BadInputIsCounted) {
 // between: the scan gets no odometry from the doubtful sample (else it would become a keyframe
 // every later scan is older than), the odometry re-bases after five samples, mapping goes on.
 TEST(PoseGraphSlam, AFutureOdometrySampleMakesNoFutureKeyframe) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
-  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };  // odometry at 50 Hz
+  const auto t = At50Hz;
   auto run = [&](bool glitch, int* used) {
-    PoseGraphSlamOptions o;
-    o.keyframe_distance_m = 0.2;
-    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    auto slam = FineKeyframeSlam();
     *used = 0;
     for (int i = 0; i <= 80; ++i) {
       slam->AddOdometry(t(i), at(i));
@@ -189,16 +196,12 @@ TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
 // scan is mapped, and the trajectory keeps each scan's own stamp and matches the clean run's.
 // (Before, the keyframes kept the old clock and every later scan was refused as older.)
 TEST(PoseGraphSlam, FollowsAClockSetBack) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3 + 0.01 * i, 0.004 * i); };
   for (const bool gyro : {false, true}) {
     SCOPED_TRACE(gyro ? "with the gyro" : "odometry only");
     auto run = [&](int64_t back) {
       auto t = [&](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? back : 0); };
-      PoseGraphSlamOptions o;
-      o.keyframe_distance_m = 0.2;
-      o.use_gyro = gyro;
-      auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+      auto slam = FineKeyframeSlam(gyro);
       for (int i = 0; i <= 100; ++i) {
         if (gyro) {  // 0.2 rad/s at twice the odometry's rate, ahead of it
           (void)slam->AddImuYawRate(t(i), 0.2);
@@ -241,12 +244,10 @@ TEST(PoseGraphSlam, FollowsAClockSetBack) {
 // dropped as a glitch, not taken for the clock going back (which would shift the rest of the
 // run an hour along the time line).
 TEST(PoseGraphSlam, AScanInsideTheProvingRunIsNoClockStep) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
-  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
-  PoseGraphSlamOptions o;
-  o.keyframe_distance_m = 0.2;
-  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  const auto t = At50Hz;
+  const auto owned = FineKeyframeSlam();
+  PoseGraphSlam& slam = *owned;
   for (int i = 0; i <= 60; ++i) {
     slam.AddOdometry(t(i), at(i));
     if (i == 38) slam.AddOdometry(t(i) + kHour, at(i));
@@ -268,9 +269,7 @@ TEST(PoseGraphSlam, OnlyTheNewClocksScansAreReplayedAfterAStep) {
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
   auto run = [&](int64_t back) {
     auto t = [&](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? back : 0); };
-    PoseGraphSlamOptions o;
-    o.keyframe_distance_m = 0.2;
-    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    auto slam = FineKeyframeSlam();
     for (int i = 0; i <= 80; ++i) {
       slam->AddOdometry(t(i), at(i));
       if (i % 5 == 0) (void)slam->AddScan(i, BoxScan(t(i), at(i)));
@@ -301,12 +300,10 @@ TEST(PoseGraphSlam, OnlyTheNewClocksScansAreReplayedAfterAStep) {
 // waits for the decision, then lands where its stamp belongs on the new clock (by the old
 // clock it would be an hour before the first pose, and rejected).
 TEST(PoseGraphSlam, AFixDuringAClockStepWaitsForTheDecision) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
   auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? kHour : 0); };
-  PoseGraphSlamOptions o;
-  o.keyframe_distance_m = 0.2;
-  PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+  const auto owned = FineKeyframeSlam();
+  PoseGraphSlam& slam = *owned;
   const Eigen::Matrix3d info = Eigen::Vector3d(1e4, 1e4, 1e4).asDiagonal();
   for (int i = 0; i <= 80; ++i) {
     slam.AddOdometry(t(i), at(i));
@@ -328,13 +325,11 @@ TEST(PoseGraphSlam, AFixDuringAClockStepWaitsForTheDecision) {
 // clock's first odometry; two future odometry samples with a scan stamped like them; a fix
 // still waiting when the run never decides.
 TEST(PoseGraphSlam, ClockStepCornerCases) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.01 * i, 3, 0); };
-  PoseGraphSlamOptions o;
-  o.keyframe_distance_m = 0.2;
   {  // no scan for 300 samples (6 s) before the step: the history holds 256
     auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 340 ? kHour : 0); };
-    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    const auto owned = FineKeyframeSlam();
+    PoseGraphSlam& slam = *owned;
     int used_after = 0;
     for (int i = 0; i <= 400; ++i) {
       slam.AddOdometry(t(i), at(i));
@@ -349,7 +344,8 @@ TEST(PoseGraphSlam, ClockStepCornerCases) {
   }
   {  // each scan before its odometry sample: scan 40 comes before the new clock's odometry
     auto t = [](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? kHour : 0); };
-    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    const auto owned = FineKeyframeSlam();
+    PoseGraphSlam& slam = *owned;
     for (int i = 0; i <= 80; ++i) {
       if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
       slam.AddOdometry(t(i), at(i));
@@ -359,8 +355,9 @@ TEST(PoseGraphSlam, ClockStepCornerCases) {
     EXPECT_EQ(slam.counters().scans_used, 16);  // all but scan 0, which came before odometry
   }
   {  // two odometry samples an hour ahead and a scan stamped as the second: refused, no step
-    auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
-    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    const auto t = At50Hz;
+    const auto owned = FineKeyframeSlam();
+    PoseGraphSlam& slam = *owned;
     for (int i = 0; i <= 60; ++i) {
       slam.AddOdometry(t(i), at(i));
       if (i == 30) {
@@ -377,8 +374,9 @@ TEST(PoseGraphSlam, ClockStepCornerCases) {
     EXPECT_EQ(slam.counters().scans_used, 13);
   }
   {  // a fix that waits for a run that never decides is placed at the end
-    auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
-    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    const auto t = At50Hz;
+    const auto owned = FineKeyframeSlam();
+    PoseGraphSlam& slam = *owned;
     for (int i = 0; i <= 40; ++i) {
       slam.AddOdometry(t(i), at(i));
       if (i % 5 == 0) (void)slam.AddScan(i, BoxScan(t(i), at(i)));
@@ -401,13 +399,10 @@ TEST(PoseGraphSlam, ClockStepCornerCases) {
 // re-bases the stream the sample stays and the clock is taken as stepped back; mapping goes on
 // with every later scan (before, each one was refused as older than the future scan).
 TEST(PoseGraphSlam, AFutureOdometryAndScanPairDoesNotStopMapping) {
-  constexpr int64_t kHour = 3600000000LL;
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
-  auto t = [](int i) { return 1000000 + int64_t{20000} * i; };
+  const auto t = At50Hz;
   auto run = [&](bool glitch, int* used) {
-    PoseGraphSlamOptions o;
-    o.keyframe_distance_m = 0.2;
-    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    auto slam = FineKeyframeSlam();
     *used = 0;
     for (int i = 0; i <= 80; ++i) {
       slam->AddOdometry(t(i), at(i));
