@@ -182,25 +182,25 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
   // Older samples are held; a run of them re-bases the stream (RebaseOdometry).
   const auto rebase = [this](int64_t first) { RebaseOdometry(first); };
   const auto take = [this](int64_t t, const Pose2& p) { TakeOdometry(t, p); };
-  const StampOrder::Verdict v = odom_stream_.Add(utime, raw, rebase, take);
-  if (v == StampOrder::Verdict::kOld) {
+  if (odom_stream_.Add(utime, raw, rebase, take) == StampOrder::Verdict::kOld)
     ++c_.odom_out_of_order;
-    if (odom_stream_.order().run_length() == 1) run_start_odom_in_ = c_.odom_in;
-  }
   if (odom_stream_.order().run_length() > 0) return;  // a run still open: nothing decided
   // The run re-based or broke: the clock of what waited on it is known now.
   std::vector<HeldScan> held;
   held.swap(held_scans_);
   if (replay_held_scans_) {
-    // The scans that came with the new clock before the step was proven are covered now: those
-    // that arrived from just before the run's first sample on and are stamped of its time (a
-    // scan that came late before the step is not one of them).
+    // The scans that came with the new clock before the step was proven are covered now. Held
+    // scans all came after the last in-order sample (which drops what is held); of those, the
+    // new clock's are stamped from about the run's first sample to its last: a scan that came
+    // late on the old clock (stamped above the run unless the step was smaller than its
+    // lateness) is not replayed.
     replay_held_scans_ = false;
     const int64_t gap_us = static_cast<int64_t>(o_.max_scan_odom_gap_s * 1e6);
+    const int64_t slack_us = 2 * std::clamp<int64_t>(last_odom_period_us_, 1000, 1000000);
     held.erase(std::remove_if(held.begin(), held.end(),
                               [&](const HeldScan& h) {
-                                return h.odom_in + 1 < step_run_start_odom_in_ ||
-                                       h.scan.utime < step_run_first_ - gap_us;
+                                return h.scan.utime < step_run_first_ - gap_us ||
+                                       h.scan.utime > last_odom_utime_ + slack_us;
                               }),
                held.end());
     std::stable_sort(held.begin(), held.end(), [](const HeldScan& a, const HeldScan& b) {
@@ -254,7 +254,6 @@ void PoseGraphSlam::RebaseOdometry(int64_t first) {
   if (have_odom_ && stands && last_odom_internal_ < kMaxStamp) {
     ++c_.clock_steps_back;
     step_run_first_ = first;
-    step_run_start_odom_in_ = run_start_odom_in_;
     const int64_t period = std::clamp<int64_t>(last_odom_period_us_, 1000, 1000000);
     prev_time_offset_ = time_offset_;
     old_clock_newest_ = last_odom_utime_;
@@ -336,7 +335,7 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
     // replays it if the odometry re-based as a clock step; the oldest held one gives way.
     if (!replaying_) {
       if (held_scans_.size() >= kMaxHeldScans) held_scans_.erase(held_scans_.begin());
-      held_scans_.push_back({scan_index, c_.odom_in, scan});
+      held_scans_.push_back({scan_index, scan});
     }
     return false;
   }

@@ -357,6 +357,7 @@ TEST(PoseGraphMapperNode, TheOldClocksLastScanIsMappedAcrossAClockStep) {
     EXPECT_EQ(n.node->scans_future_dropped(), 0);
     EXPECT_EQ(n.node->scans_forced(), 0);
     EXPECT_EQ(c.scans_used, 19);
+    EXPECT_EQ(n.poses.size(), 19u);
   }
 }
 

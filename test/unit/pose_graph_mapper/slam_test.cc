@@ -263,36 +263,46 @@ TEST(PoseGraphSlam, AScanInsideTheProvingRunIsNoClockStep) {
   EXPECT_LE(kf.back().utime, t(60));  // no keyframe shifted along the time line
 }
 
-// A scan that came late before a (0.3 s) clock step is not replayed with the new clock's scans:
-// only scans that came while the new clock's odometry was proving the step are.
+// A scan that came late before a short clock step is not replayed with the new clock's scans
+// (it would land out of place and push later scans out as older): late by 3 samples before a
+// 0.3 s step, and late by 5, arriving just before the new clock's first sample, with a 0.6 s one.
 TEST(PoseGraphSlam, OnlyTheNewClocksScansAreReplayedAfterAStep) {
   auto at = [](int i) { return Pose2(2 + 0.05 * i, 3, 0); };
-  auto run = [&](int64_t back) {
-    auto t = [&](int i) { return 1000000 + int64_t{20000} * i - (i >= 40 ? back : 0); };
-    auto slam = FineKeyframeSlam();
-    for (int i = 0; i <= 80; ++i) {
-      slam->AddOdometry(t(i), at(i));
-      if (i % 5 == 0) (void)slam->AddScan(i, BoxScan(t(i), at(i)));
-      if (i == 36) {
-        EXPECT_FALSE(slam->AddScan(33, BoxScan(t(33), at(33))));  // late
-      }
-    }
-    return slam;
+  struct Case {
+    int step_at;
+    int64_t back_us;
+    int late_scan, late_after;
   };
-  const auto clean = run(0), slam = run(300000);
-  const auto& c = slam->counters();
-  EXPECT_EQ(c.clock_steps_back, 1);
-  EXPECT_EQ(c.scans_time_backwards, 2);  // the late one, and scan 40 before the step was proven
-  EXPECT_EQ(c.scans_replayed, 1);
-  const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
-  ASSERT_EQ(traj.size(), 17u);
-  ASSERT_EQ(traj_clean.size(), 17u);
-  for (size_t k = 0; k < traj.size(); ++k) {
-    EXPECT_EQ(traj[k].scan_index, traj_clean[k].scan_index);
-    EXPECT_LT(
-        std::hypot(traj[k].pose.x - traj_clean[k].pose.x, traj[k].pose.y - traj_clean[k].pose.y),
-        0.01)
-        << traj[k].scan_index;
+  for (const Case k : {Case{40, 300000, 33, 36}, Case{50, 600000, 44, 49}}) {
+    SCOPED_TRACE(k.back_us);
+    auto run = [&](int64_t back) {
+      auto t = [&](int i) { return At50Hz(i) - (i >= k.step_at ? back : 0); };
+      auto slam = FineKeyframeSlam();
+      for (int i = 0; i <= 80; ++i) {
+        slam->AddOdometry(t(i), at(i));
+        if (i % 5 == 0) (void)slam->AddScan(i, BoxScan(t(i), at(i)));
+        if (i == k.late_after) {
+          EXPECT_FALSE(slam->AddScan(k.late_scan, BoxScan(t(k.late_scan), at(k.late_scan))));
+        }
+      }
+      return slam;
+    };
+    const auto clean = run(0), slam = run(k.back_us);
+    const auto& c = slam->counters();
+    EXPECT_EQ(c.clock_steps_back, 1);
+    // The late one, and the new clock's first scan before the step was proven.
+    EXPECT_EQ(c.scans_time_backwards, 2);
+    EXPECT_EQ(c.scans_replayed, 1);
+    const auto traj = slam->Trajectory(), traj_clean = clean->Trajectory();
+    ASSERT_EQ(traj.size(), 17u);
+    ASSERT_EQ(traj_clean.size(), 17u);
+    for (size_t n = 0; n < traj.size(); ++n) {
+      EXPECT_EQ(traj[n].scan_index, traj_clean[n].scan_index);
+      EXPECT_LT(
+          std::hypot(traj[n].pose.x - traj_clean[n].pose.x, traj[n].pose.y - traj_clean[n].pose.y),
+          0.01)
+          << traj[n].scan_index;
+    }
   }
 }
 

@@ -136,8 +136,8 @@ class StateHistory {
     items_.emplace_back(utime, s);
     while (items_.size() > capacity_) items_.pop_front();
   }
-  // What Restore(utime) would drop, without dropping it: how many remembered entries (counted
-  // up to `max_count`), the oldest one's stamp, whether every remembered entry (`all`: older
+  // What Restore(utime) would drop, without dropping it: how many remembered entries, the
+  // oldest one's stamp, whether every remembered entry (`all`: older
   // ones may have been forgotten), and the stamp of the newest entry it would keep.
   struct Split {
     size_t count = 0;

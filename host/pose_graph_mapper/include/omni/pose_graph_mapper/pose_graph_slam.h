@@ -209,9 +209,9 @@ class PoseGraphSlam {
   // Odometry steps whose heading had no gyro data to fuse (use_gyro; 0 otherwise).
   uint64_t gyro_missing_steps() const { return fused_.gyro_missing_steps(); }
   // Returns true when the scan was accepted (it then has a pose in Trajectory()). A scan older
-  // than the last one while older odometry is coming in order may be on a clock that went
-  // back: it is refused (scans_time_backwards) but held, and mapped if the odometry re-bases as
-  // a clock step (scans_replayed).
+  // than the last one may be on a clock that went back: it is refused (scans_time_backwards)
+  // but held until the next odometry sample in order, and mapped if the odometry re-bases as a
+  // clock step meanwhile and the scan is stamped of the new clock's run (scans_replayed).
   bool AddScan(int64_t scan_index, const LaserScan2& scan);
 
   // Absolute pose of the robot base at `utime` in the map frame (the frame of the first
@@ -340,17 +340,14 @@ class PoseGraphSlam {
   // Added to every input's stamp: the sum of the clock steps back (see AddOdometry); the one
   // before the last step, and the old clock's newest odometry stamp then (for late fixes).
   int64_t time_offset_ = 0, prev_time_offset_ = 0, old_clock_newest_ = 0;
-  // Scans refused as older than the last accepted one that came on a new clock (an older
-  // odometry run was open); a clock step back replays them, anything else drops them.
+  // Scans refused as older than the last accepted one since the last in-order odometry sample:
+  // a clock step back replays those stamped of the new clock's run, anything else drops them.
   struct HeldScan {
     int64_t index;
-    int64_t odom_in;  // odometry samples received when it came
     LaserScan2 scan;
   };
   std::vector<HeldScan> held_scans_;
-  int64_t run_start_odom_in_ = 0;  // odom_in at the open run's first sample
-  // The last clock step's run: its first source stamp, odom_in at its first sample.
-  int64_t step_run_first_ = 0, step_run_start_odom_in_ = 0;
+  int64_t step_run_first_ = 0;  // the last clock step's run: its first source stamp
   // Whether a scan at `su` (time line) has odometry not in doubt while a run is open.
   bool CoveredBesideTheRun(int64_t su, int64_t gap_us) const;
   static constexpr size_t kMaxHeldScans = 16;
