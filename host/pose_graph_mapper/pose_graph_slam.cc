@@ -211,6 +211,10 @@ void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
       if (AcceptScan(h.index, h.scan)) ++c_.scans_replayed;
     replaying_ = false;
   }  // else they were late for good (counted scans_time_backwards)
+  PlaceHeldFixes();
+}
+
+void PoseGraphSlam::PlaceHeldFixes() {
   std::vector<HeldAbsolute> fixes;
   fixes.swap(held_absolute_);
   for (const HeldAbsolute& f : fixes) (void)PlaceAbsolute(f.utime, f.z, f.information, false);
@@ -760,9 +764,7 @@ void PoseGraphSlam::ResetWindow() {
 
 void PoseGraphSlam::Finish() {
   // Fixes still waiting for an odometry run that never decided: placed by the current clock.
-  std::vector<HeldAbsolute> fixes;
-  fixes.swap(held_absolute_);
-  for (const HeldAbsolute& f : fixes) (void)PlaceAbsolute(f.utime, f.z, f.information, false);
+  PlaceHeldFixes();
   // The window after the last global optimisation holds its newest nodes to the scan-match
   // chain (its links only, the oldest anchored): the loops into it are not in the window and
   // their correction of those nodes is undone. A last solve of the whole graph restores it.

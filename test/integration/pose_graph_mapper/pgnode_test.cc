@@ -276,13 +276,12 @@ testing::NodeReplay ReplayToPgNode(const std::string& clf, int scans, const test
 TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kScans = 120;
-  auto replay = [&](const testing::Glitches& g) { return ReplayToPgNode(clf, kScans, g); };
   testing::Glitches g;
   g.future_odom_at = 40;
   g.future_scan_at = 70;
   g.duplicate_at = 90;
-  const auto clean = replay({});
-  const auto glitched = replay(g);
+  const auto clean = ReplayToPgNode(clf, kScans, {});
+  const auto glitched = ReplayToPgNode(clf, kScans, g);
   ASSERT_GE(clean.poses.size(), static_cast<size_t>(kScans - 1));
   EXPECT_EQ(testing::HeartbeatCounter(clean.heartbeat, "time_rebases"), 0);
   EXPECT_EQ(glitched.poses.size(), clean.poses.size());
@@ -305,11 +304,10 @@ TEST(PoseGraphMapperNode, FutureStampsAndDuplicatesDoNotStallMapping) {
 TEST(PoseGraphMapperNode, FollowsAClockSetBack) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   constexpr int kScans = 120;
-  auto replay = [&](const testing::Glitches& g) { return ReplayToPgNode(clf, kScans, g); };
   testing::Glitches g;
   g.clock_back_at = 60;
-  const auto clean = replay({});
-  const auto stepped = replay(g);
+  const auto clean = ReplayToPgNode(clf, kScans, {});
+  const auto stepped = ReplayToPgNode(clf, kScans, g);
   ASSERT_GE(clean.poses.size(), static_cast<size_t>(kScans - 1));
   EXPECT_EQ(stepped.poses.size(), clean.poses.size());
   const auto& hb = stepped.heartbeat;

@@ -365,6 +365,7 @@ class PoseGraphSlam {
   // before was counted queued already (`count_queued` false).
   AbsoluteOutcome PlaceAbsolute(int64_t utime, const Pose2& z, const Eigen::Matrix3d& info,
                                 bool count_queued);
+  void PlaceHeldFixes();  // the held fixes, by the clock decided now
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;
   int64_t last_scan_utime_ = INT64_MIN;
