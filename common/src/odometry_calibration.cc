@@ -20,6 +20,39 @@ Pose2 OdometryCalibration::Distort(const Pose2& t) const {
                (1.0 + theta_scale) * t.theta + theta_per_x * t.x);
 }
 
+void ReadOdometryCalibratorOptions(ConfigReader& oc, OdometryCalibratorOptions* o) {
+  OdometryCalibratorOptions& cal = *o;
+  oc.Get("enabled", &cal.enabled, Optional());
+  oc.Get("min_pairs", &cal.min_pairs, Optional(), InRange(1, 1000000));
+  oc.Get("min_forward_m", &cal.min_forward_m, Optional(), NonNegative<double>());
+  oc.Get("update_every_pairs", &cal.update_every_pairs, Optional(), InRange(1, 1000000));
+  oc.Get("max_abs_scale", &cal.max_abs_scale, Optional(), InRange(0.0, 0.5));
+  oc.Get("max_abs_y_per_x", &cal.max_abs_y_per_x, Optional(), InRange(0.0, 0.5));
+  oc.Get("max_abs_theta_per_x", &cal.max_abs_theta_per_x, Optional(), InRange(0.0, 1.0));
+  oc.Get("gate_xy_m", &cal.gate_xy_m, Optional(), Positive<double>());
+  oc.Get("gate_theta_rad", &cal.gate_theta_rad, Optional(), Positive<double>());
+  oc.Get("relink_on_global", &cal.relink_on_global, Optional());
+  oc.Get("max_pairs", &cal.max_pairs, Optional(), InRange(1, 10000000));
+  oc.Get("adapt_noise", &cal.adapt_noise, Optional());
+  oc.Get("min_noise_scale", &cal.min_noise_scale, Optional(), Positive<double>());
+  oc.Get("max_noise_scale", &cal.max_noise_scale, Optional(), Positive<double>());
+}
+
+std::vector<std::pair<std::string, std::function<int64_t()>>> OdometryCalibrationCounters(
+    const OdometryCalibrator& oc) {
+  const OdometryCalibrator* p = &oc;
+  auto ppm = [p](double OdometryCalibration::*field) {
+    return [p, field] { return static_cast<int64_t>(std::lround(p->calibration().*field * 1e6)); };
+  };
+  return {{"odom_cal_pairs_used", [p] { return p->pairs_used(); }},
+          {"odom_cal_pairs_gated", [p] { return p->pairs_gated(); }},
+          {"odom_cal_updates", [p] { return p->updates(); }},
+          {"odom_cal_x_scale_ppm", ppm(&OdometryCalibration::x_scale)},
+          {"odom_cal_y_per_x_ppm", ppm(&OdometryCalibration::y_per_x)},
+          {"odom_cal_theta_scale_ppm", ppm(&OdometryCalibration::theta_scale)},
+          {"odom_cal_theta_per_x_ppm", ppm(&OdometryCalibration::theta_per_x)}};
+}
+
 bool OdometryCalibrator::AddPair(const Pose2& raw, const Pose2& matched,
                                  const Eigen::Matrix3d& model_covariance) {
   const bool finite = std::isfinite(raw.x) && std::isfinite(raw.y) && std::isfinite(raw.theta) &&

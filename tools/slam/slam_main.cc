@@ -268,7 +268,7 @@ int main(int argc, char** argv) {
       "%lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
       "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld, "
-      "\"skipped_bytes\": %llu}\n",
+      "\"skipped_bytes\": %llu",
       input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed),
       static_cast<long long>(c.scans_gated), static_cast<long long>(c.scans_too_few_beams),
@@ -281,6 +281,16 @@ int main(int argc, char** argv) {
       traj.size(), slam.distinct_tiles(), slam.total_tile_refs(),
       static_cast<long long>(c.sweeps_corrected), static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes));
+  const omni::OdometryCalibrator& oc = slam.odometry_calibrator();
+  const omni::OdometryCalibration& cal = oc.calibration();
+  std::fprintf(f,
+               ", \"odom_calibration\": {\"enabled\": %s, \"active\": %s, \"pairs_used\": %lld, "
+               "\"pairs_gated\": %lld, \"updates\": %lld, \"x_scale\": %.6f, \"y_per_x\": %.6f, "
+               "\"theta_scale\": %.6f, \"theta_per_x\": %.6f}}\n",
+               opt.odometry_calibration.enabled ? "true" : "false", oc.active() ? "true" : "false",
+               static_cast<long long>(oc.pairs_used()), static_cast<long long>(oc.pairs_gated()),
+               static_cast<long long>(oc.updates()), cal.x_scale, cal.y_per_x, cal.theta_scale,
+               cal.theta_per_x);
   std::fclose(f);
   std::printf(
       "omni-slam rbpf: %lld scans (%lld updates), %d particles, %lld resamplings, %lld match "

@@ -118,17 +118,8 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   }
   if (slam.odometry_calibration.enabled) {
     // The odometry self-calibration: matches used / left out, refits, and the fit in ppm.
-    const OdometryCalibrator& oc = slam_.odometry_calibrator();
-    auto ppm = [](double v) { return static_cast<int64_t>(std::lround(v * 1e6)); };
-    heartbeat_.AddCounter("odom_cal_pairs_used", [&oc] { return oc.pairs_used(); });
-    heartbeat_.AddCounter("odom_cal_pairs_gated", [&oc] { return oc.pairs_gated(); });
-    heartbeat_.AddCounter("odom_cal_updates", [&oc] { return oc.updates(); });
-    heartbeat_.AddCounter("odom_cal_x_scale_ppm",
-                          [&oc, ppm] { return ppm(oc.calibration().x_scale); });
-    heartbeat_.AddCounter("odom_cal_theta_scale_ppm",
-                          [&oc, ppm] { return ppm(oc.calibration().theta_scale); });
-    heartbeat_.AddCounter("odom_cal_theta_per_x_ppm",
-                          [&oc, ppm] { return ppm(oc.calibration().theta_per_x); });
+    for (auto& [name, read] : OdometryCalibrationCounters(slam_.odometry_calibrator()))
+      heartbeat_.AddCounter(name, std::move(read));
   }
   heartbeat_.AddCounter("absolute_in", [&c] { return c.absolute_in; });
   heartbeat_.AddCounter("absolute_attached", [&c] { return c.absolute_attached; });

@@ -77,6 +77,8 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("pose_channel", &o.pose_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
   r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  ConfigReader oc = r.Section("odometry_calibration");
+  ReadOdometryCalibratorOptions(oc, &o.odometry_calibration);
   auto g = r.Section("grid");
   g.Get("resolution_m", &o.grid.resolution_m, Optional(), InRange(0.005, 1.0));
   g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), Positive<float>());
@@ -156,7 +158,8 @@ RbpfSlam::RbpfSlam(const RbpfOptions& options)
       matcher_(options.matcher, options.grid.resolution_m),
       pool_(options.threads),
       master_rng_(options.seed),
-      odom_buffer_(100000) {
+      odom_buffer_(100000),
+      calibrator_(options.odometry_calibration) {
   particles_.resize(static_cast<size_t>(std::max(1, opt_.particles)));
   for (size_t i = 0; i < particles_.size(); ++i) {
     particles_[i].map = TiledGrid(opt_.grid);
@@ -301,7 +304,9 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
   } else {
     if (!first) ++counters_.scans_gated;
     records_.push_back({index, scan.utime, *odom, false});
-    res.pose = have_update_ ? BestPose() * last_update_odom_.Between(*odom) : *odom;
+    Pose2 step = last_update_odom_.Between(*odom);
+    if (opt_.odometry_calibration.enabled) step = calibrator_.calibration().Correct(step);
+    res.pose = have_update_ ? BestPose() * step : *odom;
   }
   return res;
 }
@@ -357,7 +362,9 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   }
   const MatchScan mscan =
       MakeMatchScan(points, hit, scan.sensor_in_base, opt_.grid.resolution_m, opt_.matcher);
-  const Pose2 delta = first ? Pose2() : last_update_odom_.Between(odom);
+  const Pose2 raw_delta = first ? Pose2() : last_update_odom_.Between(odom);
+  const bool calibrate = opt_.odometry_calibration.enabled;
+  const Pose2 delta = calibrate ? calibrator_.calibration().Correct(raw_delta) : raw_delta;
   std::optional<double> imu_dtheta;
   if (opt_.use_imu && !first) imu_dtheta = ImuYawIncrement(last_update_utime_, scan.utime);
   const int n = static_cast<int>(particles_.size());
@@ -409,6 +416,12 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
   best_lineage_ = best_index();
+  if (calibrate && !first && !failed[static_cast<size_t>(best_lineage_)]) {
+    // The best particle's matched increment against the raw odometry of the same interval.
+    const Particle& b = particles_[static_cast<size_t>(best_lineage_)];
+    if (b.node && b.node->parent)
+      calibrator_.AddPair(raw_delta, b.node->parent->pose.Between(b.pose));
+  }
   if (!first) Resample();
 }
 
@@ -453,6 +466,9 @@ int RbpfSlam::best_index() const {
 std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
   std::vector<EstimatedPose> out;
   if (records_.empty()) return out;
+  auto Step = [&](const Pose2& raw) {
+    return opt_.odometry_calibration.enabled ? calibrator_.calibration().Correct(raw) : raw;
+  };
   const Particle& b = particles_[static_cast<size_t>(best_index())];
   // Processed scan index -> pose on the best particle's path.
   std::vector<std::pair<int64_t, Pose2>> path;
@@ -472,7 +488,7 @@ std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
     const ScanRecord& r = records_[i];
     while (k + 1 < processed.size() && processed[k + 1] <= i) ++k;
     const ScanRecord& anchor = records_[processed[k]];
-    const Pose2 pose = path[k].second * anchor.odom.Between(r.odom);
+    const Pose2 pose = path[k].second * Step(anchor.odom.Between(r.odom));
     out.push_back({r.index, r.utime, pose});
   }
   return out;

@@ -74,6 +74,10 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
   heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });
   heartbeat_.AddCounter("sweeps_uncorrected", [&c] { return c.sweeps_uncorrected; });
+  if (slam_.options().odometry_calibration.enabled) {
+    for (auto& [name, read] : OdometryCalibrationCounters(slam_.odometry_calibrator()))
+      heartbeat_.AddCounter(name, std::move(read));
+  }
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(pending_.size()); });

@@ -97,9 +97,11 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   rbpf::RbpfOptions opt;
   opt.particles = 10;
   opt.grid_publish_interval_s = 0.5;
+  opt.odometry_calibration.enabled = true;  // its counters join the heartbeat
   ManualClock clock(1000000);
   rbpf::RbpfNode node(&b, opt, &clock);
   int poses = 0, grids = 0, heartbeats = 0;
+  int64_t cal_pairs = -1;
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
     EXPECT_EQ(p.source, "rbpf");
     EXPECT_TRUE(std::isfinite(p.x_m));
@@ -110,6 +112,9 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
     EXPECT_EQ(h.process, "rbpf_mapper");
     ++heartbeats;
+    for (int i = 0; i < h.num_counters; ++i)
+      if (h.counter_names[static_cast<size_t>(i)] == "odom_cal_pairs_used")
+        cal_pairs = h.counter_values[static_cast<size_t>(i)];
   });
   auto log = io::ReadCarmenLog(clf);
   ASSERT_TRUE(log.ok());
@@ -139,6 +144,8 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   EXPECT_EQ(b.counters().decode_errors.load(), 60);
   EXPECT_GE(node.slam().counters().invalid_beams, 180);
   EXPECT_GT(node.slam().counters().scans_processed, 20);
+  EXPECT_GT(cal_pairs, 10);
+  EXPECT_LE(cal_pairs, node.slam().odometry_calibrator().pairs_used());
 }
 
 // The process defers the filter and drains the socket first; a scan must still use the

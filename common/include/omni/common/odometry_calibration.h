@@ -26,9 +26,14 @@
 
 #include <cstdint>
 #include <deque>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 
+#include "omni/common/config.h"
 #include "omni/common/geometry.h"
 
 namespace omni {
@@ -69,6 +74,10 @@ struct OdometryCalibratorOptions {
   double max_noise_scale = 10.0;
 };
 
+// Reads the options' keys (all optional) from a config section (`odometry_calibration:` in
+// the pose-graph and RBPF configs); errors name the key.
+void ReadOdometryCalibratorOptions(ConfigReader& section, OdometryCalibratorOptions* o);
+
 class OdometryCalibrator {
  public:
   explicit OdometryCalibrator(OdometryCalibratorOptions o = {}) : o_(o) {}
@@ -104,5 +113,10 @@ class OdometryCalibrator {
   int64_t used_ = 0, gated_ = 0, updates_ = 0, since_update_ = 0;
   std::deque<Pair> pairs_;
 };
+
+// The calibrator's state as heartbeat counters (name, reader): matches used / left out,
+// refits, and the fit in parts per million. The readers refer to `oc`, which must outlive them.
+std::vector<std::pair<std::string, std::function<int64_t()>>> OdometryCalibrationCounters(
+    const OdometryCalibrator& oc);
 
 }  // namespace omni

@@ -21,6 +21,7 @@
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
+#include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
 #include "omni/common/stamp_order.h"
 #include "omni/common/time.h"
@@ -65,6 +66,13 @@ struct RbpfOptions {
   double max_odom_jump_rad = 2.0;
   double max_odom_gap_s = 0.5;  // scan without its own odometry: max distance in time
   bool use_imu = false;         // fuse the gyro's yaw increment into the motion model
+  // Odometry self-calibration (common/odometry_calibration.h): fitted to the best particle's
+  // matched increments, taken out of each odometry increment before the motion model.
+  OdometryCalibratorOptions odometry_calibration = [] {
+    OdometryCalibratorOptions c;
+    c.enabled = false;
+    return c;
+  }();
   std::string scan_channel = "LIDAR_SCAN";
   std::string odom_channel = "WHEEL_ODOM";
   std::string imu_channel = "IMU";
@@ -200,6 +208,7 @@ class RbpfSlam {
   const std::vector<Particle>& particles() const { return particles_; }
   const RbpfCounters& counters() const { return counters_; }
   const RbpfOptions& options() const { return opt_; }
+  const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   // Tiles referenced by all particles, and distinct tile objects among them.
   size_t total_tile_refs() const;
   size_t distinct_tiles() const;
@@ -231,6 +240,7 @@ class RbpfSlam {
   std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
+  OdometryCalibrator calibrator_;
   int best_lineage_ = 0;  // the particle that descends from the last update's best
   Pose2 last_update_odom_;
   int64_t last_update_utime_ = 0;
