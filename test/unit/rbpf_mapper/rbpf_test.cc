@@ -662,13 +662,13 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   auto opt = RbpfOptions::Load(*reader);
   ASSERT_TRUE(opt.ok()) << opt.error().message;
   EXPECT_GE(opt->particles, 1);
-  EXPECT_FALSE(opt->odometry_calibration.enabled);
-  auto cal = ConfigReader::FromString("odometry_calibration:\n  enabled: true\n  min_pairs: 30\n",
+  EXPECT_TRUE(opt->odometry_calibration.enabled);
+  auto cal = ConfigReader::FromString("odometry_calibration:\n  enabled: false\n  min_pairs: 30\n",
                                       "t.yaml");
   ASSERT_TRUE(cal.ok());
   auto co = RbpfOptions::Load(*cal);
   ASSERT_TRUE(co.ok()) << co.error().message;
-  EXPECT_TRUE(co->odometry_calibration.enabled);
+  EXPECT_FALSE(co->odometry_calibration.enabled);
   EXPECT_EQ(co->odometry_calibration.min_pairs, 30);
   auto typo = ConfigReader::FromString("particles: 30\nmatcher:\n  kernel_cell: 1\n", "t.yaml");
   ASSERT_TRUE(typo.ok());

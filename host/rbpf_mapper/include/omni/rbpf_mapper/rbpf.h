@@ -68,11 +68,7 @@ struct RbpfOptions {
   bool use_imu = false;         // fuse the gyro's yaw increment into the motion model
   // Odometry self-calibration (common/odometry_calibration.h): fitted to the best particle's
   // matched increments, taken out of each odometry increment before the motion model.
-  OdometryCalibratorOptions odometry_calibration = [] {
-    OdometryCalibratorOptions c;
-    c.enabled = false;
-    return c;
-  }();
+  OdometryCalibratorOptions odometry_calibration;
   std::string scan_channel = "LIDAR_SCAN";
   std::string odom_channel = "WHEEL_ODOM";
   std::string imu_channel = "IMU";
