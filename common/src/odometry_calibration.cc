@@ -20,7 +20,8 @@ Pose2 OdometryCalibration::Distort(const Pose2& t) const {
                (1.0 + theta_scale) * t.theta + theta_per_x * t.x);
 }
 
-void ReadOdometryCalibratorOptions(ConfigReader& oc, OdometryCalibratorOptions* o) {
+void ReadOdometryCalibratorOptions(ConfigReader& oc, OdometryCalibratorOptions* o,
+                                   bool graph_keys) {
   OdometryCalibratorOptions& cal = *o;
   oc.Get("enabled", &cal.enabled, Optional());
   oc.Get("min_pairs", &cal.min_pairs, Optional(), InRange(1, 1000000));
@@ -31,11 +32,14 @@ void ReadOdometryCalibratorOptions(ConfigReader& oc, OdometryCalibratorOptions* 
   oc.Get("max_abs_theta_per_x", &cal.max_abs_theta_per_x, Optional(), InRange(0.0, 1.0));
   oc.Get("gate_xy_m", &cal.gate_xy_m, Optional(), Positive<double>());
   oc.Get("gate_theta_rad", &cal.gate_theta_rad, Optional(), Positive<double>());
-  oc.Get("relink_on_global", &cal.relink_on_global, Optional());
   oc.Get("max_pairs", &cal.max_pairs, Optional(), InRange(1, 10000000));
+  if (!graph_keys) return;
+  oc.Get("relink_on_global", &cal.relink_on_global, Optional());
   oc.Get("adapt_noise", &cal.adapt_noise, Optional());
   oc.Get("min_noise_scale", &cal.min_noise_scale, Optional(), Positive<double>());
   oc.Get("max_noise_scale", &cal.max_noise_scale, Optional(), Positive<double>());
+  if (!(cal.min_noise_scale <= cal.max_noise_scale))
+    oc.AddError("max_noise_scale", "must be >= min_noise_scale");
 }
 
 std::vector<std::pair<std::string, std::function<int64_t()>>> OdometryCalibrationCounters(

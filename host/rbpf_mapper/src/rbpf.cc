@@ -78,7 +78,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
   r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.05, 3600.0));
   ConfigReader oc = r.Section("odometry_calibration");
-  ReadOdometryCalibratorOptions(oc, &o.odometry_calibration);
+  ReadOdometryCalibratorOptions(oc, &o.odometry_calibration, /*graph_keys=*/false);
   auto g = r.Section("grid");
   g.Get("resolution_m", &o.grid.resolution_m, Optional(), InRange(0.005, 1.0));
   g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), Positive<float>());
@@ -416,7 +416,11 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
   best_lineage_ = best_index();
-  if (calibrate && !first && !failed[static_cast<size_t>(best_lineage_)]) {
+  // An odometry jump inside the interval left one step out of the jump-free odometry that the
+  // match still moved through: no pair then.
+  const bool jumped = counters_.odom_jumps != odom_jumps_at_update_;
+  odom_jumps_at_update_ = counters_.odom_jumps;
+  if (calibrate && !first && !jumped && !failed[static_cast<size_t>(best_lineage_)]) {
     // The best particle's matched increment against the raw odometry of the same interval.
     const Particle& b = particles_[static_cast<size_t>(best_lineage_)];
     if (b.node && b.node->parent)

@@ -5,8 +5,8 @@
 
 #include <random>
 
-#include "omni/pose_graph_mapper/continuous_source.h"
 #include "omni/common/odometry_calibration.h"
+#include "omni/pose_graph_mapper/continuous_source.h"
 
 namespace omni::pgm {
 namespace {
@@ -149,6 +149,32 @@ TEST(OdometryCalibration, SourceComposesCalibratedSteps) {
   const auto scaled = odo.Between(0, 4'000'000);
   ASSERT_TRUE(scaled);
   EXPECT_TRUE(scaled->covariance.isApprox(0.25 * m->covariance, 1e-9));
+}
+
+// The shared config reader: every key for the pose graph, min <= max noise scale; without the
+// graph's keys (the RBPF) setting one of them is an unknown-key error, not a silent no-op.
+TEST(OdometryCalibrator, ConfigKeysAreCheckedPerMapper) {
+  auto read = [](const std::string& yaml, bool graph_keys, OdometryCalibratorOptions* o) {
+    auto r = ConfigReader::FromString(yaml, "t.yaml");
+    EXPECT_TRUE(r.ok());
+    ConfigReader section = r->Section("odometry_calibration");
+    ReadOdometryCalibratorOptions(section, o, graph_keys);
+    return r->Finish();
+  };
+  OdometryCalibratorOptions o;
+  EXPECT_TRUE(read("odometry_calibration:\n  min_pairs: 7\n  adapt_noise: true\n", true, &o).ok());
+  EXPECT_EQ(o.min_pairs, 7);
+  EXPECT_TRUE(o.adapt_noise);
+  const Status swapped =
+      read("odometry_calibration:\n  min_noise_scale: 5\n  max_noise_scale: 0.1\n", true, &o);
+  ASSERT_FALSE(swapped.ok());
+  EXPECT_NE(swapped.message().find("max_noise_scale"), std::string::npos) << swapped.message();
+  OdometryCalibratorOptions r;
+  EXPECT_TRUE(read("odometry_calibration:\n  min_pairs: 9\n", false, &r).ok());
+  EXPECT_EQ(r.min_pairs, 9);
+  const Status graph_only = read("odometry_calibration:\n  adapt_noise: true\n", false, &r);
+  ASSERT_FALSE(graph_only.ok());
+  EXPECT_NE(graph_only.message().find("adapt_noise"), std::string::npos) << graph_only.message();
 }
 
 }  // namespace

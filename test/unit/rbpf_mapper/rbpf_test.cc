@@ -655,6 +655,45 @@ TEST(RbpfSlam, CalibratesTheOdometryFromTheBestParticlesMatches) {
   }
 }
 
+// Scans between filter updates are placed from the best particle by the *calibrated* odometry
+// step since the last update (and so, by BestTrajectory, at the end).
+TEST(RbpfSlam, ScansBetweenUpdatesFollowTheCalibratedOdometry) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
+  auto log = io::ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok());
+  RbpfOptions o;
+  o.particles = 4;
+  o.linear_update_m = 1.0;  // most scans fall between updates
+  o.angular_update_rad = 0.5;
+  o.odometry_calibration.min_pairs = 3;
+  o.odometry_calibration.min_forward_m = 1.0;
+  RbpfSlam slam(o);
+  Pose2 anchor_odom;
+  int checked = 0, corrected = 0;
+  size_t n = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    const ScanInput in = ToInput(r.laser);
+    const ScanResult res = slam.AddScan(in);
+    if (res.processed) {
+      anchor_odom = *in.odom;
+    } else if (res.accepted && slam.odometry_calibrator().active()) {
+      const Pose2 raw = anchor_odom.Between(*in.odom);
+      const Pose2 step = slam.odometry_calibrator().calibration().Correct(raw);
+      const Pose2 want = slam.BestPose() * step;
+      EXPECT_NEAR(res.pose.x, want.x, 1e-9) << n;
+      EXPECT_NEAR(res.pose.y, want.y, 1e-9) << n;
+      EXPECT_NEAR(res.pose.theta, want.theta, 1e-9) << n;
+      ++checked;
+      corrected += std::hypot(step.x - raw.x, step.y - raw.y) > 0.005;
+    }
+    if (++n >= 300) break;
+  }
+  EXPECT_EQ(slam.counters().odom_jumps, 0);
+  EXPECT_GT(checked, 50);
+  EXPECT_GT(corrected, 10);  // the calibration moved those poses by more than 5 mm
+}
+
 TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   const std::string path = std::string(OMNI_SOURCE_DIR) + "/config/rbpf_mapper.yaml";
   auto reader = ConfigReader::FromFile(path);
@@ -670,6 +709,14 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   ASSERT_TRUE(co.ok()) << co.error().message;
   EXPECT_FALSE(co->odometry_calibration.enabled);
   EXPECT_EQ(co->odometry_calibration.min_pairs, 30);
+  // The pose graph's own calibration keys are unknown here, not silently ignored.
+  auto graph_key =
+      ConfigReader::FromString("odometry_calibration:\n  adapt_noise: true\n", "t.yaml");
+  ASSERT_TRUE(graph_key.ok());
+  auto gk = RbpfOptions::Load(*graph_key);
+  ASSERT_FALSE(gk.ok());
+  EXPECT_NE(gk.error().message.find("odometry_calibration.adapt_noise"), std::string::npos)
+      << gk.error().message;
   auto typo = ConfigReader::FromString("particles: 30\nmatcher:\n  kernel_cell: 1\n", "t.yaml");
   ASSERT_TRUE(typo.ok());
   auto r = RbpfOptions::Load(*typo);

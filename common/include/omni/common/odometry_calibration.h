@@ -15,7 +15,9 @@
 // matcher's relative pose of the same pair: the match does not use odometry beyond its search
 // centre, so the fit does not chase its own output. Pairs whose residual is far from the
 // current fit are left out, and the result is bounded. The fit uses the newest `max_pairs`
-// pairs, so it follows slow changes (tyre wear, load).
+// pairs, so it follows slow changes (tyre wear, load). (In the RBPF the match starts from the
+// calibrated prediction and its prior pulls towards it, so along weakly observed directions the
+// fit leans a little towards its own value: slower to converge, not biased at convergence.)
 //
 // Noise scale (adapt_noise): the configured odometry covariance of each pair is a model; the
 // residuals of the calibrated odometry against the matches say how large it really is. The
@@ -53,7 +55,7 @@ struct OdometryCalibration {
 };
 
 struct OdometryCalibratorOptions {
-  bool enabled = true;               // PoseGraphSlam: calibrate at all (the calibrator ignores it)
+  bool enabled = true;               // the mapper calibrates at all (the calibrator ignores it)
   int min_pairs = 15;                // keyframe pairs before the first estimate is used
   double min_forward_m = 5.0;        // ... and this much forward travel among them
   int update_every_pairs = 10;       // re-estimate after this many new pairs
@@ -75,8 +77,11 @@ struct OdometryCalibratorOptions {
 };
 
 // Reads the options' keys (all optional) from a config section (`odometry_calibration:` in
-// the pose-graph and RBPF configs); errors name the key.
-void ReadOdometryCalibratorOptions(ConfigReader& section, OdometryCalibratorOptions* o);
+// the pose-graph and RBPF configs); errors name the key. Without `graph_keys` the keys only the
+// pose graph uses (relink_on_global, adapt_noise, min/max_noise_scale) are not read, so a
+// config that sets them is an error (unknown key) instead of a silent no-op.
+void ReadOdometryCalibratorOptions(ConfigReader& section, OdometryCalibratorOptions* o,
+                                   bool graph_keys = true);
 
 class OdometryCalibrator {
  public:

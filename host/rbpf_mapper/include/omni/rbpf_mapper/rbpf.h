@@ -237,7 +237,8 @@ class RbpfSlam {
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
   OdometryCalibrator calibrator_;
-  int best_lineage_ = 0;  // the particle that descends from the last update's best
+  int64_t odom_jumps_at_update_ = 0;  // counters_.odom_jumps at the last update
+  int best_lineage_ = 0;              // the particle that descends from the last update's best
   Pose2 last_update_odom_;
   int64_t last_update_utime_ = 0;
 };
