@@ -247,6 +247,10 @@ std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
   return odom_correction_ * *raw;
 }
 
+Pose2 RbpfSlam::CalibratedStep(const Pose2& raw) const {
+  return opt_.odometry_calibration.enabled ? calibrator_.calibration().Correct(raw) : raw;
+}
+
 ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
   ScanResult res;
   ++counters_.scans_in;
@@ -304,9 +308,7 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
   } else {
     if (!first) ++counters_.scans_gated;
     records_.push_back({index, scan.utime, *odom, false});
-    Pose2 step = last_update_odom_.Between(*odom);
-    if (opt_.odometry_calibration.enabled) step = calibrator_.calibration().Correct(step);
-    res.pose = have_update_ ? BestPose() * step : *odom;
+    res.pose = have_update_ ? BestPose() * CalibratedStep(last_update_odom_.Between(*odom)) : *odom;
   }
   return res;
 }
@@ -363,8 +365,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   const MatchScan mscan =
       MakeMatchScan(points, hit, scan.sensor_in_base, opt_.grid.resolution_m, opt_.matcher);
   const Pose2 raw_delta = first ? Pose2() : last_update_odom_.Between(odom);
-  const bool calibrate = opt_.odometry_calibration.enabled;
-  const Pose2 delta = calibrate ? calibrator_.calibration().Correct(raw_delta) : raw_delta;
+  const Pose2 delta = CalibratedStep(raw_delta);
   std::optional<double> imu_dtheta;
   if (opt_.use_imu && !first) imu_dtheta = ImuYawIncrement(last_update_utime_, scan.utime);
   const int n = static_cast<int>(particles_.size());
@@ -420,7 +421,8 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   // match still moved through: no pair then.
   const bool jumped = counters_.odom_jumps != odom_jumps_at_update_;
   odom_jumps_at_update_ = counters_.odom_jumps;
-  if (calibrate && !first && !jumped && !failed[static_cast<size_t>(best_lineage_)]) {
+  if (opt_.odometry_calibration.enabled && !first && !jumped &&
+      !failed[static_cast<size_t>(best_lineage_)]) {
     // The best particle's matched increment against the raw odometry of the same interval.
     const Particle& b = particles_[static_cast<size_t>(best_lineage_)];
     if (b.node && b.node->parent)
@@ -470,9 +472,6 @@ int RbpfSlam::best_index() const {
 std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
   std::vector<EstimatedPose> out;
   if (records_.empty()) return out;
-  auto Step = [&](const Pose2& raw) {
-    return opt_.odometry_calibration.enabled ? calibrator_.calibration().Correct(raw) : raw;
-  };
   const Particle& b = particles_[static_cast<size_t>(best_index())];
   // Processed scan index -> pose on the best particle's path.
   std::vector<std::pair<int64_t, Pose2>> path;
@@ -492,7 +491,7 @@ std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
     const ScanRecord& r = records_[i];
     while (k + 1 < processed.size() && processed[k + 1] <= i) ++k;
     const ScanRecord& anchor = records_[processed[k]];
-    const Pose2 pose = path[k].second * Step(anchor.odom.Between(r.odom));
+    const Pose2 pose = path[k].second * CalibratedStep(anchor.odom.Between(r.odom));
     out.push_back({r.index, r.utime, pose});
   }
   return out;

@@ -217,6 +217,8 @@ class RbpfSlam {
     bool processed;
   };
   std::optional<Pose2> CorrectedOdom(const ScanInput& scan);
+  // A raw odometry step with the calibration's systematic error taken out (when enabled).
+  Pose2 CalibratedStep(const Pose2& raw) const;
   std::optional<double> ImuYawIncrement(int64_t t0, int64_t t1) const;
   void Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first);
   void Resample();
