@@ -13,16 +13,7 @@ of REF itself would show up as a positive correlation between independent estima
 import math
 import sys
 
-
-def read_xy(path):
-    poses = {}
-    with open(path) as f:
-        for line in f:
-            if line.startswith('#') or not line.strip():
-                continue
-            a = line.split()
-            poses[int(a[0])] = (float(a[2]), float(a[3]))
-    return poses
+from trajfile import read_trajectory
 
 
 def align(ref, est):
@@ -65,7 +56,7 @@ def main():
         print(__doc__)
         return 2
     files = sys.argv[1:]
-    trajs = [read_xy(p) for p in files]
+    trajs = [{k: v[:2] for k, v in read_trajectory(p).items()} for p in files]
     keys = sorted(set.intersection(*(set(t) for t in trajs)))
     if len(keys) < 3:
         print('fewer than 3 common scan indices')

@@ -12,6 +12,8 @@ import gzip
 import math
 import sys
 
+from trajfile import read_trajectory
+
 
 def read_scans(path):
     opener = gzip.open if path.endswith('.gz') else open
@@ -23,17 +25,6 @@ def read_scans(path):
                 n = int(a[1])
                 scans.append([float(v) for v in a[2:2 + n]])
     return scans
-
-
-def read_trajectory(path):
-    poses = {}
-    with open(path) as f:
-        for line in f:
-            if line.startswith('#') or not line.strip():
-                continue
-            a = line.split()
-            poses[int(a[0])] = (float(a[2]), float(a[3]), float(a[4]))
-    return poses
 
 
 def entropy(scans, poses, res):
