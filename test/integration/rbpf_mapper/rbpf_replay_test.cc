@@ -97,8 +97,8 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   rbpf::RbpfOptions opt;
   opt.particles = 10;
   opt.grid_publish_interval_s = 0.5;
-  opt.odometry_calibration.min_pairs =
-      5;  // active within the prefix; its counters are in the heartbeat
+  // Active within the prefix, so its counters in the heartbeat have something to count.
+  opt.odometry_calibration.min_pairs = 5;
   ManualClock clock(1000000);
   rbpf::RbpfNode node(&b, opt, &clock);
   int poses = 0, grids = 0, heartbeats = 0;
