@@ -148,6 +148,31 @@ TEST(OdomMapper, ARebaseUndoesTheDroppedSamplesJumpBridge) {
   EXPECT_LT(static_cast<int64_t>(m.Map().width) * m.Map().height, 1000000);
 }
 
+// One odometry sample stamped in the past (a late, wrong-looking message) among in-order
+// ones: refused and counted, never used to place a scan, and not a re-base or a jump.
+TEST(OdomMapper, AStaleOdometrySampleIsCountedAndNotUsed) {
+  OdomMapper m(OdomMapperOptions{});
+  for (int k = 0; k <= 20; ++k) ASSERT_TRUE(m.AddOdometry(100000 * k, Pose2(0.1 * k, 0, 0)));
+  // Stamped between samples 10 and 11, 1 m to the side of where the base was then.
+  EXPECT_FALSE(m.AddOdometry(1050000, Pose2(1.05, 1.0, 0.3)));
+  EXPECT_EQ(m.counters().odom_out_of_order, 1);
+  for (int k = 21; k <= 30; ++k) ASSERT_TRUE(m.AddOdometry(100000 * k, Pose2(0.1 * k, 0, 0)));
+  Scan s;
+  s.utime = 1050000;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_max_m = 20;
+  s.ranges_m.assign(201, 3.f);
+  ASSERT_TRUE(m.AddScan(s));
+  const Pose2 p = m.trajectory().back().base_pose;
+  EXPECT_NEAR(p.x, 1.05, 1e-9);  // interpolated between the in-order samples
+  EXPECT_NEAR(p.y, 0.0, 1e-12);
+  EXPECT_NEAR(p.theta, 0.0, 1e-12);
+  EXPECT_EQ(m.counters().odom_out_of_order, 1);
+  EXPECT_EQ(m.counters().time_rebases, 0);
+  EXPECT_EQ(m.counters().odom_jumps, 0);
+}
+
 TEST(OdomMapper, TheGridNeverOutgrowsItsCap) {
   OdomMapperOptions o;
   o.max_grid_cells = 1 << 20;  // 51 m x 51 m at 5 cm

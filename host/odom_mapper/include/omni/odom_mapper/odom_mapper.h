@@ -47,8 +47,7 @@ struct OdomMapperCounters {
   int64_t odom_jumps = 0;             // jumps between samples, bridged (max_odom_jump_*)
   int64_t time_rebases = 0;           // a future-stamped sample dropped (common/stamp_order.h)
   int64_t beams_beyond_grid_cap = 0;  // not mapped: the grid would outgrow max_grid_cells
-  int64_t scans_duplicate = 0;        // same seq and stamp as the scan before: mapped once  // not
-                                      // mapped: the grid would outgrow max_grid_cells
+  int64_t scans_duplicate = 0;        // same seq and stamp as the scan before: mapped once
   int64_t scans_lost = 0;             // gaps in the driver's scan sequence numbers
   // A spinning lidar's scans (scan_time_s > 0): each beam placed at the odometry pose of its own
   // time, or (no odometry over the whole sweep) the scan mapped at its first beam's pose.
