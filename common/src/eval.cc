@@ -267,14 +267,26 @@ io::GridMap ResampleOnto(const io::GridMap& geometry, const io::GridMap& est,
   out.width = geometry.width;
   out.height = geometry.height;
   out.cells.assign(geometry.cells.size(), -1);
+  // A finer estimate is sampled k x k times per cell and the samples combined by their largest
+  // value (occupied over free over unknown): its one-cell-thick walls would otherwise fall
+  // between the centres of the coarser cells.
+  const int k =
+      est.resolution_m < 0.75 * geometry.resolution_m
+          ? std::min(16, static_cast<int>(std::lround(geometry.resolution_m / est.resolution_m)))
+          : 1;
   for (int row = 0; row < out.height; ++row)
     for (int col = 0; col < out.width; ++col) {
-      double ex, ey;
-      a.Invert(out.origin_x_m + (col + 0.5) * out.resolution_m,
-               out.origin_y_m + (row + 0.5) * out.resolution_m, &ex, &ey);
-      const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
-      const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
-      if (est.Contains(ec, er)) out.at(col, row) = est.at(ec, er);
+      int8_t v = -1;
+      for (int sy = 0; sy < k; ++sy)
+        for (int sx = 0; sx < k; ++sx) {
+          double ex, ey;
+          a.Invert(out.origin_x_m + (col + (sx + 0.5) / k) * out.resolution_m,
+                   out.origin_y_m + (row + (sy + 0.5) / k) * out.resolution_m, &ex, &ey);
+          const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
+          const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
+          if (est.Contains(ec, er)) v = std::max(v, est.at(ec, er));
+        }
+      out.at(col, row) = v;
     }
   return out;
 }
@@ -312,6 +324,11 @@ MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
   }
   res.precision = occ.empty() ? 0 : static_cast<double>(tp_est) / static_cast<double>(occ.size());
   const auto ref_occ = OccupiedCells(ref);
+  // The tolerance in the estimate's cells: the same distance as `tol` reference cells.
+  const int tol_est =
+      est.resolution_m == ref.resolution_m
+          ? tol
+          : static_cast<int>(std::ceil(tol * ref.resolution_m / est.resolution_m - 1e-9));
   size_t tp_ref = 0;
   for (const auto& c : ref_occ) {
     double ex, ey;
@@ -319,8 +336,8 @@ MapCompareResult CompareMaps(const io::GridMap& ref, const io::GridMap& est,
     const int ec = static_cast<int>(std::floor((ex - est.origin_x_m) / est.resolution_m));
     const int er = static_cast<int>(std::floor((ey - est.origin_y_m) / est.resolution_m));
     bool found = false;
-    for (int dy = -tol; dy <= tol && !found; ++dy)
-      for (int dx = -tol; dx <= tol && !found; ++dx)
+    for (int dy = -tol_est; dy <= tol_est && !found; ++dy)
+      for (int dx = -tol_est; dx <= tol_est && !found; ++dx)
         if (est.Contains(ec + dx, er + dy) && NormalizedCell(est.at(ec + dx, er + dy)) == 1)
           found = true;
     if (found) ++tp_ref;

@@ -133,6 +133,37 @@ TEST(MapCompare, RecoversRotationAndShift) {
   EXPECT_LT(aligned.error, 0.5 * raw.error);
 }
 
+// The same room at 2.5 cm, each wall one fine cell thick (in the lower-left quarter of the
+// coarse wall cell): scored on the 5 cm reference it is the reference, not a room with gaps.
+TEST(MapCompare, AFinerMapIsScoredOnTheCoarserGridWithoutLosingItsWalls) {
+  const io::GridMap ref = Room();
+  io::GridMap fine;
+  fine.resolution_m = ref.resolution_m / 2;
+  fine.origin_x_m = ref.origin_x_m;
+  fine.origin_y_m = ref.origin_y_m;
+  fine.width = ref.width * 2;
+  fine.height = ref.height * 2;
+  fine.cells.assign(static_cast<size_t>(fine.width) * fine.height, -1);
+  for (int r = 0; r < ref.height; ++r)
+    for (int c = 0; c < ref.width; ++c) {
+      const int8_t v = ref.at(c, r);
+      if (v < 0) continue;
+      for (int i = 0; i < 4; ++i) fine.at(2 * c + i % 2, 2 * r + i / 2) = 0;
+      if (v > 50) fine.at(2 * c, 2 * r) = 100;
+    }
+  MapCompareOptions o;
+  o.align = false;
+  const auto res = CompareMaps(ref, fine, o);
+  EXPECT_EQ(res.error, 0.0);
+  EXPECT_EQ(res.differing_cells, 0u);
+  EXPECT_DOUBLE_EQ(res.precision, 1.0);
+  EXPECT_DOUBLE_EQ(res.recall, 1.0);
+  // Moved by one fine cell (half a reference cell), the walls are still within the tolerance.
+  const auto shifted = CompareMaps(ref, Moved(fine, 0, 0.025, 0), o);
+  EXPECT_GT(shifted.recall, 0.95);
+  EXPECT_GT(shifted.precision, 0.95);
+}
+
 TEST(MapCompare, SlamfusionMetricOnHandCase) {
   io::GridMap t;
   t.width = 3;

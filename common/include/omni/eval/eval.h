@@ -86,7 +86,9 @@ struct MapAlignment {
 MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est,
                       const MapCompareOptions& options = {}, const MapAlignment* guess = nullptr);
 // `est` moved by `a` and sampled (nearest cell) onto `geometry`'s grid: same resolution, origin
-// and size as `geometry`; -1 where the estimate has no cell.
+// and size as `geometry`; -1 where the estimate has no cell. An estimate with finer cells is
+// sampled k x k times per cell (k = the ratio of the cell sizes) and the largest value kept, so
+// a wall one fine cell thick is a wall on the coarser grid.
 io::GridMap ResampleOnto(const io::GridMap& geometry, const io::GridMap& est,
                          const MapAlignment& a);
 
