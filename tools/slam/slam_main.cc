@@ -281,6 +281,14 @@ int main(int argc, char** argv) {
       traj.size(), slam.distinct_tiles(), slam.total_tile_refs(),
       static_cast<long long>(c.sweeps_corrected), static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes));
+  const omni::rbpf::ResolutionChoice& choice = slam.resolution_choice();
+  std::fprintf(f,
+               ", \"grid_resolution_m\": %.4f, \"resolution_choice\": {\"decided\": %s, "
+               "\"switched\": %s, \"travel_m\": %.3f, \"moving_scans\": %lld, "
+               "\"spacing_m\": %.4f}",
+               slam.options().grid.resolution_m, choice.decided ? "true" : "false",
+               choice.switched ? "true" : "false", choice.travel_m,
+               static_cast<long long>(choice.moving_scans), choice.spacing_m());
   const omni::OdometryCalibrator& oc = slam.odometry_calibrator();
   const omni::OdometryCalibration& cal = oc.calibration();
   std::fprintf(f,
@@ -293,10 +301,10 @@ int main(int argc, char** argv) {
                cal.theta_per_x);
   std::fclose(f);
   std::printf(
-      "omni-slam rbpf: %lld scans (%lld updates), %d particles, %lld resamplings, %lld match "
-      "failures, %.1f s -> %s/{trajectory.txt,map.pgm,map.yaml,map.png,stats.json}\n",
+      "omni-slam rbpf: %lld scans (%lld updates), %d particles, %.3f m cells, %lld resamplings, "
+      "%lld match failures, %.1f s -> %s/{trajectory.txt,map.pgm,map.yaml,map.png,stats.json}\n",
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed), opt.particles,
-      static_cast<long long>(c.resamplings), static_cast<long long>(c.match_failures), wall_s,
-      out_dir.c_str());
+      slam.options().grid.resolution_m, static_cast<long long>(c.resamplings),
+      static_cast<long long>(c.match_failures), wall_s, out_dir.c_str());
   return 0;
 }

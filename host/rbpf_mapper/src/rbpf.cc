@@ -81,6 +81,9 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   ReadOdometryCalibratorOptions(oc, &o.odometry_calibration, /*graph_keys=*/false);
   auto g = r.Section("grid");
   g.Get("resolution_m", &o.grid.resolution_m, Optional(), InRange(0.005, 1.0));
+  g.Get("sparse_resolution_m", &o.sparse_resolution_m, Optional(), InRange(0.005, 1.0));
+  g.Get("sparse_scan_spacing_m", &o.sparse_scan_spacing_m, Optional(), InRange(0.0, 100.0));
+  g.Get("spacing_decision_m", &o.spacing_decision_m, Optional(), InRange(0.1, 10000.0));
   g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), Positive<float>());
   g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-100.f, -1e-6f));
   g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-100.f, -1e-6f));
@@ -131,6 +134,9 @@ Status RbpfOptions::Validate() const {
   if (particles < 1) return bad("particles must be >= 1");
   if (threads < 1) return bad("threads must be >= 1");
   if (!(grid.resolution_m > 0)) return bad("grid.resolution_m must be > 0");
+  if (!(sparse_resolution_m > 0)) return bad("grid.sparse_resolution_m must be > 0");
+  if (!(sparse_scan_spacing_m >= 0)) return bad("grid.sparse_scan_spacing_m must be >= 0");
+  if (!(spacing_decision_m > 0)) return bad("grid.spacing_decision_m must be > 0");
   if (!(grid.free_threshold <= grid.occupied_threshold))
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
   if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
@@ -160,6 +166,13 @@ RbpfSlam::RbpfSlam(const RbpfOptions& options)
       master_rng_(options.seed),
       odom_buffer_(100000),
       calibrator_(options.odometry_calibration) {
+  InitParticles();
+  choice_.decided =
+      !(opt_.sparse_scan_spacing_m > 0) || opt_.sparse_resolution_m == opt_.grid.resolution_m;
+}
+
+void RbpfSlam::InitParticles() {
+  particles_.clear();
   particles_.resize(static_cast<size_t>(std::max(1, opt_.particles)));
   for (size_t i = 0; i < particles_.size(); ++i) {
     particles_[i].map = TiledGrid(opt_.grid);
@@ -168,7 +181,75 @@ RbpfSlam::RbpfSlam(const RbpfOptions& options)
   }
 }
 
+void RbpfSlam::Reset(const RbpfOptions& o) {
+  opt_ = o;
+  motion_ = OmniMotionModel(o.motion);
+  matcher_ = ScanMatcher(o.matcher, o.grid.resolution_m);
+  master_rng_.seed(o.seed);
+  counters_ = RbpfCounters{};
+  odom_buffer_ = StampedBuffer<Pose2>(100000);
+  imu_.clear();
+  records_.clear();
+  next_scan_index_ = 0;
+  scan_order_ = StampOrder();
+  imu_order_ = StampOrder();
+  last_raw_odom_.reset();
+  odom_correction_ = Pose2();
+  have_update_ = false;
+  calibrator_ = OdometryCalibrator(o.odometry_calibration);
+  odom_jumps_at_update_ = 0;
+  best_lineage_ = 0;
+  last_update_odom_ = Pose2();
+  last_update_utime_ = 0;
+  InitParticles();
+}
+
+void RbpfSlam::RestartScanOrder() {
+  if (!choice_.decided) prelude_.emplace_back(RestartEvent{});
+  scan_order_.Reset();
+}
+
+void RbpfSlam::MeasureSpacing(const Pose2& odom) {
+  if (spacing_prev_odom_) {
+    const Pose2 d = spacing_prev_odom_->Between(odom);
+    const double step = std::hypot(d.x, d.y);
+    if (step > 0.01) {  // standing still says nothing about the spacing
+      choice_.travel_m += step;
+      ++choice_.moving_scans;
+    }
+  }
+  spacing_prev_odom_ = odom;
+}
+
+ScanResult RbpfSlam::MaybeDecide(const ScanResult& r) {
+  if (choice_.travel_m < opt_.spacing_decision_m && prelude_scans_ < kMaxPreludeScans) return r;
+  choice_.decided = true;
+  std::vector<PreludeEvent> events;
+  events.swap(prelude_);
+  spacing_prev_odom_.reset();
+  if (choice_.spacing_m() <= opt_.sparse_scan_spacing_m) return r;  // dense: keep the fine grid
+  // Sparse: everything so far again, as if the coarse grid had been chosen from the start.
+  choice_.switched = true;
+  RbpfOptions o = opt_;
+  o.grid.resolution_m = o.sparse_resolution_m;
+  Reset(o);
+  ScanResult last = r;
+  for (const PreludeEvent& e : events) {
+    if (const auto* od = std::get_if<OdomEvent>(&e)) {
+      AddOdometry(od->utime, od->pose);
+    } else if (const auto* im = std::get_if<ImuEvent>(&e)) {
+      AddImuYawRate(im->utime, im->rate);
+    } else if (const auto* sc = std::get_if<ScanInput>(&e)) {
+      last = AddScanImpl(*sc);
+    } else {
+      scan_order_.Reset();
+    }
+  }
+  return last;
+}
+
 bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
+  if (!choice_.decided) prelude_.emplace_back(OdomEvent{utime, p});
   ++counters_.odom_in;
   if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.theta)) {
     ++counters_.odom_invalid;
@@ -184,6 +265,7 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
 }
 
 bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
+  if (!choice_.decided) prelude_.emplace_back(ImuEvent{utime, rate});
   ++counters_.imu_in;
   if (!std::isfinite(rate)) {
     ++counters_.imu_invalid;
@@ -252,6 +334,13 @@ Pose2 RbpfSlam::CalibratedStep(const Pose2& raw) const {
 }
 
 ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
+  if (choice_.decided) return AddScanImpl(scan);
+  prelude_.emplace_back(scan);
+  ++prelude_scans_;
+  return MaybeDecide(AddScanImpl(scan));
+}
+
+ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
   ScanResult res;
   ++counters_.scans_in;
   const int64_t index = next_scan_index_++;
@@ -274,6 +363,7 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
     return res;
   }
   (void)scan_order_.Check(scan.utime);  // accepted: in order from here on
+  if (!choice_.decided) MeasureSpacing(*odom);
   // Accepted: it gets a pose, from the filter or by odometry.
   res.accepted = true;
   const bool first = !have_update_;

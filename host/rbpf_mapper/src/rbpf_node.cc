@@ -74,6 +74,16 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
   heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });
   heartbeat_.AddCounter("sweeps_uncorrected", [&c] { return c.sweeps_uncorrected; });
+  // The grid's cell size in use, and the scan spacing that chose it (0 until decided).
+  heartbeat_.AddCounter("grid_cell_mm", [this] {
+    return static_cast<int64_t>(std::llround(slam_.options().grid.resolution_m * 1000.0));
+  });
+  heartbeat_.AddCounter("scan_spacing_mm", [this] {
+    const ResolutionChoice& ch = slam_.resolution_choice();
+    return ch.decided ? static_cast<int64_t>(std::llround(ch.spacing_m() * 1000.0)) : 0;
+  });
+  heartbeat_.AddCounter("resolution_switched",
+                        [this] { return slam_.resolution_choice().switched ? 1 : 0; });
   if (slam_.options().odometry_calibration.enabled) {
     for (auto& [name, read] : OdometryCalibrationCounters(slam_.odometry_calibrator()))
       heartbeat_.AddCounter(name, std::move(read));
@@ -170,7 +180,15 @@ int RbpfNode::Drain(bool all, int max_scans) {
 }
 
 void RbpfNode::Process(const ScanInput& scan) {
+  const bool was_decided = slam_.resolution_choice().decided;
   const ScanResult r = slam_.AddScan(scan);
+  if (!was_decided && slam_.resolution_choice().decided) {
+    const ResolutionChoice& ch = slam_.resolution_choice();
+    LOG_INFO << "grid cells of " << slam_.options().grid.resolution_m << " m: " << ch.spacing_m()
+             << " m of travel per moving scan over the first " << ch.travel_m << " m"
+             << (ch.switched ? " (sparse scans: the scans so far were mapped again at this size)"
+                             : "");
+  }
   if (!r.accepted) {
     ++bus_->counters().drops;
     return;

@@ -481,6 +481,109 @@ TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
   EXPECT_TRUE(differs_from_match);
 }
 
+struct PrefixRun {
+  std::vector<EstimatedPose> trajectory;
+  RbpfCounters counters;
+  ResolutionChoice choice;
+  double resolution_m = 0;
+};
+
+PrefixRun RunPrefixWith(const std::string& path, size_t scans, const RbpfOptions& o) {
+  RbpfSlam slam(o);
+  auto log = io::ReadCarmenLog(path);
+  EXPECT_TRUE(log.ok());
+  size_t n = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    slam.AddScan(ToInput(r.laser));
+    if (++n >= scans) break;
+  }
+  return {slam.BestTrajectory(), slam.counters(), slam.resolution_choice(),
+          slam.options().grid.resolution_m};
+}
+
+void ExpectSameTrajectory(const std::vector<EstimatedPose>& a,
+                          const std::vector<EstimatedPose>& b) {
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].scan_index, b[i].scan_index);
+    EXPECT_EQ(a[i].pose.x, b[i].pose.x) << i;
+    EXPECT_EQ(a[i].pose.y, b[i].pose.y) << i;
+    EXPECT_EQ(a[i].pose.theta, b[i].pose.theta) << i;
+  }
+}
+
+// Intel noisy has one scan per 0.5-0.7 m: after the first 20 m the filter starts again on the
+// coarse grid, and the result is the run that had the coarse grid from the first scan.
+TEST(RbpfSlam, SparseScansAreMappedAgainOnTheCoarseGrid) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
+  RbpfOptions o;
+  o.particles = 8;
+  o.threads = 2;
+  ASSERT_EQ(o.grid.resolution_m, 0.025);
+  const PrefixRun a = RunPrefixWith(path, 60, o);
+  EXPECT_TRUE(a.choice.decided);
+  EXPECT_TRUE(a.choice.switched);
+  EXPECT_GE(a.choice.travel_m, 20.0);
+  EXPECT_GT(a.choice.spacing_m(), 0.4);
+  EXPECT_EQ(a.resolution_m, 0.05);
+  RbpfOptions coarse = o;
+  coarse.grid.resolution_m = 0.05;
+  coarse.sparse_scan_spacing_m = 0;  // no choice: 5 cm throughout
+  const PrefixRun b = RunPrefixWith(path, 60, coarse);
+  EXPECT_FALSE(b.choice.switched);
+  ExpectSameTrajectory(a.trajectory, b.trajectory);
+  // Counted once, as if the inputs had been seen once.
+  EXPECT_EQ(a.counters.scans_in, 60);
+  EXPECT_EQ(a.counters.scans_in, b.counters.scans_in);
+  EXPECT_EQ(a.counters.scans_processed, b.counters.scans_processed);
+  EXPECT_EQ(a.counters.resamplings, b.counters.resamplings);
+  EXPECT_EQ(a.counters.odom_in, b.counters.odom_in);
+}
+
+// intel-raw has one scan per 0.26 m: the fine grid stays, nothing is run again.
+TEST(RbpfSlam, DenseScansKeepTheFineGrid) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  RbpfOptions o;
+  o.particles = 8;
+  o.threads = 2;
+  const PrefixRun a = RunPrefixWith(path, 250, o);
+  EXPECT_TRUE(a.choice.decided);
+  EXPECT_FALSE(a.choice.switched);
+  EXPECT_LT(a.choice.spacing_m(), 0.4);
+  EXPECT_GT(a.choice.spacing_m(), 0.1);
+  EXPECT_EQ(a.resolution_m, 0.025);
+  RbpfOptions fixed = o;
+  fixed.sparse_scan_spacing_m = 0;
+  ExpectSameTrajectory(a.trajectory, RunPrefixWith(path, 250, fixed).trajectory);
+}
+
+// A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the
+// choice (no travel: dense) is made then.
+TEST(RbpfSlam, TheHeldInputsAreBoundedWhenTheBaseStandsStill) {
+  RbpfOptions o;
+  o.particles = 2;
+  o.threads = 1;
+  RbpfSlam slam(o);
+  int64_t t = 1000000;
+  for (int64_t k = 0; k < RbpfSlam::kMaxPreludeScans; ++k, t += 100000) {
+    EXPECT_FALSE(slam.resolution_choice().decided) << k;
+    ScanInput s;
+    s.utime = t;
+    s.angle_min_rad = static_cast<float>(-M_PI / 2);
+    s.angle_increment_rad = static_cast<float>(M_PI / 180);
+    s.range_max_m = 20;
+    s.ranges_m.assign(181, 3.f);
+    s.odom = Pose2(0.001 * static_cast<double>(k % 2), 0, 0);  // jitter below 1 cm
+    EXPECT_TRUE(slam.AddScan(s).accepted);
+  }
+  EXPECT_TRUE(slam.resolution_choice().decided);
+  EXPECT_FALSE(slam.resolution_choice().switched);
+  EXPECT_EQ(slam.resolution_choice().moving_scans, 0);
+  EXPECT_EQ(slam.options().grid.resolution_m, 0.025);
+  EXPECT_EQ(slam.counters().scans_in, RbpfSlam::kMaxPreludeScans);
+}
+
 // A spinning lidar's sweep: the base turns at 0.8 rad/s in the off-axis room while each scan's
 // beams are measured over 0.1 s (0.08 rad of turn). Told the sweep's duration, the filter undoes
 // the turn from odometry and keeps the heading; told nothing, the distorted scans pull it off,
@@ -594,10 +697,11 @@ TEST(RbpfSlam, BadInputIsRejectedAndCounted) {
   EXPECT_FALSE(slam.AddImuYawRate(t, NAN));
   // The map is still a room: the estimate stays near the odometry of the clean scans.
   const io::GridMap map = slam.BestMap();
-  EXPECT_GT(map.width, 95);  // the room's front half (beams cover -90..90 deg)
-  EXPECT_LT(map.width, 160);
-  EXPECT_GT(map.height, 190);
-  EXPECT_LT(map.height, 260);
+  const double width_m = map.width * map.resolution_m, height_m = map.height * map.resolution_m;
+  EXPECT_GT(width_m, 4.75);  // the room's front half (beams cover -90..90 deg)
+  EXPECT_LT(width_m, 8.0);
+  EXPECT_GT(height_m, 9.5);
+  EXPECT_LT(height_m, 13.0);
   for (const auto& p : slam.BestTrajectory()) EXPECT_LT(std::abs(p.pose.x), 2.0);
 }
 
@@ -729,6 +833,18 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   ASSERT_TRUE(opt.ok()) << opt.error().message;
   EXPECT_GE(opt->particles, 1);
   EXPECT_TRUE(opt->odometry_calibration.enabled);
+  // The file's grid choice is the built-in default.
+  const RbpfOptions defaults;
+  EXPECT_EQ(opt->grid.resolution_m, defaults.grid.resolution_m);
+  EXPECT_EQ(opt->sparse_resolution_m, defaults.sparse_resolution_m);
+  EXPECT_EQ(opt->sparse_scan_spacing_m, defaults.sparse_scan_spacing_m);
+  EXPECT_EQ(opt->spacing_decision_m, defaults.spacing_decision_m);
+  auto sparse_typo = ConfigReader::FromString("grid:\n  sparse_resolution: 0.05\n", "t.yaml");
+  ASSERT_TRUE(sparse_typo.ok());
+  auto st = RbpfOptions::Load(*sparse_typo);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.error().message.find("grid.sparse_resolution"), std::string::npos)
+      << st.error().message;
   auto cal = ConfigReader::FromString("odometry_calibration:\n  enabled: false\n  min_pairs: 30\n",
                                       "t.yaml");
   ASSERT_TRUE(cal.ok());

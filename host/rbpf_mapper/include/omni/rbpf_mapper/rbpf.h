@@ -17,6 +17,7 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include "omni/common/config.h"
@@ -44,7 +45,20 @@ struct RbpfOptions {
   int particles = 30;
   int threads = 2;
   uint64_t seed = 1;
-  GridOptions grid;
+  // The grid's cell size is grid.resolution_m (fine, for a dense stream of scans) unless the
+  // scans turn out to be sparse: once the base has moved `spacing_decision_m` (or the filter
+  // has held `kMaxPreludeScans` scans), the mean travel per moving scan so far is compared with
+  // `sparse_scan_spacing_m`; above it, the filter starts again from the first scan with cells
+  // of `sparse_resolution_m` (docs/rbpf.md, "The grid's cell size follows the scan spacing").
+  // sparse_scan_spacing_m = 0: always grid.resolution_m.
+  GridOptions grid = [] {
+    GridOptions g;
+    g.resolution_m = 0.025;
+    return g;
+  }();
+  double sparse_resolution_m = 0.05;
+  double sparse_scan_spacing_m = 0.4;
+  double spacing_decision_m = 20.0;
   MotionNoise motion;
   MatcherOptions matcher;
   double linear_update_m = 0.25;    // process a scan after this much travel ...
@@ -106,6 +120,17 @@ struct RbpfCounters {
   int64_t match_failures = 0;  // particle updates that fell back to odometry
   int64_t match_searches = 0;  // particle updates that needed the correlative search
   int64_t resamplings = 0;
+};
+
+// How the grid's cell size was chosen (RbpfOptions::sparse_scan_spacing_m).
+struct ResolutionChoice {
+  bool decided = false;   // false while the first spacing_decision_m are being travelled
+  bool switched = false;  // the filter started again with sparse_resolution_m
+  double travel_m = 0;    // odometry travel over the moving scans measured (steps > 1 cm)
+  int64_t moving_scans = 0;
+  double spacing_m() const {
+    return moving_scans > 0 ? travel_m / static_cast<double>(moving_scans) : 0.0;
+  }
 };
 
 // One laser scan as the filter takes it.
@@ -185,7 +210,7 @@ class RbpfSlam {
   std::optional<Pose2> RawOdometryAt(int64_t utime) const;
   // Forgets the newest scan stamp: the next scan is in order whatever its time (the process
   // calls it when its scan stream re-based, so the held run is not refused again here).
-  void RestartScanOrder() { scan_order_.Reset(); }
+  void RestartScanOrder();
   // Stamp of the newest odometry sample held (0 before the first).
   int64_t newest_odom_utime() const { return odom_buffer_.newest_utime(); }
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
@@ -203,7 +228,12 @@ class RbpfSlam {
   std::vector<EstimatedPose> BestTrajectory() const;
   const std::vector<Particle>& particles() const { return particles_; }
   const RbpfCounters& counters() const { return counters_; }
+  // The options in use: grid.resolution_m is the cell size chosen (see ResolutionChoice).
   const RbpfOptions& options() const { return opt_; }
+  const ResolutionChoice& resolution_choice() const { return choice_; }
+  // Until the cell size is decided, the inputs are kept to be run again (bounded by this many
+  // scans; then the spacing measured so far decides).
+  static constexpr int64_t kMaxPreludeScans = 3000;
   const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   // Tiles referenced by all particles, and distinct tile objects among them.
   size_t total_tile_refs() const;
@@ -216,6 +246,25 @@ class RbpfSlam {
     Pose2 odom;  // jump-free odometry
     bool processed;
   };
+  struct OdomEvent {
+    int64_t utime;
+    Pose2 pose;
+  };
+  struct ImuEvent {
+    int64_t utime;
+    double rate;
+  };
+  struct RestartEvent {};
+  using PreludeEvent = std::variant<OdomEvent, ImuEvent, ScanInput, RestartEvent>;
+  // Every mutable member back to its state after construction with `options`.
+  void Reset(const RbpfOptions& options);
+  void InitParticles();
+  ScanResult AddScanImpl(const ScanInput& scan);
+  // Measures the spacing from an accepted scan's jump-free odometry; decides once enough is in.
+  void MeasureSpacing(const Pose2& odom);
+  // Called after each scan while undecided: decides when due, and when the scans are sparse
+  // runs every input again at sparse_resolution_m; returns the (possibly re-run) result.
+  ScanResult MaybeDecide(const ScanResult& r);
   std::optional<Pose2> CorrectedOdom(const ScanInput& scan);
   // A raw odometry step with the calibration's systematic error taken out (when enabled).
   Pose2 CalibratedStep(const Pose2& raw) const;
@@ -243,6 +292,11 @@ class RbpfSlam {
   int best_lineage_ = 0;              // the particle that descends from the last update's best
   Pose2 last_update_odom_;
   int64_t last_update_utime_ = 0;
+  // Cell-size choice (kept across Reset) and the inputs held until it is made.
+  ResolutionChoice choice_;
+  std::optional<Pose2> spacing_prev_odom_;
+  std::vector<PreludeEvent> prelude_;
+  int64_t prelude_scans_ = 0;
 };
 
 }  // namespace omni::rbpf
