@@ -221,8 +221,9 @@ void RbpfSlam::MeasureSpacing(const Pose2& odom) {
   spacing_prev_odom_ = odom;
 }
 
-ScanResult RbpfSlam::MaybeDecide(const ScanResult& r) {
-  if (choice_.travel_m < opt_.spacing_decision_m && prelude_scans_ < kMaxPreludeScans) return r;
+ScanResult RbpfSlam::MaybeDecide(const ScanResult& r, bool force) {
+  if (!force && choice_.travel_m < opt_.spacing_decision_m && prelude_scans_ < kMaxPreludeScans)
+    return r;
   choice_.decided = true;
   std::vector<PreludeEvent> events;
   events.swap(prelude_);
@@ -249,7 +250,13 @@ ScanResult RbpfSlam::MaybeDecide(const ScanResult& r) {
 }
 
 bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
-  if (!choice_.decided) prelude_.emplace_back(OdomEvent{utime, p});
+  if (!choice_.decided) {
+    // Odometry with no scans (or scans that never move) must not grow the held inputs forever.
+    if (prelude_.size() >= kMaxPreludeEvents)
+      (void)MaybeDecide(ScanResult{}, /*force=*/true);
+    else
+      prelude_.emplace_back(OdomEvent{utime, p});
+  }
   ++counters_.odom_in;
   if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.theta)) {
     ++counters_.odom_invalid;
@@ -265,7 +272,12 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
 }
 
 bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
-  if (!choice_.decided) prelude_.emplace_back(ImuEvent{utime, rate});
+  if (!choice_.decided) {
+    if (prelude_.size() >= kMaxPreludeEvents)
+      (void)MaybeDecide(ScanResult{}, /*force=*/true);
+    else
+      prelude_.emplace_back(ImuEvent{utime, rate});
+  }
   ++counters_.imu_in;
   if (!std::isfinite(rate)) {
     ++counters_.imu_invalid;
@@ -337,7 +349,7 @@ ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
   if (choice_.decided) return AddScanImpl(scan);
   prelude_.emplace_back(scan);
   ++prelude_scans_;
-  return MaybeDecide(AddScanImpl(scan));
+  return MaybeDecide(AddScanImpl(scan), prelude_.size() >= kMaxPreludeEvents);
 }
 
 ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {

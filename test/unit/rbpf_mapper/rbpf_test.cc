@@ -584,6 +584,25 @@ TEST(RbpfSlam, TheHeldInputsAreBoundedWhenTheBaseStandsStill) {
   EXPECT_EQ(slam.counters().scans_in, RbpfSlam::kMaxPreludeScans);
 }
 
+// Odometry and no scans (a lidar that never came up): the held inputs stop at
+// kMaxPreludeEvents too.
+TEST(RbpfSlam, TheHeldInputsAreBoundedWithoutScans) {
+  RbpfOptions o;
+  o.particles = 2;
+  o.threads = 1;
+  RbpfSlam slam(o);
+  for (size_t k = 0; k < RbpfSlam::kMaxPreludeEvents; ++k) {
+    ASSERT_FALSE(slam.resolution_choice().decided) << k;
+    ASSERT_TRUE(slam.AddOdometry(1000000 + 10000 * static_cast<int64_t>(k), Pose2(0, 0, 0)));
+  }
+  EXPECT_FALSE(slam.resolution_choice().decided);
+  EXPECT_TRUE(slam.AddImuYawRate(1000000 + 10000 * 100001, 0.0));
+  EXPECT_TRUE(slam.resolution_choice().decided);
+  EXPECT_FALSE(slam.resolution_choice().switched);
+  EXPECT_EQ(slam.counters().odom_in, static_cast<int64_t>(RbpfSlam::kMaxPreludeEvents));
+  EXPECT_EQ(slam.counters().imu_in, 1);
+}
+
 // A spinning lidar's sweep: the base turns at 0.8 rad/s in the off-axis room while each scan's
 // beams are measured over 0.1 s (0.08 rad of turn). Told the sweep's duration, the filter undoes
 // the turn from odometry and keeps the heading; told nothing, the distorted scans pull it off,

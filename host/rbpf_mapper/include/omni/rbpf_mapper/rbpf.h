@@ -231,9 +231,10 @@ class RbpfSlam {
   // The options in use: grid.resolution_m is the cell size chosen (see ResolutionChoice).
   const RbpfOptions& options() const { return opt_; }
   const ResolutionChoice& resolution_choice() const { return choice_; }
-  // Until the cell size is decided, the inputs are kept to be run again (bounded by this many
-  // scans; then the spacing measured so far decides).
+  // Until the cell size is decided, the inputs are kept to be run again, bounded by this many
+  // scans and this many inputs of any kind (then the spacing measured so far decides).
   static constexpr int64_t kMaxPreludeScans = 3000;
+  static constexpr size_t kMaxPreludeEvents = 100000;
   const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   // Tiles referenced by all particles, and distinct tile objects among them.
   size_t total_tile_refs() const;
@@ -264,7 +265,8 @@ class RbpfSlam {
   void MeasureSpacing(const Pose2& odom);
   // Called after each scan while undecided: decides when due, and when the scans are sparse
   // runs every input again at sparse_resolution_m; returns the (possibly re-run) result.
-  ScanResult MaybeDecide(const ScanResult& r);
+  // `force`: decide now whatever has been travelled.
+  ScanResult MaybeDecide(const ScanResult& r, bool force = false);
   std::optional<Pose2> CorrectedOdom(const ScanInput& scan);
   // A raw odometry step with the calibration's systematic error taken out (when enabled).
   Pose2 CalibratedStep(const Pose2& raw) const;
