@@ -102,20 +102,27 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   ManualClock clock(1000000);
   rbpf::RbpfNode node(&b, opt, &clock);
   int poses = 0, grids = 0, heartbeats = 0;
-  int64_t cal_pairs = -1;
+  int64_t cal_pairs = -1, cell_mm = -1, switched = -1;
+  double last_grid_resolution = 0;
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
     EXPECT_EQ(p.source, "rbpf");
     EXPECT_TRUE(std::isfinite(p.x_m));
     ++poses;
   });
-  b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF",
-                                      [&](const omni::occupancy_grid_t&, int64_t) { ++grids; });
+  b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF", [&](const omni::occupancy_grid_t& g, int64_t) {
+    ++grids;
+    last_grid_resolution = g.resolution_m;
+  });
   b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
     EXPECT_EQ(h.process, "rbpf_mapper");
     ++heartbeats;
     for (int i = 0; i < h.num_counters; ++i)
       if (h.counter_names[static_cast<size_t>(i)] == "odom_cal_pairs_used")
         cal_pairs = h.counter_values[static_cast<size_t>(i)];
+      else if (h.counter_names[static_cast<size_t>(i)] == "grid_cell_mm")
+        cell_mm = h.counter_values[static_cast<size_t>(i)];
+      else if (h.counter_names[static_cast<size_t>(i)] == "resolution_switched")
+        switched = h.counter_values[static_cast<size_t>(i)];
   });
   auto log = io::ReadCarmenLog(clf);
   ASSERT_TRUE(log.ok());
@@ -147,6 +154,11 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   EXPECT_GT(node.slam().counters().scans_processed, 20);
   EXPECT_GT(cal_pairs, 10);
   EXPECT_LE(cal_pairs, node.slam().odometry_calibrator().pairs_used());
+  // One scan per 0.5-0.7 m: after the first 20 m the node maps on 5 cm cells, and says so.
+  EXPECT_EQ(cell_mm, 50);
+  EXPECT_EQ(switched, 1);
+  EXPECT_FLOAT_EQ(static_cast<float>(last_grid_resolution), 0.05f);
+  EXPECT_EQ(node.slam().counters().scans_in, 60);
 }
 
 // The process defers the filter and drains the socket first; a scan must still use the
