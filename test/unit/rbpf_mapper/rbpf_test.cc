@@ -426,61 +426,6 @@ ScanInput ToInput(const io::CarmenLaser& l) {
   return s;
 }
 
-std::vector<EstimatedPose> RunPrefix(const std::string& path, size_t scans, int threads,
-                                     uint64_t seed, RbpfCounters* counters = nullptr,
-                                     ProposalKind proposal = ProposalKind::kMatch) {
-  RbpfOptions o;
-  o.proposal = proposal;
-  o.particles = 8;
-  o.threads = threads;
-  o.seed = seed;
-  RbpfSlam slam(o);
-  auto log = io::ReadCarmenLog(path);
-  EXPECT_TRUE(log.ok());
-  size_t n = 0;
-  for (const auto& r : log->records) {
-    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    slam.AddScan(ToInput(r.laser));
-    if (++n >= scans) break;
-  }
-  if (counters) *counters = slam.counters();
-  return slam.BestTrajectory();
-}
-
-TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
-  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
-  RbpfCounters c1;
-  const auto a = RunPrefix(path, 80, 1, 7, &c1);
-  const auto b = RunPrefix(path, 80, 2, 7);
-  ASSERT_EQ(a.size(), b.size());
-  ASSERT_GT(a.size(), 70u);
-  EXPECT_GT(c1.scans_processed, 20);
-  for (size_t i = 0; i < a.size(); ++i) {
-    EXPECT_EQ(a[i].scan_index, b[i].scan_index);
-    EXPECT_EQ(a[i].pose.x, b[i].pose.x) << i;
-    EXPECT_EQ(a[i].pose.y, b[i].pose.y) << i;
-    EXPECT_EQ(a[i].pose.theta, b[i].pose.theta) << i;
-  }
-  const auto c = RunPrefix(path, 80, 2, 8);  // another seed: another sample path
-  bool differs = false;
-  for (size_t i = 0; i < std::min(a.size(), c.size()); ++i)
-    differs |= a[i].pose.x != c[i].pose.x || a[i].pose.theta != c[i].pose.theta;
-  EXPECT_TRUE(differs);
-  // The Gaussian proposal draws from each particle's own RNG too: same result on 1 or 2
-  // threads, and not the match proposal's path.
-  const auto g1 = RunPrefix(path, 80, 1, 7, nullptr, ProposalKind::kGaussian);
-  const auto g2 = RunPrefix(path, 80, 2, 7, nullptr, ProposalKind::kGaussian);
-  ASSERT_EQ(g1.size(), g2.size());
-  ASSERT_EQ(g1.size(), a.size());
-  bool differs_from_match = false;
-  for (size_t i = 0; i < g1.size(); ++i) {
-    EXPECT_EQ(g1[i].pose.x, g2[i].pose.x) << i;
-    EXPECT_EQ(g1[i].pose.theta, g2[i].pose.theta) << i;
-    differs_from_match |= g1[i].pose.x != a[i].pose.x;
-  }
-  EXPECT_TRUE(differs_from_match);
-}
-
 struct PrefixRun {
   std::vector<EstimatedPose> trajectory;
   RbpfCounters counters;
@@ -511,6 +456,47 @@ void ExpectSameTrajectory(const std::vector<EstimatedPose>& a,
     EXPECT_EQ(a[i].pose.y, b[i].pose.y) << i;
     EXPECT_EQ(a[i].pose.theta, b[i].pose.theta) << i;
   }
+}
+
+std::vector<EstimatedPose> RunPrefix(const std::string& path, size_t scans, int threads,
+                                     uint64_t seed, RbpfCounters* counters = nullptr,
+                                     ProposalKind proposal = ProposalKind::kMatch) {
+  RbpfOptions o;
+  o.proposal = proposal;
+  o.particles = 8;
+  o.threads = threads;
+  o.seed = seed;
+  PrefixRun run = RunPrefixWith(path, scans, o);
+  if (counters) *counters = run.counters;
+  return std::move(run.trajectory);
+}
+
+TEST(RbpfSlam, SameSeedSameResultWhateverTheThreadCount) {
+  OMNI_REQUIRE_DATASET(path, "slam-noisy-odom/intel.noisy.clf.gz");
+  RbpfCounters c1;
+  const auto a = RunPrefix(path, 80, 1, 7, &c1);
+  const auto b = RunPrefix(path, 80, 2, 7);
+  ASSERT_GT(a.size(), 70u);
+  EXPECT_GT(c1.scans_processed, 20);
+  ExpectSameTrajectory(a, b);
+  const auto c = RunPrefix(path, 80, 2, 8);  // another seed: another sample path
+  bool differs = false;
+  for (size_t i = 0; i < std::min(a.size(), c.size()); ++i)
+    differs |= a[i].pose.x != c[i].pose.x || a[i].pose.theta != c[i].pose.theta;
+  EXPECT_TRUE(differs);
+  // The Gaussian proposal draws from each particle's own RNG too: same result on 1 or 2
+  // threads, and not the match proposal's path.
+  const auto g1 = RunPrefix(path, 80, 1, 7, nullptr, ProposalKind::kGaussian);
+  const auto g2 = RunPrefix(path, 80, 2, 7, nullptr, ProposalKind::kGaussian);
+  ASSERT_EQ(g1.size(), g2.size());
+  ASSERT_EQ(g1.size(), a.size());
+  bool differs_from_match = false;
+  for (size_t i = 0; i < g1.size(); ++i) {
+    EXPECT_EQ(g1[i].pose.x, g2[i].pose.x) << i;
+    EXPECT_EQ(g1[i].pose.theta, g2[i].pose.theta) << i;
+    differs_from_match |= g1[i].pose.x != a[i].pose.x;
+  }
+  EXPECT_TRUE(differs_from_match);
 }
 
 // Intel noisy has one scan per 0.5-0.7 m: after the first 20 m the filter starts again on the
