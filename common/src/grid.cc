@@ -268,6 +268,23 @@ Result<GridMap> AxisAligned(const GridMap& g, double yaw) {
   return out;
 }
 
+GridMap CoarsenGrid(const GridMap& fine, int factor) {
+  if (factor <= 1) return fine;
+  GridMap out;
+  out.resolution_m = fine.resolution_m * factor;
+  out.origin_x_m = fine.origin_x_m;
+  out.origin_y_m = fine.origin_y_m;
+  out.width = (fine.width + factor - 1) / factor;
+  out.height = (fine.height + factor - 1) / factor;
+  out.cells.assign(static_cast<size_t>(out.width) * out.height, -1);
+  for (int row = 0; row < fine.height; ++row)
+    for (int col = 0; col < fine.width; ++col) {
+      int8_t& c = out.at(col / factor, row / factor);
+      c = std::max(c, fine.at(col, row));
+    }
+  return out;
+}
+
 Result<GridMap> ReadMapServer(const std::string& path) {
   GridMap m;
   double yaw = 0;

@@ -77,6 +77,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("pose_channel", &o.pose_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
   r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  r.Get("grid_publish_resolution_m", &o.grid_publish_resolution_m, Optional(), InRange(0.0, 1.0));
   ConfigReader oc = r.Section("odometry_calibration");
   ReadOdometryCalibratorOptions(oc, &o.odometry_calibration, /*graph_keys=*/false);
   auto g = r.Section("grid");
@@ -140,6 +141,7 @@ Status RbpfOptions::Validate() const {
   if (!(grid.free_threshold <= grid.occupied_threshold))
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
   if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
+  if (!(grid_publish_resolution_m >= 0)) return bad("grid_publish_resolution_m must be >= 0");
   return Status::Ok();
 }
 

@@ -230,10 +230,22 @@ void RbpfNode::Process(const ScanInput& scan) {
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
 }
 
+namespace {
+
+// How many of the map's cells make one published cell (RbpfOptions::grid_publish_resolution_m).
+int PublishFactor(double map_resolution_m, double publish_resolution_m) {
+  if (!(publish_resolution_m > 0) || !(map_resolution_m < 0.75 * publish_resolution_m)) return 1;
+  return std::max(1, static_cast<int>(std::lround(publish_resolution_m / map_resolution_m)));
+}
+
+}  // namespace
+
 void RbpfNode::PublishGrid() {
   const io::GridMap map = slam_.BestMap();
   if (map.width == 0) return;
-  if (bus_->Publish(opt_.grid_channel, bus::ToGridMessage(map, clock_->NowUtime(), "rbpf")))
+  const int factor = PublishFactor(map.resolution_m, opt_.grid_publish_resolution_m);
+  const io::GridMap published = factor > 1 ? io::CoarsenGrid(map, factor) : map;
+  if (bus_->Publish(opt_.grid_channel, bus::ToGridMessage(published, clock_->NowUtime(), "rbpf")))
     ++grids_published_;
 }
 

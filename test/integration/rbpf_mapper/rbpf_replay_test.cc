@@ -89,6 +89,32 @@ TEST(RbpfMapperProcess, MapsABurstReplayedOverUdpInANetns) {
   EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
 }
 
+// The first `scans` laser records of a CARMEN log published on `b` with their odometry, the node
+// ticked at 4 Hz of `clock`. With garbage: scan 20's ranges all negative, and an undecodable
+// LIDAR_SCAN after every scan.
+void FeedOnMemq(const std::string& clf, int64_t scans, bool with_garbage, bus::Bus& b,
+                rbpf::RbpfNode& node, ManualClock& clock) {
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok());
+  int64_t seq = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
+    auto scan = bus::ToLaserScan(r.laser, seq);
+    if (with_garbage && seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), -1.f);
+    b.Publish("LIDAR_SCAN", scan);
+    if (with_garbage) b.PublishRaw("LIDAR_SCAN", "junk", 4);
+    while (b.HandleTimeout(0) > 0) {
+    }
+    clock.Advance(250000);
+    node.Tick();
+    if (++seq >= scans) break;
+  }
+}
+
 TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   auto bus_or = bus::Bus::Create("memq://");
@@ -97,20 +123,21 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   rbpf::RbpfOptions opt;
   opt.particles = 10;
   opt.grid_publish_interval_s = 0.5;
+  opt.grid_publish_resolution_m = 0;  // the map's own cells: the switch shows in the grids
   // Active within the prefix, so its counters in the heartbeat have something to count.
   opt.odometry_calibration.min_pairs = 5;
   ManualClock clock(1000000);
   rbpf::RbpfNode node(&b, opt, &clock);
   int poses = 0, grids = 0, heartbeats = 0;
   int64_t cal_pairs = -1, cell_mm = -1, switched = -1;
-  double last_grid_resolution = 0;
+  double first_grid_resolution = 0, last_grid_resolution = 0;
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
     EXPECT_EQ(p.source, "rbpf");
     EXPECT_TRUE(std::isfinite(p.x_m));
     ++poses;
   });
   b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF", [&](const omni::occupancy_grid_t& g, int64_t) {
-    ++grids;
+    if (++grids == 1) first_grid_resolution = g.resolution_m;
     last_grid_resolution = g.resolution_m;
   });
   b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
@@ -124,25 +151,7 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
       else if (h.counter_names[static_cast<size_t>(i)] == "resolution_switched")
         switched = h.counter_values[static_cast<size_t>(i)];
   });
-  auto log = io::ReadCarmenLog(clf);
-  ASSERT_TRUE(log.ok());
-  int64_t seq = 0;
-  for (const auto& r : log->records) {
-    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    io::CarmenOdom o;
-    o.timestamp_s = r.laser.timestamp_s;
-    o.pose = r.laser.robot_pose;
-    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
-    auto scan = bus::ToLaserScan(r.laser, seq);
-    if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), -1.f);  // garbage: counted
-    b.Publish("LIDAR_SCAN", scan);
-    b.PublishRaw("LIDAR_SCAN", "junk", 4);  // undecodable: counted, never handed over
-    while (b.HandleTimeout(0) > 0) {
-    }
-    clock.Advance(250000);
-    node.Tick();
-    if (++seq >= 60) break;
-  }
+  FeedOnMemq(clf, 60, /*with_garbage=*/true, b, node, clock);
   node.Flush();
   while (b.HandleTimeout(0) > 0) {
   }
@@ -157,8 +166,53 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   // One scan per 0.5-0.7 m: after the first 20 m the node maps on 5 cm cells, and says so.
   EXPECT_EQ(cell_mm, 50);
   EXPECT_EQ(switched, 1);
+  EXPECT_FLOAT_EQ(static_cast<float>(first_grid_resolution), 0.025f);  // before the 20 m
   EXPECT_FLOAT_EQ(static_cast<float>(last_grid_resolution), 0.05f);
   EXPECT_EQ(node.slam().counters().scans_in, 60);
+}
+
+// On 2.5 cm cells (the first 20 scans, before the cell-size decision) the node publishes its map
+// on 5 cm cells, each the largest value of the four it covers; the map itself stays fine.
+TEST(RbpfMapperNode, PublishesAFineMapOnCoarserCells) {
+  OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  rbpf::RbpfOptions opt;
+  opt.particles = 5;
+  opt.grid_publish_interval_s = 0.5;
+  ASSERT_DOUBLE_EQ(opt.grid_publish_resolution_m, 0.05);
+  ManualClock clock(1000000);
+  rbpf::RbpfNode node(&b, opt, &clock);
+  io::GridMap last;
+  int grids = 0;
+  b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF", [&](const omni::occupancy_grid_t& g, int64_t) {
+    auto m = bus::FromGridMessage(g);
+    ASSERT_TRUE(m.ok()) << m.error().message;
+    EXPECT_NEAR(m->resolution_m, 0.05, 1e-6);  // a float in the message
+    last = *m;
+    ++grids;
+  });
+  FeedOnMemq(clf, 20, /*with_garbage=*/false, b, node, clock);
+  node.Flush();
+  ASSERT_FALSE(node.slam().resolution_choice().decided);
+  clock.Advance(1000000);
+  node.Tick();  // publishes the map as it is now
+  while (b.HandleTimeout(0) > 0) {
+  }
+  EXPECT_GE(grids, 2);
+  const io::GridMap fine = node.slam().BestMap();
+  ASSERT_DOUBLE_EQ(fine.resolution_m, 0.025);
+  const io::GridMap expected = io::CoarsenGrid(fine, 2);
+  EXPECT_EQ(last.width, expected.width);
+  EXPECT_EQ(last.height, expected.height);
+  EXPECT_NEAR(last.origin_x_m, fine.origin_x_m, 1e-5);
+  EXPECT_NEAR(last.origin_y_m, fine.origin_y_m, 1e-5);
+  EXPECT_EQ(last.cells, expected.cells);
+  EXPECT_LT(last.cells.size() * 3, fine.cells.size());
+  size_t occupied = 0;
+  for (int8_t c : last.cells) occupied += c > 50;
+  EXPECT_GT(occupied, 100u);
 }
 
 // The process defers the filter and drains the socket first; a scan must still use the

@@ -192,5 +192,34 @@ TEST(Grid, MapServerOriginYawIsResampledNotIgnored) {
   EXPECT_NE(bad.error().message.find("origin must be finite"), std::string::npos);
 }
 
+// 2 x 2 blocks of a 5 x 3 grid (the last column and row cover fewer cells): occupied wins over
+// free, free over unknown; origin kept, cells twice the size.
+TEST(Grid, CoarsenGridKeepsOneCellWallsAndCoversTheEdges) {
+  GridMap m;
+  m.resolution_m = 0.025;
+  m.origin_x_m = -1.0;
+  m.origin_y_m = 2.0;
+  m.width = 5;
+  m.height = 3;
+  m.cells = {0,  0,  -1, -1, 0,     // row 0
+             0,  70, -1, -1, -1,    // row 1
+             -1, -1, 0,  -1, 100};  // row 2
+  const GridMap c = CoarsenGrid(m, 2);
+  EXPECT_DOUBLE_EQ(c.resolution_m, 0.05);
+  EXPECT_DOUBLE_EQ(c.origin_x_m, -1.0);
+  EXPECT_DOUBLE_EQ(c.origin_y_m, 2.0);
+  ASSERT_EQ(c.width, 3);
+  ASSERT_EQ(c.height, 2);
+  EXPECT_EQ(c.at(0, 0), 70);  // one occupied fine cell among free ones
+  EXPECT_EQ(c.at(1, 0), -1);  // nothing seen
+  EXPECT_EQ(c.at(2, 0), 0);   // the last column: one column of fine cells, one free
+  EXPECT_EQ(c.at(0, 1), -1);
+  EXPECT_EQ(c.at(1, 1), 0);
+  EXPECT_EQ(c.at(2, 1), 100);  // the corner cell covers one fine cell
+  const GridMap same = CoarsenGrid(m, 1);
+  EXPECT_EQ(same.cells, m.cells);
+  EXPECT_DOUBLE_EQ(same.resolution_m, m.resolution_m);
+}
+
 }  // namespace
 }  // namespace omni::io

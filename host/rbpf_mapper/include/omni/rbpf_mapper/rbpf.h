@@ -89,6 +89,11 @@ struct RbpfOptions {
   std::string pose_channel = "POSE_RBPF";
   std::string grid_channel = "GRID_RBPF";
   double grid_publish_interval_s = 5.0;
+  // The published grid's cell size: a finer map is published on cells an integer multiple of
+  // its own (the multiple nearest this size; each takes the largest value it covers, so walls
+  // stay), a quarter of the bytes for 2.5 cm cells. 0: the map's own cells. Map files on disk
+  // always keep the map's own cells.
+  double grid_publish_resolution_m = 0.05;
 
   // Reads the keys (all optional) from `reader` and calls Finish(); errors name the key.
   static Result<RbpfOptions> Load(ConfigReader& reader);
