@@ -147,26 +147,13 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
     for (const auto& n : h.counter_names) heartbeat_counts |= n == "loops_accepted";
     ++heartbeats;
   });
-  auto log = io::ReadCarmenLog(clf);
-  ASSERT_TRUE(log.ok());
-  int64_t seq = 0;
-  for (const auto& r : log->records) {
-    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    io::CarmenOdom o;
-    o.timestamp_s = r.laser.timestamp_s;
-    o.pose = r.laser.robot_pose;
-    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
-    auto scan = bus::ToLaserScan(r.laser, seq);
-    if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), NAN);  // unusable: counted
-    if (seq == 30) scan.seq += 3;  // the driver's counter jumps: 3 scans lost on the way
-    b.Publish("LIDAR_SCAN", scan);
-    b.PublishRaw("LIDAR_SCAN", "junk", 4);  // undecodable: counted, never handed over
-    while (b.HandleTimeout(0) > 0) {
-    }
-    clock.Advance(250000);
-    node.Tick();
-    if (++seq >= 60) break;
-  }
+  testing::PublishCarmenPrefix(
+      clf, 60, b, clock, node,
+      [](int64_t seq, omni::laser_scan_t& scan) {
+        if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), NAN);  // unusable: counted
+        if (seq == 30) scan.seq += 3;  // the driver's counter jumps: 3 scans lost on the way
+      },
+      /*junk=*/true);  // an undecodable LIDAR_SCAN after each scan: counted, never handed over
   const std::string out = ::testing::TempDir() + "/pg_memq_out";
   std::filesystem::create_directories(out);
   const Status written = node.WriteOutputs(out, {});

@@ -89,32 +89,6 @@ TEST(RbpfMapperProcess, MapsABurstReplayedOverUdpInANetns) {
   EXPECT_LT(ate, 0.3) << "ATE " << ate << " m over " << matched << " scans";
 }
 
-// The first `scans` laser records of a CARMEN log published on `b` with their odometry, the node
-// ticked at 4 Hz of `clock`. With garbage: scan 20's ranges all negative, and an undecodable
-// LIDAR_SCAN after every scan.
-void FeedOnMemq(const std::string& clf, int64_t scans, bool with_garbage, bus::Bus& b,
-                rbpf::RbpfNode& node, ManualClock& clock) {
-  auto log = io::ReadCarmenLog(clf);
-  ASSERT_TRUE(log.ok());
-  int64_t seq = 0;
-  for (const auto& r : log->records) {
-    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    io::CarmenOdom o;
-    o.timestamp_s = r.laser.timestamp_s;
-    o.pose = r.laser.robot_pose;
-    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
-    auto scan = bus::ToLaserScan(r.laser, seq);
-    if (with_garbage && seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), -1.f);
-    b.Publish("LIDAR_SCAN", scan);
-    if (with_garbage) b.PublishRaw("LIDAR_SCAN", "junk", 4);
-    while (b.HandleTimeout(0) > 0) {
-    }
-    clock.Advance(250000);
-    node.Tick();
-    if (++seq >= scans) break;
-  }
-}
-
 TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   auto bus_or = bus::Bus::Create("memq://");
@@ -151,7 +125,12 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
       else if (h.counter_names[static_cast<size_t>(i)] == "resolution_switched")
         switched = h.counter_values[static_cast<size_t>(i)];
   });
-  FeedOnMemq(clf, 60, /*with_garbage=*/true, b, node, clock);
+  testing::PublishCarmenPrefix(
+      clf, 60, b, clock, node,
+      [](int64_t seq, omni::laser_scan_t& scan) {
+        if (seq == 20) scan.ranges_m.assign(scan.ranges_m.size(), -1.f);  // garbage: counted
+      },
+      /*junk=*/true);  // an undecodable LIDAR_SCAN after each scan: counted, never handed over
   node.Flush();
   while (b.HandleTimeout(0) > 0) {
   }
@@ -193,7 +172,7 @@ TEST(RbpfMapperNode, PublishesAFineMapOnCoarserCells) {
     last = *m;
     ++grids;
   });
-  FeedOnMemq(clf, 20, /*with_garbage=*/false, b, node, clock);
+  testing::PublishCarmenPrefix(clf, 20, b, clock, node);
   node.Flush();
   ASSERT_FALSE(node.slam().resolution_choice().decided);
   clock.Advance(1000000);

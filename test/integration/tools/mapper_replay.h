@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <fstream>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -21,6 +22,7 @@
 #include "omni/io/carmen.h"
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
+#include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "run.h"
@@ -58,6 +60,36 @@ inline void WriteCarmenPrefixLog(const std::string& clf, const std::string& out,
 
 // ATE RMSE in metres of `est_path` against `ref_path` (1e9 when either is unreadable or they
 // share no stamps); `matched` gets the number of matched poses.
+// The first `scans` laser records of a CARMEN log published on `b` in process (memq://): each
+// record's odometry on WHEEL_ODOM, then its scan on LIDAR_SCAN (after `edit(seq, scan)` when
+// given), with `junk`, an undecodable LIDAR_SCAN message after each scan; the bus is handled,
+// then `clock` advances 0.25 s and the node ticks.
+template <typename Node>
+void PublishCarmenPrefix(const std::string& clf, int64_t scans, bus::Bus& b, ManualClock& clock,
+                         Node& node,
+                         const std::function<void(int64_t, omni::laser_scan_t&)>& edit = {},
+                         bool junk = false) {
+  auto log = io::ReadCarmenLog(clf);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  int64_t seq = 0;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    io::CarmenOdom o;
+    o.timestamp_s = r.laser.timestamp_s;
+    o.pose = r.laser.robot_pose;
+    b.Publish("WHEEL_ODOM", bus::ToOdometry(o, seq));
+    auto scan = bus::ToLaserScan(r.laser, seq);
+    if (edit) edit(seq, scan);
+    b.Publish("LIDAR_SCAN", scan);
+    if (junk) b.PublishRaw("LIDAR_SCAN", "junk", 4);
+    while (b.HandleTimeout(0) > 0) {
+    }
+    clock.Advance(250000);
+    node.Tick();
+    if (++seq >= scans) break;
+  }
+}
+
 inline double AteRmse(const std::string& ref_path, const std::string& est_path, size_t* matched) {
   auto ref = io::ReadTrajectory(ref_path);
   auto est = io::ReadTrajectory(est_path);
