@@ -58,8 +58,6 @@ inline void WriteCarmenPrefixLog(const std::string& clf, const std::string& out,
   ASSERT_TRUE(w->Close().ok());
 }
 
-// ATE RMSE in metres of `est_path` against `ref_path` (1e9 when either is unreadable or they
-// share no stamps); `matched` gets the number of matched poses.
 // The first `scans` laser records of a CARMEN log published on `b` in process (memq://): each
 // record's odometry on WHEEL_ODOM, then its scan on LIDAR_SCAN (after `edit(seq, scan)` when
 // given), with `junk`, an undecodable LIDAR_SCAN message after each scan; the bus is handled,
@@ -90,6 +88,8 @@ void PublishCarmenPrefix(const std::string& clf, int64_t scans, bus::Bus& b, Man
   }
 }
 
+// ATE RMSE in metres of `est_path` against `ref_path` (1e9 when either is unreadable or they
+// share no stamps); `matched` gets the number of matched poses.
 inline double AteRmse(const std::string& ref_path, const std::string& est_path, size_t* matched) {
   auto ref = io::ReadTrajectory(ref_path);
   auto est = io::ReadTrajectory(est_path);
