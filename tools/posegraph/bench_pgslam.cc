@@ -76,12 +76,13 @@ void PrintGoals(const std::vector<Row>& rows) {
     if (r.p99 > 10) p99_bad += (p99_bad.empty() ? "" : ", ") + r.dataset;
     if (r.dataset == "intel-raw") intel_wall = r.wall_s;
   }
-  std::printf("\ngoals (issue 6), pose graph: ATE <= 0.10 m (0.05 m on fr079-noisy): met on %s; "
-              "NOT met on %s\n",
-              met.empty() ? "none" : met.c_str(), missed.empty() ? "none" : missed.c_str());
+  std::printf(
+      "\ngoals (issue 6), pose graph: ATE <= 0.10 m (0.05 m on fr079-noisy): met on %s; "
+      "NOT met on %s\n",
+      met.empty() ? "none" : met.c_str(), missed.empty() ? "none" : missed.c_str());
   if (intel_wall >= 0)
-    std::printf("  intel-raw whole run <= 30 s: %s (%.1f s)\n", intel_wall <= 30 ? "met" : "NOT met",
-                intel_wall);
+    std::printf("  intel-raw whole run <= 30 s: %s (%.1f s)\n",
+                intel_wall <= 30 ? "met" : "NOT met", intel_wall);
   if (worst_p99 >= 0)
     std::printf("  window p99 <= 10 ms: %s (worst %.2f ms)\n",
                 p99_bad.empty() ? "met on every log" : ("NOT met on " + p99_bad).c_str(),

@@ -219,7 +219,8 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
   for (const auto& r : rows)
     if (std::find(order.begin(), order.end(), r.dataset) == order.end()) order.push_back(r.dataset);
   if (order.empty()) return;
-  std::printf("\nsummary against issue 5's goals (ATE RMSE per seed; wall: median; memory: largest)\n");
+  std::printf(
+      "\nsummary against issue 5's goals (ATE RMSE per seed; wall: median; memory: largest)\n");
   std::printf("%-20s %-24s %8s %8s %8s | %-15s %8s %8s\n", "dataset", "ours: seeds meeting goal",
               "worst m", "wall s", "peak MB", "peer: ATE m", "wall s", "peak MB");
   int cells = 0, cells_met = 0;
@@ -251,7 +252,8 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
       cells_met += met;
       std::snprintf(ours_col, sizeof ours_col, "%d/%d <= %.2f m", met, our_runs, goal);
       if (!our_ate.empty()) {
-        std::snprintf(worst, sizeof worst, "%.3f%s", *std::max_element(our_ate.begin(), our_ate.end()),
+        std::snprintf(worst, sizeof worst, "%.3f%s",
+                      *std::max_element(our_ate.begin(), our_ate.end()),
                       static_cast<int>(our_ate.size()) < our_runs ? "+" : "");
         std::snprintf(wall, sizeof wall, "%.1f", Median(our_wall));
         std::snprintf(mb, sizeof mb, "%.0f", our_mb);
@@ -272,16 +274,18 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
     if (name == "intel-raw" && !our_wall.empty() && !peer_wall.empty()) {
       const double speed = Median(peer_wall) / Median(our_wall);
       const double memory = our_mb > 0 ? peer_mb / our_mb : 0;
-      std::printf("  intel-raw: our wall time 1/%.1f of the peer's (goal <= 1/6: %s), peak memory "
-                  "1/%.1f (goal <= 1/2: %s)%s\n",
-                  speed, speed >= 6 ? "met" : "NOT met", memory, memory >= 2 ? "met" : "NOT met",
-                  default_particles ? "" : " -- not the goal's 30 particles");
+      std::printf(
+          "  intel-raw: our wall time 1/%.1f of the peer's (goal <= 1/6: %s), peak memory "
+          "1/%.1f (goal <= 1/2: %s)%s\n",
+          speed, speed >= 6 ? "met" : "NOT met", memory, memory >= 2 ? "met" : "NOT met",
+          default_particles ? "" : " -- not the goal's 30 particles");
     }
   }
   if (cells > 0)
-    std::printf("accuracy: %d of %d dataset x seed runs meet their goal (a '+' after the worst: a "
-                "run failed)\n",
-                cells_met, cells);
+    std::printf(
+        "accuracy: %d of %d dataset x seed runs meet their goal (a '+' after the worst: a "
+        "run failed)\n",
+        cells_met, cells);
 }
 
 }  // namespace
