@@ -66,12 +66,6 @@ std::optional<double> ScoreResult(const omni::io::PoseGraph& graph, const std::s
   return *chi2;
 }
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n == 0 ? 0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 struct Row {
   std::string system, dataset, status = "ok";
   double chi2_before = 0, chi2 = -1, wall_s = 0;
@@ -256,8 +250,8 @@ int main(int argc, char** argv) {
       walls_o.push_back(o.wall_s);
       walls_p.push_back(p.wall_s);
     }
-    o.wall_s = Median(walls_o);
-    p.wall_s = Median(walls_p);
+    o.wall_s = omni::bench::Median(walls_o);
+    p.wall_s = omni::bench::Median(walls_p);
     std::string goals;
     if (o.chi2 >= 0 && p.chi2 >= 0) {
       goals = std::string(o.chi2 <= p.chi2 * (1 + 1e-6) ? "chi2 ok" : "chi2 WORSE");

@@ -199,13 +199,6 @@ bool ParseSeeds(const std::vector<std::string>& in, std::vector<int>* out) {
   return true;
 }
 
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 // Issue 5's accuracy goal per dataset (ATE RMSE, m, every seed).
 double AccuracyGoal(const std::string& dataset) {
   return dataset == "freiburg-079-noisy" ? 0.05 : 0.10;
@@ -255,7 +248,7 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
         std::snprintf(worst, sizeof worst, "%.3f%s",
                       *std::max_element(our_ate.begin(), our_ate.end()),
                       static_cast<int>(our_ate.size()) < our_runs ? "+" : "");
-        std::snprintf(wall, sizeof wall, "%.1f", Median(our_wall));
+        std::snprintf(wall, sizeof wall, "%.1f", omni::bench::Median(our_wall));
         std::snprintf(mb, sizeof mb, "%.0f", our_mb);
       }
     }
@@ -264,7 +257,7 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
       std::snprintf(peer_col, sizeof peer_col, "%.3f-%.3f",
                     *std::min_element(peer_ate.begin(), peer_ate.end()),
                     *std::max_element(peer_ate.begin(), peer_ate.end()));
-      std::snprintf(pwall, sizeof pwall, "%.1f", Median(peer_wall));
+      std::snprintf(pwall, sizeof pwall, "%.1f", omni::bench::Median(peer_wall));
       std::snprintf(pmb, sizeof pmb, "%.0f", peer_mb);
     } else if (peer_runs > 0) {
       std::snprintf(peer_col, sizeof peer_col, "failed");
@@ -272,7 +265,7 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
     std::printf("%-20s %-24s %8s %8s %8s | %-15s %8s %8s\n", name.c_str(), ours_col, worst, wall,
                 mb, peer_col, pwall, pmb);
     if (name == "intel-raw" && !our_wall.empty() && !peer_wall.empty()) {
-      const double speed = Median(peer_wall) / Median(our_wall);
+      const double speed = omni::bench::Median(peer_wall) / omni::bench::Median(our_wall);
       const double memory = our_mb > 0 ? peer_mb / our_mb : 0;
       std::printf(
           "  intel-raw: our wall time 1/%.1f of the peer's (goal <= 1/6: %s), peak memory "

@@ -25,4 +25,7 @@ MeasuredRun RunMeasured(const std::vector<std::string>& argv, const std::string&
 // The first executable `name` on PATH, or "".
 std::string FindInPath(const std::string& name);
 
+// Median of repeated measurements (mean of the middle two for an even count; 0 when empty).
+double Median(std::vector<double> v);
+
 }  // namespace omni::bench
