@@ -283,12 +283,13 @@ int main(int argc, char** argv) {
       static_cast<unsigned long long>(read->skipped_bytes));
   const omni::rbpf::ResolutionChoice& choice = slam.resolution_choice();
   std::fprintf(f,
-               ", \"grid_resolution_m\": %.4f, \"resolution_choice\": {\"decided\": %s, "
+               ", \"grid_resolution_m\": %.4f, \"likelihood_gain\": %.6g, "
+               "\"resolution_choice\": {\"decided\": %s, "
                "\"switched\": %s, \"travel_m\": %.3f, \"moving_scans\": %lld, "
                "\"spacing_m\": %.4f}",
-               slam.options().grid.resolution_m, choice.decided ? "true" : "false",
-               choice.switched ? "true" : "false", choice.travel_m,
-               static_cast<long long>(choice.moving_scans), choice.spacing_m());
+               slam.options().grid.resolution_m, slam.options().likelihood_gain,
+               choice.decided ? "true" : "false", choice.switched ? "true" : "false",
+               choice.travel_m, static_cast<long long>(choice.moving_scans), choice.spacing_m());
   const omni::OdometryCalibrator& oc = slam.odometry_calibrator();
   const omni::OdometryCalibration& cal = oc.calibration();
   std::fprintf(f,

@@ -53,6 +53,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("temporal_update_s", &o.temporal_update_s, Optional(), NonNegative<double>());
   r.Get("resample_threshold", &o.resample_threshold, Optional(), InRange(0.0, 1.0));
   r.Get("likelihood_gain", &o.likelihood_gain, Optional(), InRange(1e-6, 100.0));
+  r.Get("sparse_likelihood_gain", &o.sparse_likelihood_gain, Optional(), InRange(1e-6, 100.0));
   std::string proposal = o.proposal == ProposalKind::kGaussian ? "gaussian" : "match";
   r.Get("proposal", &proposal, Optional(), OneOf({"match", "gaussian"}));
   o.proposal = proposal == "gaussian" ? ProposalKind::kGaussian : ProposalKind::kMatch;
@@ -136,6 +137,8 @@ Status RbpfOptions::Validate() const {
   if (threads < 1) return bad("threads must be >= 1");
   if (!(grid.resolution_m > 0)) return bad("grid.resolution_m must be > 0");
   if (!(sparse_resolution_m > 0)) return bad("grid.sparse_resolution_m must be > 0");
+  if (!(likelihood_gain > 0)) return bad("likelihood_gain must be > 0");
+  if (!(sparse_likelihood_gain > 0)) return bad("sparse_likelihood_gain must be > 0");
   if (!(sparse_scan_spacing_m >= 0)) return bad("grid.sparse_scan_spacing_m must be >= 0");
   if (!(spacing_decision_m > 0)) return bad("grid.spacing_decision_m must be > 0");
   if (!(grid.free_threshold <= grid.occupied_threshold))
@@ -170,7 +173,8 @@ RbpfSlam::RbpfSlam(const RbpfOptions& options)
       calibrator_(options.odometry_calibration) {
   InitParticles();
   choice_.decided =
-      !(opt_.sparse_scan_spacing_m > 0) || opt_.sparse_resolution_m == opt_.grid.resolution_m;
+      !(opt_.sparse_scan_spacing_m > 0) || (opt_.sparse_resolution_m == opt_.grid.resolution_m &&
+                                            opt_.sparse_likelihood_gain == opt_.likelihood_gain);
 }
 
 void RbpfSlam::InitParticles() {
@@ -235,6 +239,7 @@ ScanResult RbpfSlam::MaybeDecide(const ScanResult& r, bool force) {
   choice_.switched = true;
   RbpfOptions o = opt_;
   o.grid.resolution_m = o.sparse_resolution_m;
+  o.likelihood_gain = o.sparse_likelihood_gain;
   Reset(o);
   ScanResult last = r;
   for (const PreludeEvent& e : events) {

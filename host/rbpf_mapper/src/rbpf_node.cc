@@ -184,7 +184,8 @@ void RbpfNode::Process(const ScanInput& scan) {
   const ScanResult r = slam_.AddScan(scan);
   if (!was_decided && slam_.resolution_choice().decided) {
     const ResolutionChoice& ch = slam_.resolution_choice();
-    LOG_INFO << "grid cells of " << slam_.options().grid.resolution_m << " m: " << ch.spacing_m()
+    LOG_INFO << "grid cells of " << slam_.options().grid.resolution_m << " m, likelihood gain "
+             << slam_.options().likelihood_gain << ": " << ch.spacing_m()
              << " m of travel per moving scan over the first " << ch.travel_m << " m"
              << (ch.switched ? " (sparse scans: the scans so far were mapped again at this size)"
                              : "");

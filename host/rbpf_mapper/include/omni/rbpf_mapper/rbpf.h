@@ -49,14 +49,16 @@ struct RbpfOptions {
   // scans turn out to be sparse: once the base has moved `spacing_decision_m` (or the filter
   // has held `kMaxPreludeScans` scans), the mean travel per moving scan so far is compared with
   // `sparse_scan_spacing_m`; above it, the filter starts again from the first scan with cells
-  // of `sparse_resolution_m` (docs/rbpf.md, "The grid's cell size follows the scan spacing").
-  // sparse_scan_spacing_m = 0: always grid.resolution_m.
+  // of `sparse_resolution_m` and weights tempered by `sparse_likelihood_gain` instead of
+  // `likelihood_gain` (docs/rbpf.md, "The grid's cell size follows the scan spacing" and "Flat
+  // weights for a dense stream"). sparse_scan_spacing_m = 0: always the dense settings.
   GridOptions grid = [] {
     GridOptions g;
     g.resolution_m = 0.025;
     return g;
   }();
   double sparse_resolution_m = 0.05;
+  double sparse_likelihood_gain = 0.33;  // likelihood_gain once the stream is found sparse
   double sparse_scan_spacing_m = 0.4;
   double spacing_decision_m = 20.0;
   MotionNoise motion;
@@ -65,7 +67,10 @@ struct RbpfOptions {
   double angular_update_rad = 0.2;  // ... or this much turning ...
   double temporal_update_s = 0.0;   // ... or this much time (0: never on time alone)
   double resample_threshold = 0.5;  // resample when Neff < threshold * particles
-  double likelihood_gain = 0.33;    // weight exponent on the scan likelihood (GMapping 1/3)
+  // Weight exponent on the scan likelihood. 0.01 is about GMapping's 1/(3 x particles) for 30
+  // particles: flat weights, rare resampling, so the particles keep distinct histories until a
+  // loop tells them apart (dense streams; sparse ones use sparse_likelihood_gain).
+  double likelihood_gain = 0.01;
   ProposalKind proposal = ProposalKind::kMatch;
   ProposalGridOptions proposal_grid;  // kGaussian: the points the Gaussian is fitted on
   bool proposal_draw = true;  // kGaussian: draw the pose (false: keep the optimum, weigh by eta)
@@ -127,10 +132,11 @@ struct RbpfCounters {
   int64_t resamplings = 0;
 };
 
-// How the grid's cell size was chosen (RbpfOptions::sparse_scan_spacing_m).
+// How the grid's cell size and the likelihood gain were chosen
+// (RbpfOptions::sparse_scan_spacing_m).
 struct ResolutionChoice {
   bool decided = false;   // false while the first spacing_decision_m are being travelled
-  bool switched = false;  // the filter started again with sparse_resolution_m
+  bool switched = false;  // started again with sparse_resolution_m and sparse_likelihood_gain
   double travel_m = 0;    // odometry travel over the moving scans measured (steps > 1 cm)
   int64_t moving_scans = 0;
   double spacing_m() const {
