@@ -264,7 +264,8 @@ int main(int argc, char** argv) {
       "\"scans_gated\": %lld, \"scans_too_few_beams\": %lld, \"scans_time_backwards\": %lld, "
       "\"scans_no_odom\": %lld, \"scans_bad_geometry\": %lld, \"invalid_beams\": %lld, "
       "\"odom_jumps\": %lld, \"odom_invalid\": %lld, \"odom_out_of_order\": %lld, "
-      "\"time_rebases\": %lld, \"decode_errors\": %lld, \"resamplings\": %lld, \"match_failures\": "
+      "\"time_rebases\": %lld, \"decode_errors\": %lld, \"resamplings\": %lld, "
+      "\"reported_switches\": %lld, \"match_failures\": "
       "%lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
       "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld, "
@@ -277,9 +278,10 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.odom_jumps), static_cast<long long>(c.odom_invalid),
       static_cast<long long>(c.odom_out_of_order), static_cast<long long>(c.time_rebases),
       static_cast<long long>(decode_errors), static_cast<long long>(c.resamplings),
-      static_cast<long long>(c.match_failures), static_cast<long long>(c.match_searches),
-      traj.size(), slam.distinct_tiles(), slam.total_tile_refs(),
-      static_cast<long long>(c.sweeps_corrected), static_cast<long long>(c.sweeps_uncorrected),
+      static_cast<long long>(c.reported_switches), static_cast<long long>(c.match_failures),
+      static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
+      slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
+      static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes));
   const omni::rbpf::ResolutionChoice& choice = slam.resolution_choice();
   std::fprintf(f,

@@ -54,6 +54,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("resample_threshold", &o.resample_threshold, Optional(), InRange(0.0, 1.0));
   r.Get("likelihood_gain", &o.likelihood_gain, Optional(), InRange(1e-6, 100.0));
   r.Get("sparse_likelihood_gain", &o.sparse_likelihood_gain, Optional(), InRange(1e-6, 100.0));
+  r.Get("report_switch_log_margin", &o.report_switch_log_margin, Optional(), InRange(0.0, 1000.0));
   std::string proposal = o.proposal == ProposalKind::kGaussian ? "gaussian" : "match";
   r.Get("proposal", &proposal, Optional(), OneOf({"match", "gaussian"}));
   o.proposal = proposal == "gaussian" ? ProposalKind::kGaussian : ProposalKind::kMatch;
@@ -205,6 +206,7 @@ void RbpfSlam::Reset(const RbpfOptions& o) {
   calibrator_ = OdometryCalibrator(o.odometry_calibration);
   odom_jumps_at_update_ = 0;
   best_lineage_ = 0;
+  reported_lineage_ = 0;
   last_update_odom_ = Pose2();
   last_update_utime_ = 0;
   InitParticles();
@@ -413,11 +415,12 @@ ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
     ++counters_.scans_processed;
     records_.push_back({index, scan.utime, *odom, true});
     res.processed = true;
-    res.pose = BestPose();
+    res.pose = ReportedPose();
   } else {
     if (!first) ++counters_.scans_gated;
     records_.push_back({index, scan.utime, *odom, false});
-    res.pose = have_update_ ? BestPose() * CalibratedStep(last_update_odom_.Between(*odom)) : *odom;
+    res.pose =
+        have_update_ ? ReportedPose() * CalibratedStep(last_update_odom_.Between(*odom)) : *odom;
   }
   return res;
 }
@@ -526,6 +529,13 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
   best_lineage_ = best_index();
+  if (best_lineage_ != reported_lineage_ &&
+      particles_[static_cast<size_t>(best_lineage_)].log_weight -
+              particles_[static_cast<size_t>(reported_lineage_)].log_weight >
+          opt_.report_switch_log_margin) {
+    reported_lineage_ = best_lineage_;
+    ++counters_.reported_switches;
+  }
   // An odometry jump inside the interval left one step out of the jump-free odometry that the
   // match still moved through: no pair then.
   const bool jumped = counters_.odom_jumps != odom_jumps_at_update_;
@@ -555,6 +565,14 @@ void RbpfSlam::Resample() {
   const std::vector<int> pick = LowVarianceResample(w, static_cast<int>(n), master_rng_);
   const auto child = std::find(pick.begin(), pick.end(), best_lineage_);
   best_lineage_ = child == pick.end() ? 0 : static_cast<int>(child - pick.begin());
+  // The reported lineage goes on in its first child; when it left none, in the best's.
+  const auto reported_child = std::find(pick.begin(), pick.end(), reported_lineage_);
+  if (reported_child == pick.end()) {
+    reported_lineage_ = best_lineage_;
+    ++counters_.reported_switches;
+  } else {
+    reported_lineage_ = static_cast<int>(reported_child - pick.begin());
+  }
   std::vector<Particle> next;
   next.reserve(n);
   for (size_t j = 0; j < n; ++j) {

@@ -72,6 +72,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("match_failures", [&c] { return c.match_failures; });
   heartbeat_.AddCounter("match_searches", [&c] { return c.match_searches; });
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });
+  heartbeat_.AddCounter("reported_switches", [&c] { return c.reported_switches; });
   heartbeat_.AddCounter("sweeps_corrected", [&c] { return c.sweeps_corrected; });
   heartbeat_.AddCounter("sweeps_uncorrected", [&c] { return c.sweeps_uncorrected; });
   // The grid's cell size in use, and the scan spacing that chose it (0 until decided).
@@ -242,7 +243,7 @@ int PublishFactor(double map_resolution_m, double publish_resolution_m) {
 }  // namespace
 
 void RbpfNode::PublishGrid() {
-  const io::GridMap map = slam_.BestMap();
+  const io::GridMap map = slam_.ReportedMap();  // the map of the particle whose poses go out
   if (map.width == 0) return;
   const int factor = PublishFactor(map.resolution_m, opt_.grid_publish_resolution_m);
   const io::GridMap published = factor > 1 ? io::CoarsenGrid(map, factor) : map;

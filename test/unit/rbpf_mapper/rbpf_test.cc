@@ -555,6 +555,41 @@ TEST(RbpfSlam, DenseScansKeepTheFineGrid) {
   ExpectSameTrajectory(a.trajectory, RunPrefixWith(path, 250, fixed).trajectory);
 }
 
+// With flat weights the best particle changes often; the reported one (the pose AddScan
+// returns, the process's POSE_RBPF) changes lineage only past report_switch_log_margin. The
+// filter itself, and so the final trajectory, is the same whatever the margin.
+TEST(RbpfSlam, TheReportedParticleChangesOnlyPastTheMargin) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  auto run = [&](double margin, std::vector<EstimatedPose>* final_path) {
+    RbpfOptions o;
+    o.particles = 8;
+    o.threads = 2;
+    o.report_switch_log_margin = margin;
+    RbpfSlam slam(o);
+    auto log = io::ReadCarmenLog(path);
+    EXPECT_TRUE(log.ok());
+    size_t n = 0;
+    for (const auto& r : log->records) {
+      if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+      const ScanResult res = slam.AddScan(ToInput(r.laser));
+      if (res.processed) {
+        const Pose2& reported = slam.particles()[static_cast<size_t>(slam.reported_index())].pose;
+        EXPECT_EQ(res.pose.x, reported.x);
+        EXPECT_EQ(res.pose.theta, reported.theta);
+      }
+      if (++n >= 300) break;
+    }
+    *final_path = slam.BestTrajectory();
+    return slam.counters().reported_switches;
+  };
+  std::vector<EstimatedPose> a, b;
+  const int64_t always_best = run(0.0, &a);
+  const int64_t sticky = run(3.0, &b);
+  EXPECT_GT(always_best, 10);
+  EXPECT_LT(sticky * 3, always_best) << sticky << " against " << always_best;
+  ExpectSameTrajectory(a, b);
+}
+
 // A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the
 // choice (no travel: dense) is made then.
 TEST(RbpfSlam, TheHeldInputsAreBoundedWhenTheBaseStandsStill) {
@@ -828,7 +863,7 @@ TEST(RbpfSlam, ScansBetweenUpdatesFollowTheCalibratedOdometry) {
     } else if (res.accepted && slam.odometry_calibrator().active()) {
       const Pose2 raw = anchor_odom.Between(*in.odom);
       const Pose2 step = slam.odometry_calibrator().calibration().Correct(raw);
-      const Pose2 want = slam.BestPose() * step;
+      const Pose2 want = slam.ReportedPose() * step;
       EXPECT_NEAR(res.pose.x, want.x, 1e-9) << n;
       EXPECT_NEAR(res.pose.y, want.y, 1e-9) << n;
       EXPECT_NEAR(res.pose.theta, want.theta, 1e-9) << n;
@@ -857,6 +892,7 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   EXPECT_EQ(opt->sparse_scan_spacing_m, defaults.sparse_scan_spacing_m);
   EXPECT_EQ(opt->spacing_decision_m, defaults.spacing_decision_m);
   EXPECT_EQ(opt->likelihood_gain, defaults.likelihood_gain);
+  EXPECT_EQ(opt->report_switch_log_margin, defaults.report_switch_log_margin);
   EXPECT_EQ(opt->sparse_likelihood_gain, defaults.sparse_likelihood_gain);
   auto sparse_typo = ConfigReader::FromString("grid:\n  sparse_resolution: 0.05\n", "t.yaml");
   ASSERT_TRUE(sparse_typo.ok());

@@ -59,6 +59,12 @@ struct RbpfOptions {
   }();
   double sparse_resolution_m = 0.05;
   double sparse_likelihood_gain = 0.33;  // likelihood_gain once the stream is found sparse
+  // The particle whose pose is returned per scan (the process's POSE_RBPF) and whose map is
+  // published stays the same lineage until another particle's log weight exceeds its own by
+  // this much; 0: always the best. With flat weights the best changes often between particles
+  // whose paths differ, and each change is a jump of the published pose. The final
+  // trajectory and saved maps are always the best particle's (docs/rbpf.md, "Flat weights").
+  double report_switch_log_margin = 3.0;
   double sparse_scan_spacing_m = 0.4;
   double spacing_decision_m = 20.0;
   MotionNoise motion;
@@ -130,6 +136,7 @@ struct RbpfCounters {
   int64_t match_failures = 0;  // particle updates that fell back to odometry
   int64_t match_searches = 0;  // particle updates that needed the correlative search
   int64_t resamplings = 0;
+  int64_t reported_switches = 0;  // the reported particle became another lineage
 };
 
 // How the grid's cell size and the likelihood gain were chosen
@@ -234,6 +241,13 @@ class RbpfSlam {
   io::GridMap BestMap() const {
     return particles_[static_cast<size_t>(best_index())].map.ToGridMap();
   }
+  // The reported particle (RbpfOptions::report_switch_log_margin): its pose is the one AddScan
+  // returns; the process publishes its map.
+  int reported_index() const { return reported_lineage_; }
+  Pose2 ReportedPose() const { return particles_[static_cast<size_t>(reported_lineage_)].pose; }
+  io::GridMap ReportedMap() const {
+    return particles_[static_cast<size_t>(reported_lineage_)].map.ToGridMap();
+  }
   // The best particle's path at every accepted scan (processed scans from its trajectory tree,
   // the others placed by odometry relative to the nearest processed scan).
   std::vector<EstimatedPose> BestTrajectory() const;
@@ -303,6 +317,7 @@ class RbpfSlam {
   OdometryCalibrator calibrator_;
   int64_t odom_jumps_at_update_ = 0;  // counters_.odom_jumps at the last update
   int best_lineage_ = 0;              // the particle that descends from the last update's best
+  int reported_lineage_ = 0;          // the reported particle (report_switch_log_margin)
   Pose2 last_update_odom_;
   int64_t last_update_utime_ = 0;
   // Cell-size choice (kept across Reset) and the inputs held until it is made.
