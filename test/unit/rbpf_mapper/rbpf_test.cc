@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -434,14 +435,18 @@ struct PrefixRun {
   double likelihood_gain = 0;
 };
 
-PrefixRun RunPrefixWith(const std::string& path, size_t scans, const RbpfOptions& o) {
+// `on_scan` (optional) sees the filter and AddScan's result after every scan.
+PrefixRun RunPrefixWith(
+    const std::string& path, size_t scans, const RbpfOptions& o,
+    const std::function<void(const RbpfSlam&, const ScanResult&)>& on_scan = nullptr) {
   RbpfSlam slam(o);
   auto log = io::ReadCarmenLog(path);
   EXPECT_TRUE(log.ok());
   size_t n = 0;
   for (const auto& r : log->records) {
     if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-    slam.AddScan(ToInput(r.laser));
+    const ScanResult res = slam.AddScan(ToInput(r.laser));
+    if (on_scan) on_scan(slam, res);
     if (++n >= scans) break;
   }
   return {slam.BestTrajectory(), slam.counters(), slam.resolution_choice(),
@@ -560,34 +565,25 @@ TEST(RbpfSlam, DenseScansKeepTheFineGrid) {
 // filter itself, and so the final trajectory, is the same whatever the margin.
 TEST(RbpfSlam, TheReportedParticleChangesOnlyPastTheMargin) {
   OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
-  auto run = [&](double margin, std::vector<EstimatedPose>* final_path) {
+  auto run = [&](double margin) {
     RbpfOptions o;
     o.particles = 8;
     o.threads = 2;
     o.report_switch_log_margin = margin;
-    RbpfSlam slam(o);
-    auto log = io::ReadCarmenLog(path);
-    EXPECT_TRUE(log.ok());
-    size_t n = 0;
-    for (const auto& r : log->records) {
-      if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
-      const ScanResult res = slam.AddScan(ToInput(r.laser));
-      if (res.processed) {
-        const Pose2& reported = slam.particles()[static_cast<size_t>(slam.reported_index())].pose;
-        EXPECT_EQ(res.pose.x, reported.x);
-        EXPECT_EQ(res.pose.theta, reported.theta);
-      }
-      if (++n >= 300) break;
-    }
-    *final_path = slam.BestTrajectory();
-    return slam.counters().reported_switches;
+    return RunPrefixWith(path, 300, o, [](const RbpfSlam& slam, const ScanResult& res) {
+      if (!res.processed) return;
+      const Pose2& reported = slam.particles()[static_cast<size_t>(slam.reported_index())].pose;
+      EXPECT_EQ(res.pose.x, reported.x);
+      EXPECT_EQ(res.pose.theta, reported.theta);
+    });
   };
-  std::vector<EstimatedPose> a, b;
-  const int64_t always_best = run(0.0, &a);
-  const int64_t sticky = run(3.0, &b);
+  const PrefixRun a = run(0.0);
+  const PrefixRun b = run(3.0);
+  const int64_t always_best = a.counters.reported_switches;
+  const int64_t sticky = b.counters.reported_switches;
   EXPECT_GT(always_best, 10);
   EXPECT_LT(sticky * 3, always_best) << sticky << " against " << always_best;
-  ExpectSameTrajectory(a, b);
+  ExpectSameTrajectory(a.trajectory, b.trajectory);
 }
 
 // A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the

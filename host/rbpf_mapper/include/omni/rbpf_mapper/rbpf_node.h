@@ -1,7 +1,8 @@
 // The rbpf_mapper node: bus I/O around the RbpfSlam library. Subscribes LIDAR_SCAN
 // (laser_scan_t), WHEEL_ODOM (odometry_t) and IMU (imu_t, when use_imu), publishes POSE_RBPF
-// (pose2d_t, the best particle's pose at every accepted scan), GRID_RBPF (occupancy_grid_t, at
-// grid_publish_interval_s) and HEARTBEAT with the filter's counters.
+// (pose2d_t, the reported particle's pose at every accepted scan:
+// RbpfOptions::report_switch_log_margin), GRID_RBPF (occupancy_grid_t, at grid_publish_interval_s)
+// and HEARTBEAT with the filter's counters.
 //
 // Scans wait in a queue until odometry at or after their time has arrived (bus order is not
 // guaranteed), or until they are older than max_odom_gap_s behind the newest message.
