@@ -59,12 +59,6 @@ struct RbpfOptions {
   }();
   double sparse_resolution_m = 0.05;
   double sparse_likelihood_gain = 0.33;  // likelihood_gain once the stream is found sparse
-  // The particle whose pose is returned per scan (the process's POSE_RBPF) and whose map is
-  // published stays the same lineage until another particle's log weight exceeds its own by
-  // this much; 0: always the best. With flat weights the best changes often between particles
-  // whose paths differ, and each change is a jump of the published pose. The final
-  // trajectory and saved maps are always the best particle's (docs/rbpf.md, "Flat weights").
-  double report_switch_log_margin = 3.0;
   double sparse_scan_spacing_m = 0.4;
   double spacing_decision_m = 20.0;
   MotionNoise motion;
@@ -77,6 +71,12 @@ struct RbpfOptions {
   // particles: flat weights, rare resampling, so the particles keep distinct histories until a
   // loop tells them apart (dense streams; sparse ones use sparse_likelihood_gain).
   double likelihood_gain = 0.01;
+  // The particle whose pose is returned per scan (the process's POSE_RBPF) and whose map is
+  // published stays the same lineage until another particle's log weight exceeds its own by
+  // this much; 0: always the best. With flat weights the best changes often between particles
+  // whose paths differ, and each change is a jump of the published pose. The final
+  // trajectory and saved maps are always the best particle's (docs/rbpf.md, "Flat weights").
+  double report_switch_log_margin = 3.0;
   ProposalKind proposal = ProposalKind::kMatch;
   ProposalGridOptions proposal_grid;  // kGaussian: the points the Gaussian is fitted on
   bool proposal_draw = true;  // kGaussian: draw the pose (false: keep the optimum, weigh by eta)
