@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "omni/bench/measured_run.h"
+#include "omni/bench/slam_logs.h"
 #include "omni/common/time.h"
 #include "omni/eval/eval.h"
 #include "omni/io/trajectory_io.h"
@@ -38,13 +39,9 @@ struct Dataset {
 
 std::vector<Dataset> AllDatasets(const std::string& d) {
   std::vector<Dataset> v;
-  v.push_back({"intel-raw", d + "/intel-raw/intel.clf", d + "/intel-raw/intel.rawlog",
-               d + "/intel-raw/intel.reference.txt", 1});
-  for (const char* n : {"aces", "intel", "csail", "freiburg-079"}) {
-    const std::string b = d + "/slam-noisy-odom/" + n;
-    v.push_back({std::string(n) + "-noisy", b + ".noisy.clf.gz", b + ".noisy.rawlog",
-                 b + ".reference.txt", 0});
-  }
+  for (const omni::bench::SlamLog& l : omni::bench::SlamLogs())
+    v.push_back(
+        {l.name, d + "/" + l.log, d + "/" + l.rawlog, d + "/" + l.reference, l.peer_index_offset});
   return v;
 }
 
@@ -199,11 +196,6 @@ bool ParseSeeds(const std::vector<std::string>& in, std::vector<int>* out) {
   return true;
 }
 
-// Issue 5's accuracy goal per dataset (ATE RMSE, m, every seed).
-double AccuracyGoal(const std::string& dataset) {
-  return dataset == "freiburg-079-noisy" ? 0.05 : 0.10;
-}
-
 // What the rows say about the issue's goals: per dataset, how many of our seeds meet the
 // accuracy goal and the worst of them; beside it the peer's range; on intel-raw the ratios of
 // median wall time and largest peak memory (goals 1/6 and 1/2, measured with 30 particles).
@@ -221,7 +213,7 @@ void PrintSummary(const std::vector<Row>& rows, bool default_particles) {
     std::vector<double> our_ate, our_wall, peer_ate, peer_wall;
     double our_mb = 0, peer_mb = 0;
     int our_runs = 0, met = 0, peer_runs = 0;
-    const double goal = AccuracyGoal(name);
+    const double goal = omni::bench::SlamAteGoal(name);
     for (const auto& r : rows) {
       if (r.dataset != name) continue;
       if (r.system == "omni-rbpf") {
