@@ -58,7 +58,10 @@ struct RbpfOptions {
     return g;
   }();
   double sparse_resolution_m = 0.05;
-  double sparse_likelihood_gain = 0.33;  // likelihood_gain once the stream is found sparse
+  // likelihood_gain once the stream is found sparse: the same flat weights by default (the
+  // steep 0.33 it had before lets one history take over on sparse streams, docs/rbpf.md "One
+  // flat gain for sparse streams too").
+  double sparse_likelihood_gain = 0.01;
   double sparse_scan_spacing_m = 0.4;
   double spacing_decision_m = 20.0;
   MotionNoise motion;
@@ -69,7 +72,7 @@ struct RbpfOptions {
   double resample_threshold = 0.5;  // resample when Neff < threshold * particles
   // Weight exponent on the scan likelihood. 0.01 is about GMapping's 1/(3 x particles) for 30
   // particles: flat weights, rare resampling, so the particles keep distinct histories until a
-  // loop tells them apart (dense streams; sparse ones use sparse_likelihood_gain).
+  // loop tells them apart (sparse streams use sparse_likelihood_gain, by default the same).
   double likelihood_gain = 0.01;
   // The particle whose pose is returned per scan (the process's POSE_RBPF) and whose map is
   // published stays the same lineage until another particle's log weight exceeds its own by
