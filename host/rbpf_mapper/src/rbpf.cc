@@ -528,7 +528,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   have_update_ = true;
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
-  best_lineage_ = best_index();
+  best_lineage_ = HeaviestIndex();
   if (best_lineage_ != reported_lineage_ &&
       particles_[static_cast<size_t>(best_lineage_)].log_weight -
               particles_[static_cast<size_t>(reported_lineage_)].log_weight >
@@ -588,7 +588,7 @@ void RbpfSlam::Resample() {
   particles_ = std::move(next);
 }
 
-int RbpfSlam::best_index() const {
+int RbpfSlam::HeaviestIndex() const {
   int best = 0;
   for (size_t i = 1; i < particles_.size(); ++i)
     if (particles_[i].log_weight > particles_[static_cast<size_t>(best)].log_weight)

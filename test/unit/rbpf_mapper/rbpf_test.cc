@@ -588,6 +588,36 @@ TEST(RbpfSlam, TheReportedParticleChangesOnlyPastTheMargin) {
   ExpectSameTrajectory(a.trajectory, b.trajectory);
 }
 
+// After an update that resampled every weight is equal; the best particle is then the child of
+// the update's heaviest, which is also the reported one when the margin is 0.
+TEST(RbpfSlam, TheBestParticleSurvivesAResamplingAsItsChild) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  RbpfOptions o;
+  o.particles = 8;
+  o.threads = 2;
+  o.report_switch_log_margin = 0.0;
+  o.resample_threshold = 1.0;  // resample after (nearly) every update
+  int not_first = 0;
+  ScanResult last;
+  const PrefixRun run = RunPrefixWith(path, 150, o, [&](const RbpfSlam& slam, const ScanResult& r) {
+    if (!r.processed) return;
+    last = r;
+    EXPECT_EQ(slam.best_index(), slam.reported_index()) << r.scan_index;
+    const Pose2& best = slam.particles()[static_cast<size_t>(slam.best_index())].pose;
+    EXPECT_EQ(best.x, r.pose.x) << r.scan_index;
+    EXPECT_EQ(best.theta, r.pose.theta) << r.scan_index;
+    not_first += slam.best_index() != 0;
+  });
+  EXPECT_GT(run.counters.resamplings, 20);
+  // Particle 0 is the first parent's child, not the best's, in most updates.
+  EXPECT_GT(not_first, 10);
+  ASSERT_TRUE(last.processed);
+  const EstimatedPose& end = run.trajectory.back();
+  ASSERT_EQ(end.scan_index, last.scan_index);
+  EXPECT_EQ(end.pose.x, last.pose.x);
+  EXPECT_EQ(end.pose.theta, last.pose.theta);
+}
+
 // A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the
 // choice (no travel: dense) is made then.
 TEST(RbpfSlam, TheHeldInputsAreBoundedWhenTheBaseStandsStill) {

@@ -238,8 +238,9 @@ class RbpfSlam {
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   ScanResult AddScan(const ScanInput& scan);
 
-  // Best particle (largest weight).
-  int best_index() const;
+  // The best particle: the heaviest after the last update, or, when that update resampled (every
+  // weight is then equal), the heaviest's child.
+  int best_index() const { return best_lineage_; }
   Pose2 BestPose() const { return particles_[static_cast<size_t>(best_index())].pose; }
   io::GridMap BestMap() const {
     return particles_[static_cast<size_t>(best_index())].map.ToGridMap();
@@ -301,6 +302,8 @@ class RbpfSlam {
   std::optional<double> ImuYawIncrement(int64_t t0, int64_t t1) const;
   void Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first);
   void Resample();
+  // The particle with the largest weight now (the first on a tie).
+  int HeaviestIndex() const;
 
   RbpfOptions opt_;
   OmniMotionModel motion_;
