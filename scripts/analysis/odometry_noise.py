@@ -13,6 +13,8 @@ import gzip
 import math
 import sys
 
+from trajfile import read_trajectory
+
 
 def wrap(a):
     return math.atan2(math.sin(a), math.cos(a))
@@ -51,22 +53,17 @@ def main():
             if t and t[0] == 'FLASER':
                 n = int(t[1])
                 odom.append(tuple(float(v) for v in t[n + 2:n + 5]))
-    ref = []
-    with open(sys.argv[2]) as f:
-        for line in f:
-            if line.startswith('#') or not line.strip():
-                continue
-            t = line.split()
-            ref.append(tuple(float(v) for v in t[2:5]))
-    n = min(len(odom), len(ref))
-    if n < 10:
-        sys.exit('too few scans (%d)' % n)
-    zo = [between(odom[i], odom[i + 1]) for i in range(n - 1)]
-    zr = [between(ref[i], ref[i + 1]) for i in range(n - 1)]
+    ref = read_trajectory(sys.argv[2])
+    # Steps between consecutive scans that both have a reference pose.
+    pairs = [i for i in range(len(odom) - 1) if i in ref and i + 1 in ref]
+    if len(pairs) < 10:
+        sys.exit('too few scans with a reference pose (%d steps)' % len(pairs))
+    zo = [between(odom[i], odom[i + 1]) for i in pairs]
+    zr = [between(ref[i], ref[i + 1]) for i in pairs]
     length = [math.hypot(z[0], z[1]) for z in zr]
     turn = [abs(z[2]) for z in zr]
     print('%d steps, mean %.3f m and %.3f rad per step' %
-          (n - 1, sum(length) / len(length), sum(turn) / len(turn)))
+          (len(pairs), sum(length) / len(length), sum(turn) / len(turn)))
     for axis, name, cols in ((0, 'x', [0]), (1, 'y', [0]), (2, 'theta', [2, 0])):
         err = [wrap(o[axis] - r[axis]) if axis == 2 else o[axis] - r[axis] for o, r in zip(zo, zr)]
         rows = [[r[c] for c in cols] for r in zr]
