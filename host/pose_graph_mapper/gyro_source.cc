@@ -20,10 +20,10 @@ bool GyroYawSource::AddSample(int64_t utime, double rate) {
   double integral = 0.0;
   if (!samples_.empty()) {
     const Sample& last = samples_.back();
-    integral = last.integral +
-               0.5 * (last.rate + (rate - bias_)) * 1e-6 * static_cast<double>(utime - last.utime);
+    integral =
+        last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
   }
-  samples_.push_back({utime, rate - bias_, integral});
+  samples_.push_back({utime, rate, integral});
   while (samples_.size() > capacity_) samples_.pop_front();
   return true;
 }
@@ -44,10 +44,28 @@ std::optional<GyroYawSource::Yaw> GyroYawSource::Between(int64_t t0, int64_t t1)
   if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
     return std::nullopt;
   Yaw y;
-  y.delta_rad = IntegralAt(t1) - IntegralAt(t0);
+  y.delta_rad = IntegralAt(t1) - IntegralAt(t0) - bias_ * 1e-6 * static_cast<double>(t1 - t0);
   y.variance = noise_.angle_var_per_s * 1e-6 * static_cast<double>(t1 - t0) +
                noise_.angle_var_per_rad * std::abs(y.delta_rad);
   return y;
+}
+
+GyroYawSource::BiasSample GyroYawSource::LearnBias(int64_t t0, int64_t t1, double odometry_yaw,
+                                                   const GyroBiasOptions& o) {
+  if (samples_.empty() || t1 <= t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
+    return BiasSample::kNotCovered;
+  const double span_s = 1e-6 * static_cast<double>(t1 - t0);
+  const double sample = (IntegralAt(t1) - IntegralAt(t0) - odometry_yaw) / span_s;
+  if (!std::isfinite(sample) || std::abs(sample) > o.max_abs_rad_s) return BiasSample::kRefused;
+  // A running mean until `memory_s` of still time is behind it, then an exponential average
+  // with that time constant (a bias that drifts with temperature is followed).
+  bias_learned_s_ += span_s;
+  const double w = bias_samples_ == 0
+                       ? 1.0
+                       : std::max(span_s / bias_learned_s_, span_s / std::max(o.memory_s, span_s));
+  bias_ += w * (sample - bias_);
+  ++bias_samples_;
+  return BiasSample::kLearned;
 }
 
 std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1) const {

@@ -84,6 +84,10 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
   std::fprintf(f, ", \"imu_in\": %lld, \"imu_rejected\": %lld, \"gyro_missing_steps\": %lld",
                ll(c.imu_in), ll(c.imu_rejected),
                ll(static_cast<int64_t>(slam.gyro_missing_steps())));
+  std::fprintf(f,
+               ", \"gyro_bias_samples\": %lld, \"gyro_bias_refused\": %lld, "
+               "\"gyro_bias_rad_s\": %.7f",
+               ll(c.gyro_bias_samples), ll(c.gyro_bias_refused), slam.gyro_bias_rad_s());
   const OdometryCalibrator& oc = slam.odometry_calibrator();
   const OdometryCalibration& cal = oc.calibration();
   std::fprintf(f,

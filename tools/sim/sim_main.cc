@@ -87,7 +87,7 @@ void Usage(std::FILE* f) {
   std::fprintf(
       f,
       "usage: omni-sim --out DIR [--world FILE] [--seed N] [--laps N] [--duration S]\n"
-      "                [--base firmware|ideal] [--slip A,B,C] [--slip-noise S]\n"
+      "                [--still S] [--base firmware|ideal] [--slip A,B,C] [--slip-noise S]\n"
       "                [--instant-scans] [--no-depth] [--depth-hz HZ]\n"
       "                [--live URL [--speed X]] [--drive tour|bus] [--cmd-channel NAME]\n"
       "                [--bridge-config FILE]\n"
@@ -100,6 +100,8 @@ void Usage(std::FILE* f) {
       "                 linked by CAN frames to the base bridge, in simulated time:\n"
       "                 WHEEL_ODOM (100 Hz), WHEEL_ENCODERS and BASE_STATUS are the bridge's\n"
       "  --base ideal   kinematic base, encoder scale errors and noise; WHEEL_ODOM at 50 Hz\n"
+      "  --still S      stand still S seconds before the tour (default 0), as a robot does\n"
+      "                 after power-up (the pose-graph mapper learns the gyro's bias then)\n"
       "  --slip A,B,C   each wheel's mean slip, the fraction of rim motion lost at the ground\n"
       "                 (firmware base; default 0.026,0.010,0.020), redrawn every 5 ms with\n"
       "                 sigma --slip-noise (default 0.01)\n"
@@ -176,6 +178,8 @@ int main(int argc, char** argv) {
         slip_given = true;
         rest = comma == std::string::npos ? "" : rest.substr(comma + 1);
       }
+    } else if (args.Is("--still")) {
+      opt.still_s = args.Number(0, 3600);
     } else if (args.Is("--slip-noise")) {
       opt.wheel_slip_noise = args.Number(0, 0.2);
     } else if (args.Is("--live")) {
@@ -213,6 +217,11 @@ int main(int argc, char** argv) {
                  slip_given
                      ? "--slip models the firmware base's wheels; it needs --base firmware"
                      : "--cmd-channel is where --drive bus takes its commands; add --drive bus");
+    return 2;
+  }
+  if (opt.still_s > 0 && drive == "bus") {
+    std::fprintf(stderr,
+                 "omni-sim: --still is the tour's wait; with --drive bus the commands decide\n");
     return 2;
   }
   if (drive == "bus" && !live) {

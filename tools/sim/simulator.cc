@@ -286,7 +286,9 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     }
 
     kinematics::BodyTwist<double> cmd{};
-    if (!external) {
+    if (!external && t < o_.still_s) {
+      // Standing still before the tour: a zero twist, as a planner holds at power-up.
+    } else if (!external) {
       // Waypoint follower: holonomic, slowing into each waypoint, acceleration-limited.
       const Pose2& goal = route[target];
       const double ex = goal.x - pose.x, ey = goal.y - pose.y;

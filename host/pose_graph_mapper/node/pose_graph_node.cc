@@ -115,6 +115,11 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
     heartbeat_.AddCounter("imu_rejected", [&c] { return c.imu_rejected; });
     heartbeat_.AddCounter("gyro_missing_steps",
                           [this] { return static_cast<int64_t>(slam_.gyro_missing_steps()); });
+    heartbeat_.AddCounter("gyro_bias_samples", [&c] { return c.gyro_bias_samples; });
+    heartbeat_.AddCounter("gyro_bias_refused", [&c] { return c.gyro_bias_refused; });
+    heartbeat_.AddCounter("gyro_bias_urad_s", [this] {
+      return static_cast<int64_t>(std::llround(slam_.gyro_bias_rad_s() * 1e6));
+    });
   }
   if (slam.odometry_calibration.enabled) {
     // The odometry self-calibration: matches used / left out, refits, and the fit in ppm.

@@ -42,7 +42,7 @@ TEST(SimPipeline, OmniSimBaseOptions) {
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("firmware RUNNING, fault bits 0x0"), std::string::npos) << r.output;
   for (const char* bad : {"--base wheels", "--slip 0.1,0.2", "--slip 0.1,0.2,0.6", "--slip 0.1,x,0",
-                          "--slip-noise 0.5"}) {
+                          "--slip-noise 0.5", "--still -1", "--still 5 --drive bus"}) {
     r = testing::Run(sim + bad);
     EXPECT_EQ(r.exit_code, 2) << bad << ": " << r.output;
     const std::string opt = std::string(bad).substr(0, std::string(bad).find(' '));

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <random>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -585,6 +586,45 @@ TEST(PoseGraphSlam, AbsolutePosesCorrectBiasedOdometry) {
   std::printf("trajectory RMS error: %.3f m without absolute poses, %.3f m with\n", without, with);
   EXPECT_GT(without, 0.15);  // the bias is real: 10 % of up to 6 m
   EXPECT_LT(with, 0.5 * without) << "without " << without << " m, with " << with << " m";
+}
+
+// The gyro's bias learned standing still: 5 s parked (the odometry jitters by an encoder tick),
+// 5 s driving, 5 s parked while someone turns the base by hand (the wheels do not move: those
+// samples are refused), 5 s parked again. A gyro with a 0.003 rad/s bias and 0.005 rad/s noise
+// at 100 Hz; odometry at 50 Hz.
+TEST(PoseGraphSlam, LearnsTheGyroBiasWhileTheOdometryStandsStill) {
+  auto run = [](bool estimate) {
+    PoseGraphSlamOptions o;
+    o.use_gyro = true;
+    o.gyro_bias.estimate = estimate;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    std::mt19937 rng(7);
+    std::normal_distribution<double> noise(0.0, 0.005);
+    Pose2 pose(1, 1, 0);
+    for (int k = 0; k <= 2000; ++k) {  // 20 s at 100 Hz
+      const int64_t t = 1'000'000 + 10'000 * int64_t{k};
+      const bool driving = k > 500 && k <= 1000;
+      const bool hand_turned = k > 1000 && k <= 1500;
+      const double rate = driving ? 0.2 : hand_turned ? 0.1 : 0.0;
+      EXPECT_TRUE(slam.AddImuYawRate(t, rate + 0.003 + noise(rng)));
+      if (driving) pose = pose * Pose2(0.003, 0, 0.002);
+      if (k % 2 == 0) {
+        const double tick = (k / 2) % 7 == 0 ? 2e-4 : 0.0;  // one encoder tick of jitter
+        slam.AddOdometry(t, Pose2(pose.x + tick, pose.y, pose.theta + tick));
+      }
+    }
+    return std::make_pair(slam.gyro_bias_rad_s(), slam.counters());
+  };
+  const auto [bias, c] = run(true);
+  // The wheels stand still from 0 to 5 s and from 10 to 20 s; after 0.2 s each stretch gives
+  // a sample per whole second that ends 0.2 s before the latest odometry: 4 + 9 chunks, of
+  // which the five that hold hand-turned time are refused (0.08-0.1 rad/s > 0.03).
+  EXPECT_EQ(c.gyro_bias_samples, 8);
+  EXPECT_EQ(c.gyro_bias_refused, 5);
+  EXPECT_NEAR(bias, 0.003, 0.0005);  // the mean of 800 samples: sigma 0.18 mrad/s
+  const auto [fixed, c0] = run(false);
+  EXPECT_EQ(fixed, 0.0);
+  EXPECT_EQ(c0.gyro_bias_samples, 0);
 }
 
 // The IMU as a continuous source: odometry that over-reads every turn by 10 % bends a circular

@@ -83,7 +83,8 @@ struct PoseGraphSlamOptions {
   // scale and heading drift per metre, fitted to the keyframe scan matches.
   OdometryCalibratorOptions odometry_calibration;
   GyroNoise gyro_noise;
-  double gyro_bias_rad_s = 0.0;  // subtracted from every yaw-rate sample
+  double gyro_bias_rad_s = 0.0;  // subtracted from every yaw-rate sample until one is learned
+  GyroBiasOptions gyro_bias;     // learning the bias while the base stands still
   // Global optimisation on accepted loops.
   std::string global_loss = "cauchy";  // none | huber | cauchy
   double global_loss_scale = 1.0;
@@ -167,6 +168,9 @@ struct SlamCounters {
   int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
   // Gyro (use_gyro): yaw-rate samples received, rejected (non-finite, not newer than the last).
   int64_t imu_in = 0, imu_rejected = 0;
+  // Gyro bias samples taken while the base stood still, and refused (beyond
+  // gyro_bias.max_abs_rad_s: the base turned although its wheels did not).
+  int64_t gyro_bias_samples = 0, gyro_bias_refused = 0;
   int64_t window_updates = 0, window_failures = 0;
   // Window updates whose information matrix gave no marginal covariance (the published
   // covariance then stays the odometry-predicted one).
@@ -208,6 +212,8 @@ class PoseGraphSlam {
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   // Odometry steps whose heading had no gyro data to fuse (use_gyro; 0 otherwise).
   uint64_t gyro_missing_steps() const { return fused_.gyro_missing_steps(); }
+  // The gyro bias in use (rad/s): the configured one until one is learned standing still.
+  double gyro_bias_rad_s() const { return gyro_.bias(); }
   // Returns true when the scan was accepted (it then has a pose in Trajectory()). A scan older
   // than the last one may be on a clock that went back: it is refused (scans_time_backwards)
   // but held until the next odometry sample in order, and mapped if the odometry re-bases as a
@@ -305,6 +311,9 @@ class PoseGraphSlam {
   void ResetWindow();
   double NowMs() const;
   void TakeOdometry(int64_t utime, const Pose2& raw);  // in order: into the buffer
+  // With the gyro: follows the stretches in which the odometry stands still and takes a gyro
+  // bias sample from every gyro_bias.chunk_s of them (`t` internal time, `p` corrected pose).
+  void TrackStillness(int64_t t, const Pose2& p);
   // A stamp on the mapper's time line (saturating).
   int64_t OnTimeLine(int64_t utime) const;
   // The odometry's re-base at source stamp `first` (stamp_order.h): a clock set back, or
@@ -368,6 +377,11 @@ class PoseGraphSlam {
   void PlaceHeldFixes();  // the held fixes, by the clock decided now
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;
+  struct Stillness {
+    bool active = false;     // a candidate still stretch is open
+    Pose2 anchor;            // where it began (corrected odometry)
+    int64_t learn_from = 0;  // internal time the next bias sample starts at
+  } still_;
   int64_t last_scan_utime_ = INT64_MIN;
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;

@@ -46,6 +46,7 @@ struct SimOptions {
   int64_t start_utime = 1700000000000000;  // simulated clock at t = 0
   double max_duration_s = 0;               // 0: until the tour ends
   int laps = 1;                            // times the tour is driven
+  double still_s = 0;  // the tour's follower first stands still this long (a robot at power-up)
   double physics_hz = 200;
   enum class Base { kFirmware, kIdeal } base = Base::kFirmware;
   // Motion.
