@@ -41,31 +41,19 @@ double GyroYawSource::IntegralAt(int64_t t) const {
 }
 
 std::optional<GyroYawSource::Yaw> GyroYawSource::Between(int64_t t0, int64_t t1) const {
-  if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
-    return std::nullopt;
+  const std::optional<double> raw = RawBetween(t0, t1);
+  if (!raw) return std::nullopt;
   Yaw y;
-  y.delta_rad = IntegralAt(t1) - IntegralAt(t0) - bias_ * 1e-6 * static_cast<double>(t1 - t0);
+  y.delta_rad = *raw - bias_ * 1e-6 * static_cast<double>(t1 - t0);
   y.variance = noise_.angle_var_per_s * 1e-6 * static_cast<double>(t1 - t0) +
                noise_.angle_var_per_rad * std::abs(y.delta_rad);
   return y;
 }
 
-GyroYawSource::BiasSample GyroYawSource::LearnBias(int64_t t0, int64_t t1, double odometry_yaw,
-                                                   const GyroBiasOptions& o) {
-  if (samples_.empty() || t1 <= t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
-    return BiasSample::kNotCovered;
-  const double span_s = 1e-6 * static_cast<double>(t1 - t0);
-  const double sample = (IntegralAt(t1) - IntegralAt(t0) - odometry_yaw) / span_s;
-  if (!std::isfinite(sample) || std::abs(sample) > o.max_abs_rad_s) return BiasSample::kRefused;
-  // A running mean until `memory_s` of still time is behind it, then an exponential average
-  // with that time constant (a bias that drifts with temperature is followed).
-  bias_learned_s_ += span_s;
-  const double w = bias_samples_ == 0
-                       ? 1.0
-                       : std::max(span_s / bias_learned_s_, span_s / std::max(o.memory_s, span_s));
-  bias_ += w * (sample - bias_);
-  ++bias_samples_;
-  return BiasSample::kLearned;
+std::optional<double> GyroYawSource::RawBetween(int64_t t0, int64_t t1) const {
+  if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
+    return std::nullopt;
+  return IntegralAt(t1) - IntegralAt(t0);
 }
 
 std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1) const {

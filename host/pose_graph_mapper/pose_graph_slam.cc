@@ -60,13 +60,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   g.Get("angle_var_per_s", &o.gyro_noise.angle_var_per_s, Optional(), Positive<double>());
   g.Get("angle_var_per_rad", &o.gyro_noise.angle_var_per_rad, Optional(), NonNegative<double>());
   g.Get("bias_rad_s", &o.gyro_bias_rad_s, Optional());
-  g.Get("estimate_bias", &o.gyro_bias.estimate, Optional());
-  g.Get("bias_chunk_s", &o.gyro_bias.chunk_s, Optional(), InRange(0.05, 3600.0));
-  g.Get("bias_memory_s", &o.gyro_bias.memory_s, Optional(), Positive<double>());
-  g.Get("bias_max_rad_s", &o.gyro_bias.max_abs_rad_s, Optional(), Positive<double>());
-  g.Get("still_xy_m", &o.gyro_bias.still_xy_m, Optional(), Positive<double>());
-  g.Get("still_rad", &o.gyro_bias.still_rad, Optional(), Positive<double>());
-  g.Get("still_edge_s", &o.gyro_bias.edge_s, Optional(), InRange(0.0, 60.0));
+  ReadGyroBiasOptions(g.Section("bias_learning"), &o.gyro_bias);
   r.Get("global_loss", &o.global_loss, Optional(), OneOf({"none", "huber", "cauchy"}));
   r.Get("global_loss_scale", &o.global_loss_scale, Optional(), Positive<double>());
   r.Get("global_max_iterations", &o.global_max_iterations, Optional(), InRange(1, 10000));
@@ -153,6 +147,7 @@ PoseGraphSlam::PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOpt
       odom_(options.odometry_noise),
       calibrator_(options.odometry_calibration),
       gyro_(options.gyro_noise, options.gyro_bias_rad_s),
+      gyro_bias_(options.gyro_bias, options.gyro_bias_rad_s),
       match_(options.match),
       loop_(options.loop) {
   ResetWindow();
@@ -256,13 +251,13 @@ void PoseGraphSlam::RebaseOdometry(int64_t first) {
     old_clock_newest_ = last_odom_utime_;
     time_offset_ = last_odom_internal_ + period - first;
     gyro_.Reset();
-    still_ = Stillness{};
+    gyro_bias_.Reset();
     replay_held_scans_ = true;
     return;
   }
   // Otherwise the newest samples were stamped ahead of the run: they are dropped and the state
   // is put back as it was after the newest sample kept.
-  still_ = Stillness{};  // its stretch may stand on samples dropped here
+  gyro_bias_.Reset();  // its still stretch may stand on samples dropped here
   const std::optional<OdomState> st = odom_history_.Restore(at);
   // Kept: drop what came after it (by internal time, which nudging may have moved past `at`);
   // none kept: every sample held is newer than the run.
@@ -294,7 +289,12 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
   }
   const Pose2 corrected = correction_ * raw;
   odom_.AddSample(internal, corrected);
-  if (o_.use_gyro && o_.gyro_bias.estimate) TrackStillness(internal, corrected);
+  if (o_.use_gyro && gyro_bias_.AddOdometry(internal, corrected, [this](int64_t a, int64_t b) {
+        return gyro_.RawBetween(a, b);
+      }))
+    gyro_.set_bias(gyro_bias_.bias());
+  c_.gyro_bias_samples = gyro_bias_.samples();
+  c_.gyro_bias_refused = gyro_bias_.refused();
   have_odom_ = true;
   last_odom_utime_ = utime;
   last_odom_stamp_ = stamp;
@@ -302,32 +302,6 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
   last_raw_ = raw;
   last_corrected_ = corrected;
   odom_history_.Push(stamp, {utime, stamp, internal, raw, corrected, correction_});
-}
-
-void PoseGraphSlam::TrackStillness(int64_t t, const Pose2& p) {
-  const GyroBiasOptions& g = o_.gyro_bias;
-  const int64_t edge = static_cast<int64_t>(g.edge_s * 1e6);
-  if (!still_.active || std::hypot(p.x - still_.anchor.x, p.y - still_.anchor.y) > g.still_xy_m ||
-      std::abs(WrapAngle(p.theta - still_.anchor.theta)) > g.still_rad) {
-    // Moving (or the first sample): a still stretch can only begin here.
-    still_.active = true;
-    still_.anchor = p;
-    still_.learn_from = t + edge;
-    return;
-  }
-  // Still since the anchor: a bias sample per chunk that ends an edge before now. A chunk the
-  // gyro does not cover yet (its samples come later than the odometry's) is tried again with
-  // the next odometry sample.
-  const int64_t chunk = static_cast<int64_t>(g.chunk_s * 1e6);
-  while (t - edge - still_.learn_from >= chunk) {
-    const int64_t a = still_.learn_from, b = a + chunk;
-    const std::optional<RelativeMotion> od = odom_.Between(a, b);
-    if (!od) break;
-    const GyroYawSource::BiasSample r = gyro_.LearnBias(a, b, od->delta.theta, g);
-    if (r == GyroYawSource::BiasSample::kNotCovered) break;
-    ++(r == GyroYawSource::BiasSample::kLearned ? c_.gyro_bias_samples : c_.gyro_bias_refused);
-    still_.learn_from = b;
-  }
 }
 
 bool PoseGraphSlam::AddImuYawRate(int64_t utime, double rate) {

@@ -283,6 +283,12 @@ int main(int argc, char** argv) {
       slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
       static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes));
+  std::fprintf(f,
+               ", \"imu_in\": %lld, \"imu_invalid\": %lld, \"imu_bias_samples\": %lld, "
+               "\"imu_bias_refused\": %lld, \"imu_bias_rad_s\": %.7f",
+               static_cast<long long>(c.imu_in), static_cast<long long>(c.imu_invalid),
+               static_cast<long long>(c.imu_bias_samples),
+               static_cast<long long>(c.imu_bias_refused), slam.imu_bias_rad_s());
   const omni::rbpf::ResolutionChoice& choice = slam.resolution_choice();
   std::fprintf(f,
                ", \"grid_resolution_m\": %.4f, \"likelihood_gain\": %.6g, "

@@ -73,6 +73,8 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
   r.Get("max_odom_gap_s", &o.max_odom_gap_s, Optional(), InRange(0.0, 60.0));
   r.Get("use_imu", &o.use_imu, Optional());
+  r.Get("imu_bias_rad_s", &o.imu_bias_rad_s, Optional());
+  ReadGyroBiasOptions(r.Section("imu_bias_learning"), &o.imu_bias_learning);
   r.Get("scan_channel", &o.scan_channel, Optional(), NonEmpty());
   r.Get("odom_channel", &o.odom_channel, Optional(), NonEmpty());
   r.Get("imu_channel", &o.imu_channel, Optional(), NonEmpty());
@@ -171,6 +173,7 @@ RbpfSlam::RbpfSlam(const RbpfOptions& options)
       pool_(options.threads),
       master_rng_(options.seed),
       odom_buffer_(100000),
+      imu_bias_(options.imu_bias_learning, options.imu_bias_rad_s),
       calibrator_(options.odometry_calibration) {
   InitParticles();
   choice_.decided =
@@ -196,6 +199,7 @@ void RbpfSlam::Reset(const RbpfOptions& o) {
   counters_ = RbpfCounters{};
   odom_buffer_ = StampedBuffer<Pose2>(100000);
   imu_.clear();
+  imu_bias_ = StillGyroBias(o.imu_bias_learning, o.imu_bias_rad_s);
   records_.clear();
   next_scan_index_ = 0;
   scan_order_ = StampOrder();
@@ -277,6 +281,12 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
     return false;
   }
   counters_.time_rebases += odom_buffer_.rebases() - rebases;
+  if (opt_.use_imu) {
+    if (odom_buffer_.rebases() != rebases) imu_bias_.Reset();  // its still stretch is gone
+    imu_bias_.AddOdometry(utime, p, [this](int64_t a, int64_t b) { return ImuRawIncrement(a, b); });
+    counters_.imu_bias_samples = imu_bias_.samples();
+    counters_.imu_bias_refused = imu_bias_.refused();
+  }
   return true;
 }
 
@@ -309,6 +319,12 @@ bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
 }
 
 std::optional<double> RbpfSlam::ImuYawIncrement(int64_t t0, int64_t t1) const {
+  const std::optional<double> raw = ImuRawIncrement(t0, t1);
+  if (!raw) return std::nullopt;
+  return *raw - imu_bias_.bias() * 1e-6 * static_cast<double>(t1 - t0);
+}
+
+std::optional<double> RbpfSlam::ImuRawIncrement(int64_t t0, int64_t t1) const {
   if (imu_.size() < 2 || imu_.front().first > t0 || imu_.back().first < t1 || t1 <= t0)
     return std::nullopt;
   // Trapezoid over the samples, with the rate held piecewise-linear between samples.

@@ -69,6 +69,13 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
   heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
   heartbeat_.AddCounter("imu_invalid", [&c] { return c.imu_invalid; });
+  if (slam_.options().use_imu) {
+    heartbeat_.AddCounter("imu_bias_samples", [&c] { return c.imu_bias_samples; });
+    heartbeat_.AddCounter("imu_bias_refused", [&c] { return c.imu_bias_refused; });
+    heartbeat_.AddCounter("imu_bias_urad_s", [this] {
+      return static_cast<int64_t>(std::llround(slam_.imu_bias_rad_s() * 1e6));
+    });
+  }
   heartbeat_.AddCounter("match_failures", [&c] { return c.match_failures; });
   heartbeat_.AddCounter("match_searches", [&c] { return c.match_searches; });
   heartbeat_.AddCounter("resamplings", [&c] { return c.resamplings; });

@@ -108,9 +108,9 @@ TEST(PoseGraphSlamCli, LearnsTheSimulatedGyroBiasStandingStill) {
   ASSERT_NE(at, std::string::npos) << "the shipped config's gyro switch moved";
   text.replace(at, text.find('\n', at) - at, "    enabled: true");
   for (const bool estimate : {true, false}) {
-    SCOPED_TRACE(estimate ? "estimate_bias: true" : "estimate_bias: false");
+    SCOPED_TRACE(estimate ? "bias_learning.estimate: true" : "bias_learning.estimate: false");
     std::string c = text;
-    if (!estimate) c.replace(c.find("estimate_bias: true"), 19, "estimate_bias: false");
+    if (!estimate) c.replace(c.find("estimate: true"), 14, "estimate: false");
     std::ofstream(dir + "/gyro.yaml") << c;
     const std::string out = dir + (estimate ? "/est" : "/fixed");
     r = testing::Run(Bin("omni-slam") + " posegraph " + dir + "/sim/sim.lcmlog --out " + out +

@@ -119,34 +119,16 @@ TEST(PoseGraphGyro, BiasIsRemoved) {
   EXPECT_NEAR(gyro.Between(0, 1'000'000)->delta_rad, 0.0, 1e-15);
 }
 
-// A bias sample is the gyro's mean rate minus the odometry's over the stretch; the estimate is
-// their running mean, then (past memory_s) an exponential average, and it applies to every
-// interval afterwards, including those before it was learned.
-TEST(PoseGraphGyro, LearnsTheBiasFromStillStretchesAndRemovesItEverywhere) {
-  GyroYawSource gyro(GyroNoise{}, 0.01);  // the configured bias, wrong
-  GyroBiasOptions o;
-  o.memory_s = 3.0;
-  // 10 s at 100 Hz: 0.004 rad/s for 4 s, then 0.006 rad/s (the bias drifted).
-  for (int k = 0; k <= 1000; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, k <= 400 ? 0.004 : 0.006));
-  using S = GyroYawSource::BiasSample;
-  EXPECT_EQ(gyro.LearnBias(0, 1'000'000, 0.0, o), S::kLearned);
-  EXPECT_NEAR(gyro.bias(), 0.004, 1e-12);  // the first sample replaces the configured bias
-  // The odometry turned by 0.001 rad meanwhile: that part of the gyro's turn is not bias.
-  EXPECT_EQ(gyro.LearnBias(1'000'000, 2'000'000, 0.001, o), S::kLearned);
-  EXPECT_NEAR(gyro.bias(), 0.5 * (0.004 + 0.003), 1e-12);  // running mean of two
-  EXPECT_EQ(gyro.LearnBias(2'000'000, 3'000'000, 0.0, o), S::kLearned);
-  EXPECT_NEAR(gyro.bias(), (0.004 + 0.003 + 0.004) / 3, 1e-12);
-  // Past memory_s of still time each new second weighs 1/3: the estimate follows the drift.
-  for (int k = 5; k < 10; ++k)
-    EXPECT_EQ(gyro.LearnBias(1'000'000 * k, 1'000'000 * (k + 1), 0.0, o), S::kLearned);
-  EXPECT_NEAR(gyro.bias(), 0.006 - (0.006 - 0.011 / 3) * std::pow(2.0 / 3.0, 5), 1e-12);
-  EXPECT_EQ(gyro.bias_samples(), 8);
-  // Every interval loses the current bias, one before the learning included.
-  EXPECT_NEAR(gyro.Between(0, 1'000'000)->delta_rad, 0.004 - gyro.bias(), 1e-12);
-  // Not covered yet (the gyro's samples lag), and a turn the wheels did not see: refused.
-  EXPECT_EQ(gyro.LearnBias(9'500'000, 10'500'000, 0.0, o), S::kNotCovered);
-  EXPECT_EQ(gyro.LearnBias(0, 1'000'000, -0.05, o), S::kRefused);  // 0.054 rad/s > 0.03
-  EXPECT_EQ(gyro.bias_samples(), 8);
+// set_bias applies to every interval read afterwards, including those before it was set: the
+// samples are kept as measured (what a bias learned standing still needs).
+TEST(PoseGraphGyro, ABiasSetLaterAppliesToEveryInterval) {
+  GyroYawSource gyro(GyroNoise{}, 0.01);
+  for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.004));
+  EXPECT_NEAR(*gyro.RawBetween(0, 1'000'000), 0.004, 1e-15);
+  EXPECT_NEAR(gyro.Between(0, 1'000'000)->delta_rad, -0.006, 1e-15);
+  gyro.set_bias(0.004);
+  EXPECT_NEAR(gyro.Between(0, 1'000'000)->delta_rad, 0.0, 1e-15);
+  EXPECT_FALSE(gyro.RawBetween(0, 1'000'001));
 }
 
 // Odometry whose heading over-reads every turn by 8 % (an omni base's wheels slip when it

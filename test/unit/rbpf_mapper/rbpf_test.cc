@@ -663,6 +663,31 @@ TEST(RbpfSlam, TheHeldInputsAreBoundedWithoutScans) {
   EXPECT_EQ(slam.counters().imu_in, 1);
 }
 
+// With use_imu the gyro's bias is learned while the odometry stands still (the estimator is
+// omni/common/gyro_bias.h): 6 s parked, a gyro reading 0.004 rad/s at rest at 100 Hz, odometry
+// at 50 Hz. 1 s chunks less 0.2 s at each end: five samples; without use_imu, none.
+TEST(RbpfSlam, LearnsTheGyroBiasWhileTheOdometryStandsStill) {
+  for (const bool use_imu : {true, false}) {
+    SCOPED_TRACE(use_imu ? "use_imu" : "no imu");
+    RbpfOptions o;
+    o.particles = 2;
+    o.threads = 1;
+    o.use_imu = use_imu;
+    o.imu_bias_rad_s = 0.001;
+    RbpfSlam slam(o);
+    for (int k = 0; k <= 600; ++k) {
+      const int64_t t = 1'000'000 + 10'000 * int64_t{k};
+      ASSERT_TRUE(slam.AddImuYawRate(t, 0.004));
+      if (k % 2 == 0) {
+        ASSERT_TRUE(slam.AddOdometry(t, Pose2(1, 2, 0.3)));
+      }
+    }
+    EXPECT_EQ(slam.counters().imu_bias_samples, use_imu ? 5 : 0);
+    EXPECT_EQ(slam.counters().imu_bias_refused, 0);
+    EXPECT_NEAR(slam.imu_bias_rad_s(), use_imu ? 0.004 : 0.001, 1e-12);
+  }
+}
+
 // A spinning lidar's sweep: the base turns at 0.8 rad/s in the off-axis room while each scan's
 // beams are measured over 0.1 s (0.08 rad of turn). Told the sweep's duration, the filter undoes
 // the turn from odometry and keeps the heading; told nothing, the distorted scans pull it off,

@@ -26,24 +26,11 @@ struct GyroNoise {
   double angle_var_per_rad = 1e-4;  // rad^2 per radian turned
 };
 
-// The gyro's bias learned while the base stands still: a MEMS gyro's zero-rate output drifts
-// with temperature and from power-up to power-up, so a bias from the config is at best a start.
-// While the wheels' odometry says the base is still, the gyro's mean rate minus the odometry's
-// over each `chunk_s` is one sample of the bias (PoseGraphSlam finds the still stretches).
-struct GyroBiasOptions {
-  bool estimate = true;
-  double chunk_s = 1.0;         // one bias sample per this much standing still
-  double memory_s = 300.0;      // of still time: older samples fade (running mean up to this)
-  double max_abs_rad_s = 0.03;  // a sample beyond this is refused (turned without its wheels)
-  double still_xy_m = 0.002;    // still: the odometry stays within this distance ...
-  double still_rad = 0.002;     // ... and this heading of where it stopped
-  double edge_s = 0.2;          // left out at both ends of a still stretch (stopping, starting)
-};
-
 class GyroYawSource {
  public:
-  // `bias_rad_s` is subtracted from every sample until a bias is learned (LearnBias);
-  // `capacity` samples are kept (oldest dropped).
+  // `bias_rad_s` is subtracted from every sample (set_bias changes it, for every interval
+  // read afterwards: the samples are kept as measured); `capacity` samples are kept (oldest
+  // dropped).
   explicit GyroYawSource(GyroNoise noise = {}, double bias_rad_s = 0.0, size_t capacity = 200000)
       : noise_(noise), bias_(bias_rad_s), capacity_(capacity) {}
   // False (to be counted by the caller) for a non-finite rate or a time older than the newest
@@ -63,15 +50,11 @@ class GyroYawSource {
   // Heading change over [t0, t1] (the rate taken as linear between samples) with the current
   // bias removed, nullopt when the samples do not cover the interval.
   std::optional<Yaw> Between(int64_t t0_us, int64_t t1_us) const;
-  // One bias sample from [t0, t1], a stretch in which the base turned by `odometry_yaw_rad`
-  // (about 0: it stood still): the gyro's mean rate minus the odometry's. The estimate is the
-  // running mean of the samples, then (past `memory_s` of them) an exponential average; it
-  // replaces the configured bias from the first sample on and applies to every Between() after.
-  enum class BiasSample { kLearned, kNotCovered, kRefused };
-  BiasSample LearnBias(int64_t t0_us, int64_t t1_us, double odometry_yaw_rad,
-                       const GyroBiasOptions& options);
+  // The heading change over [t0, t1] as measured (no bias removed), nullopt when not covered;
+  // what a bias estimate (omni/common/gyro_bias.h) learns from.
+  std::optional<double> RawBetween(int64_t t0_us, int64_t t1_us) const;
   double bias() const { return bias_; }
-  int64_t bias_samples() const { return bias_samples_; }
+  void set_bias(double bias_rad_s) { bias_ = bias_rad_s; }
   bool empty() const { return samples_.empty(); }
   size_t size() const { return samples_.size(); }
 
@@ -86,8 +69,6 @@ class GyroYawSource {
   GyroNoise noise_;
   double bias_;
   size_t capacity_;
-  int64_t bias_samples_ = 0;
-  double bias_learned_s_ = 0;  // still time behind the learned bias
   std::deque<Sample> samples_;
   StampOrder order_;
 };

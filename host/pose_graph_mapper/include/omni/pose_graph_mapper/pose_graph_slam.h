@@ -40,6 +40,7 @@
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
+#include "omni/common/gyro_bias.h"
 #include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
 #include "omni/common/stamp_order.h"
@@ -311,9 +312,6 @@ class PoseGraphSlam {
   void ResetWindow();
   double NowMs() const;
   void TakeOdometry(int64_t utime, const Pose2& raw);  // in order: into the buffer
-  // With the gyro: follows the stretches in which the odometry stands still and takes a gyro
-  // bias sample from every gyro_bias.chunk_s of them (`t` internal time, `p` corrected pose).
-  void TrackStillness(int64_t t, const Pose2& p);
   // A stamp on the mapper's time line (saturating).
   int64_t OnTimeLine(int64_t utime) const;
   // The odometry's re-base at source stamp `first` (stamp_order.h): a clock set back, or
@@ -377,11 +375,8 @@ class PoseGraphSlam {
   void PlaceHeldFixes();  // the held fixes, by the clock decided now
   int last_loop_keyframe_ = -1000000;
   Pose2 last_raw_, last_corrected_, correction_;
-  struct Stillness {
-    bool active = false;     // a candidate still stretch is open
-    Pose2 anchor;            // where it began (corrected odometry)
-    int64_t learn_from = 0;  // internal time the next bias sample starts at
-  } still_;
+  // The gyro's bias, learned from the corrected odometry's still stretches (internal time).
+  StillGyroBias gyro_bias_;
   int64_t last_scan_utime_ = INT64_MIN;
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;

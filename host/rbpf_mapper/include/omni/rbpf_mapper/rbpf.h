@@ -22,6 +22,7 @@
 
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
+#include "omni/common/gyro_bias.h"
 #include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
 #include "omni/common/stamp_order.h"
@@ -94,6 +95,10 @@ struct RbpfOptions {
   double max_odom_jump_rad = 2.0;
   double max_odom_gap_s = 0.5;  // scan without its own odometry: max distance in time
   bool use_imu = false;         // fuse the gyro's yaw increment into the motion model
+  // The gyro's bias (rad/s), taken out of its yaw increments; learned while the odometry says
+  // the base stands still (omni/common/gyro_bias.h), this is where the estimate starts.
+  double imu_bias_rad_s = 0.0;
+  GyroBiasOptions imu_bias_learning;
   // Odometry self-calibration (common/odometry_calibration.h): fitted to the best particle's
   // matched increments, taken out of each odometry increment before the motion model.
   OdometryCalibratorOptions odometry_calibration;
@@ -136,6 +141,9 @@ struct RbpfCounters {
   int64_t odom_jumps = 0;
   int64_t imu_in = 0;
   int64_t imu_invalid = 0;
+  // Gyro bias samples taken while the base stood still, and refused (the base turned beyond
+  // imu_bias_learning.max_rad_s although its wheels did not).
+  int64_t imu_bias_samples = 0, imu_bias_refused = 0;
   int64_t match_failures = 0;  // particle updates that fell back to odometry
   int64_t match_searches = 0;  // particle updates that needed the correlative search
   int64_t resamplings = 0;
@@ -236,6 +244,8 @@ class RbpfSlam {
   int64_t newest_odom_utime() const { return odom_buffer_.newest_utime(); }
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
+  // The gyro bias in use (rad/s): imu_bias_rad_s until one is learned standing still.
+  double imu_bias_rad_s() const { return imu_bias_.bias(); }
   ScanResult AddScan(const ScanInput& scan);
 
   // The best particle: the heaviest after the last update, or, when that update resampled (every
@@ -299,7 +309,9 @@ class RbpfSlam {
   std::optional<Pose2> CorrectedOdom(const ScanInput& scan);
   // A raw odometry step with the calibration's systematic error taken out (when enabled).
   Pose2 CalibratedStep(const Pose2& raw) const;
+  // The gyro's heading change over [t0, t1] with its bias taken out; as measured (Raw).
   std::optional<double> ImuYawIncrement(int64_t t0, int64_t t1) const;
+  std::optional<double> ImuRawIncrement(int64_t t0, int64_t t1) const;
   void Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first);
   void Resample();
   // The particle with the largest weight now (the first on a tie).
@@ -314,6 +326,7 @@ class RbpfSlam {
   RbpfCounters counters_;
   StampedBuffer<Pose2> odom_buffer_;
   std::deque<std::pair<int64_t, double>> imu_;  // (utime, yaw rate)
+  StillGyroBias imu_bias_;                      // learned from the odometry's still stretches
   std::vector<ScanRecord> records_;
   int64_t next_scan_index_ = 0;
   StampOrder scan_order_, imu_order_;
