@@ -101,7 +101,7 @@ void Usage(std::FILE* f) {
       "                 WHEEL_ODOM (100 Hz), WHEEL_ENCODERS and BASE_STATUS are the bridge's\n"
       "  --base ideal   kinematic base, encoder scale errors and noise; WHEEL_ODOM at 50 Hz\n"
       "  --still S      stand still S seconds before the tour (default 0), as a robot does\n"
-      "                 after power-up (the pose-graph mapper learns the gyro's bias then)\n"
+      "                 after power-up (mappers fusing the gyro learn its bias then)\n"
       "  --slip A,B,C   each wheel's mean slip, the fraction of rim motion lost at the ground\n"
       "                 (firmware base; default 0.026,0.010,0.020), redrawn every 5 ms with\n"
       "                 sigma --slip-noise (default 0.01)\n"
