@@ -1,12 +1,14 @@
 #include "omni/base_bridge/base_bridge_node.h"
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 #include "omni/base_bridge/messages.h"
 #include "omni/base_cmd_t.hpp"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/imu_t.hpp"
 
 namespace omni::base_bridge {
 
@@ -15,10 +17,28 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
       bus_(bus),
       clock_(clock),
       bridge_(options),
+      slip_(options.slip),
       heartbeat_(bus, "base_bridge", clock) {
   bus_->Subscribe<omni::base_cmd_t>(o_.cmd_channel, [this](const omni::base_cmd_t& m, int64_t) {
     bridge_.OnCommand(FromMessage(m), clock_->NowUtime());
   });
+  if (o_.slip.enabled) {
+    // The IMU driver stamps with this machine's clock, as the bridge stamps its odometry.
+    bus_->Subscribe<omni::imu_t>(o_.imu_channel, [this](const omni::imu_t& m, int64_t) {
+      (void)slip_.AddGyro(m.utime, m.angular_velocity_rad_s[2]);
+    });
+    const SlipCounters* sc = &slip_.counters();
+    heartbeat_.AddCounter("imu_in", [sc] { return sc->gyro_in; });
+    heartbeat_.AddCounter("imu_rejected", [sc] { return sc->gyro_rejected; });
+    heartbeat_.AddCounter("slip_windows", [sc] { return sc->windows; });
+    heartbeat_.AddCounter("slip_windows_slipping", [sc] { return sc->slip_windows; });
+    heartbeat_.AddCounter("slip_events", [sc] { return sc->slip_events; });
+    heartbeat_.AddCounter("slipping", [this] { return int64_t{slip_.slipping() ? 1 : 0}; });
+    heartbeat_.AddCounter("gyro_bias_samples", [this] { return slip_.bias_samples(); });
+    heartbeat_.AddCounter("gyro_bias_urad_s", [this] {
+      return static_cast<int64_t>(std::llround(slip_.gyro_bias() * 1e6));
+    });
+  }
   const Counters* c = &bridge_.counters();
   heartbeat_.AddCounter("commands_clamped", [c] { return c->commands_clamped; });
   heartbeat_.AddCounter("accel_limited", [c] { return c->accel_limited; });
@@ -115,7 +135,10 @@ void BaseBridgeNode::SpinOnce() {
 
 void BaseBridgeNode::Publish(int64_t now) {
   Odometry od;
-  if (bridge_.TakeOdometry(&od)) bus_->Publish(o_.odom_channel, ToMessage(od, o_));
+  if (bridge_.TakeOdometry(&od)) {
+    bus_->Publish(o_.odom_channel, ToMessage(od, o_));
+    if (o_.slip.enabled) slip_.AddOdometry(od.utime, Pose2(od.x_m, od.y_m, od.yaw_rad));
+  }
   Encoders en;
   if (bridge_.TakeEncoders(&en)) bus_->Publish(o_.encoders_channel, ToMessage(en, o_));
   if (now - last_status_us_ >= static_cast<int64_t>(1e6 / o_.status_rate_hz)) {
@@ -133,7 +156,16 @@ void BaseBridgeNode::Publish(int64_t now) {
       fw_alive_ever_ = fw_alive_ever_ || s.firmware_alive;
       fw_alive_logged_ = s.firmware_alive;
     }
-    const std::string problem = bridge_.Problem(now);
+    if (slip_.slipping() != slip_logged_) {
+      if (slip_.slipping()) {
+        LOG_WARN << slip_.Problem();
+      } else {
+        LOG_INFO << "wheels grip again";
+      }
+      slip_logged_ = slip_.slipping();
+    }
+    std::string problem = bridge_.Problem(now);
+    if (slip_.slipping()) problem += (problem.empty() ? "" : "; ") + slip_.Problem();
     if (problem.empty()) {
       heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "ok");
     } else {

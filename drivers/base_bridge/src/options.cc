@@ -46,6 +46,14 @@ Result<BaseBridgeOptions> Load(Result<ConfigReader> reader) {
   ch.Get("odom", &o.odom_channel, Optional(), NonEmpty());
   ch.Get("encoders", &o.encoders_channel, Optional(), NonEmpty());
   ch.Get("status", &o.status_channel, Optional(), NonEmpty());
+  ch.Get("imu", &o.imu_channel, Optional(), NonEmpty());
+  ConfigReader sl = r.Section("slip");
+  sl.Get("enabled", &o.slip.enabled, Optional());
+  sl.Get("window_s", &o.slip.window_s, Optional(), InRange(0.05, 10.0));
+  sl.Get("threshold_rad", &o.slip.threshold_rad, Optional(), Positive<double>());
+  sl.Get("threshold_fraction", &o.slip.threshold_fraction, Optional(), NonNegative<double>());
+  sl.Get("gyro_bias_rad_s", &o.slip.gyro_bias_rad_s, Optional());
+  ReadGyroBiasOptions(sl.Section("bias_learning"), &o.slip.bias_learning);
   if (o.send_rate_hz * o.command_timeout_s < 2.0) {
     r.AddError("timing.command_timeout_s", "must cover at least two send periods");
   }

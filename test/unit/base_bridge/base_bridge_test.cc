@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <string>
 #include <vector>
 
 #include "omni/base_bridge/base_bridge.h"
@@ -11,6 +12,7 @@
 #include "omni/can/shm_can_bus.h"
 #include "omni/firmware/can_protocol.h"
 #include "omni/firmware/firmware.h"
+#include "omni/imu_t.hpp"
 
 namespace omni::base_bridge {
 namespace {
@@ -352,6 +354,33 @@ TEST(BaseBridgeNodeTest, ReconnectsWhenCanComesBack) {
   EXPECT_TRUE(node.bridge().link_up());
   EXPECT_EQ(node.bridge().counters().reconnects, 1);
   (void)can::ShmCanBus::Remove(name);
+}
+
+// The node takes the IMU's gyro from the bus for the slip check (and refuses and counts a bad
+// sample); with slip.enabled false it does not subscribe.
+TEST(BaseBridgeNodeTest, FeedsTheBusGyroToTheSlipCheck) {
+  for (const bool enabled : {true, false}) {
+    SCOPED_TRACE(enabled ? "slip check on" : "slip check off");
+    const std::string name = "test-bridge-imu-" + std::to_string(getpid());
+    (void)can::ShmCanBus::Remove(name);
+    auto bus = bus::Bus::Create("memq://");
+    ASSERT_TRUE(bus.ok()) << bus.error().ToString();
+    BaseBridgeOptions o = TestOptions();
+    o.can_url = "shm:" + name;
+    o.slip.enabled = enabled;
+    SystemClock clock;
+    BaseBridgeNode node(o, bus->get(), &clock);
+    omni::imu_t m{};
+    for (int i = 0; i < 3; ++i) {
+      m.utime = 1000000 + 10000 * i;
+      m.angular_velocity_rad_s[2] = i == 2 ? std::nan("") : 0.01;
+      bus->get()->Publish(o.imu_channel, m);
+    }
+    for (int i = 0; i < 5; ++i) node.SpinOnce();
+    EXPECT_EQ(node.slip().counters().gyro_in, enabled ? 3 : 0);
+    EXPECT_EQ(node.slip().counters().gyro_rejected, enabled ? 1 : 0);
+    (void)can::ShmCanBus::Remove(name);
+  }
 }
 
 }  // namespace

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/base_bridge/slip_monitor.h"
 #include "omni/common/kinematics.h"
 #include "omni/common/result.h"
 #include "omni/firmware/can_protocol.h"
@@ -56,6 +57,9 @@ struct BaseBridgeOptions {
   std::string odom_channel = "WHEEL_ODOM";
   std::string encoders_channel = "WHEEL_ENCODERS";
   std::string status_channel = "BASE_STATUS";
+  // Wheel slip against the IMU's gyro (imu_t on imu_channel; the node subscribes to it).
+  std::string imu_channel = "IMU";
+  SlipOptions slip;
 };
 
 Result<BaseBridgeOptions> LoadBaseBridgeOptions(const std::string& path);

@@ -21,6 +21,7 @@ class BaseBridgeNode {
   // One iteration (waits at most ~2 ms for CAN traffic). Public for tests.
   void SpinOnce();
   const BaseBridge& bridge() const { return bridge_; }
+  const SlipMonitor& slip() const { return slip_; }
 
  private:
   void TryOpen(int64_t now_us);
@@ -30,6 +31,8 @@ class BaseBridgeNode {
   bus::Bus* bus_;
   const Clock* clock_;
   BaseBridge bridge_;
+  SlipMonitor slip_;
+  bool slip_logged_ = false;  // for the log lines
   bus::Heartbeat heartbeat_;
   std::unique_ptr<can::CanBus> can_;
   int64_t last_open_try_us_ = 0;

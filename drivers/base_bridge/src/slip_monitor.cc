@@ -1,0 +1,114 @@
+#include "omni/base_bridge/slip_monitor.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <optional>
+
+namespace omni::base_bridge {
+namespace {
+constexpr size_t kKeep = 4096;  // samples of each source kept (40 s at 100 Hz)
+}
+
+SlipMonitor::SlipMonitor(const SlipOptions& options)
+    : o_(options), bias_(options.bias_learning, options.gyro_bias_rad_s) {}
+
+bool SlipMonitor::AddGyro(int64_t t, double rate) {
+  ++c_.gyro_in;
+  if (!std::isfinite(rate) || (!gyro_.empty() && t <= gyro_.back().utime)) {
+    ++c_.gyro_rejected;
+    return false;
+  }
+  double integral = 0;
+  if (!gyro_.empty()) {
+    const GyroSample& b = gyro_.back();
+    integral = b.integral + 0.5 * (b.rate + rate) * 1e-6 * static_cast<double>(t - b.utime);
+  }
+  gyro_.push_back({t, rate, integral});
+  while (gyro_.size() > kKeep) gyro_.pop_front();
+  Judge();
+  return true;
+}
+
+void SlipMonitor::AddOdometry(int64_t t, const Pose2& p) {
+  if (!odom_.empty() && t <= odom_.back().first) {
+    odom_.clear();  // time went back: start over (the windows need one time line)
+    bias_.Reset();
+  }
+  const double yaw =
+      odom_.empty() ? p.theta : odom_.back().second + WrapAngle(p.theta - odom_.back().second);
+  odom_.emplace_back(t, yaw);
+  while (odom_.size() > kKeep) odom_.pop_front();
+  // A gyro that fell silent judges nothing: the last verdict does not stand for it.
+  const int64_t window = static_cast<int64_t>(o_.window_s * 1e6);
+  if (gyro_.empty() || t - gyro_.back().utime > 2 * window) slipping_ = false;
+  bias_.AddOdometry(t, p, [this](int64_t a, int64_t b) -> std::optional<double> {
+    double y = 0;
+    return GyroRaw(a, b, &y) ? std::optional<double>(y) : std::nullopt;
+  });
+  Judge();
+}
+
+bool SlipMonitor::GyroRaw(int64_t t0, int64_t t1, double* yaw) const {
+  if (gyro_.size() < 2 || t0 < gyro_.front().utime || t1 > gyro_.back().utime || t1 < t0)
+    return false;
+  auto at = [this](int64_t t) {
+    const auto it = std::lower_bound(gyro_.begin(), gyro_.end(), t,
+                                     [](const GyroSample& s, int64_t v) { return s.utime < v; });
+    if (it->utime == t || it == gyro_.begin()) return it->integral;
+    const GyroSample& a = *(it - 1);
+    const double dt = 1e-6 * static_cast<double>(t - a.utime);
+    const double span = 1e-6 * static_cast<double>(it->utime - a.utime);
+    const double rate_t = a.rate + (it->rate - a.rate) * dt / span;
+    return a.integral + 0.5 * (a.rate + rate_t) * dt;
+  };
+  *yaw = at(t1) - at(t0);
+  return true;
+}
+
+bool SlipMonitor::OdomYaw(int64_t t, double* yaw) const {
+  if (odom_.empty() || t < odom_.front().first || t > odom_.back().first) return false;
+  const auto it =
+      std::lower_bound(odom_.begin(), odom_.end(), t,
+                       [](const std::pair<int64_t, double>& s, int64_t v) { return s.first < v; });
+  if (it->first == t || it == odom_.begin()) {
+    *yaw = it->second;
+    return true;
+  }
+  const auto& a = *(it - 1);
+  const double f = static_cast<double>(t - a.first) / static_cast<double>(it->first - a.first);
+  *yaw = a.second + f * (it->second - a.second);
+  return true;
+}
+
+void SlipMonitor::Judge() {
+  if (!o_.enabled || gyro_.empty() || odom_.empty()) return;
+  const int64_t window = static_cast<int64_t>(o_.window_s * 1e6);
+  const int64_t step = std::max<int64_t>(1, window / 2);  // windows overlap by half
+  const int64_t end = std::min(gyro_.back().utime, odom_.back().first);
+  if (end - last_judged_end_ < step) return;
+  double g = 0, e0 = 0, e1 = 0;
+  if (!GyroRaw(end - window, end, &g) || !OdomYaw(end - window, &e0) || !OdomYaw(end, &e1)) return;
+  last_judged_end_ = end;
+  last_gyro_ = g - bias_.bias() * o_.window_s;
+  last_enc_ = e1 - e0;
+  ++c_.windows;
+  const bool slip = std::abs(last_enc_ - last_gyro_) >
+                    o_.threshold_rad + o_.threshold_fraction * std::abs(last_gyro_);
+  if (slip) {
+    ++c_.slip_windows;
+    if (!slipping_) ++c_.slip_events;
+  }
+  slipping_ = slip;
+}
+
+std::string SlipMonitor::Problem() const {
+  if (!slipping_) return "";
+  char buf[160];
+  std::snprintf(buf, sizeof(buf),
+                "wheels slipping: the encoders turned %.3f rad, the gyro %.3f rad in %.2f s",
+                last_enc_, last_gyro_, o_.window_s);
+  return buf;
+}
+
+}  // namespace omni::base_bridge
