@@ -33,6 +33,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
     heartbeat_.AddCounter("slip_windows", [sc] { return sc->windows; });
     heartbeat_.AddCounter("slip_windows_slipping", [sc] { return sc->slip_windows; });
     heartbeat_.AddCounter("slip_events", [sc] { return sc->slip_events; });
+    heartbeat_.AddCounter("slip_time_rebases", [sc] { return sc->time_rebases; });
     heartbeat_.AddCounter("slipping", [this] { return int64_t{slip_.slipping() ? 1 : 0}; });
     heartbeat_.AddCounter("gyro_bias_samples", [this] { return slip_.bias_samples(); });
     heartbeat_.AddCounter("gyro_bias_urad_s", [this] {

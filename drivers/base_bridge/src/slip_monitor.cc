@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <optional>
 
 namespace omni::base_bridge {
@@ -11,13 +12,40 @@ constexpr size_t kKeep = 4096;  // samples of each source kept (40 s at 100 Hz)
 }
 
 SlipMonitor::SlipMonitor(const SlipOptions& options)
-    : o_(options), bias_(options.bias_learning, options.gyro_bias_rad_s) {}
+    : o_(options), bias_(options.bias_learning, options.gyro_bias_rad_s) {
+  Restart();
+}
+
+void SlipMonitor::Restart() {
+  gyro_.clear();
+  odom_.clear();
+  gyro_order_.Reset();
+  bias_.Reset();
+  last_judged_end_ = std::numeric_limits<int64_t>::min() / 2;
+  slipping_ = false;
+}
 
 bool SlipMonitor::AddGyro(int64_t t, double rate) {
   ++c_.gyro_in;
-  if (!std::isfinite(rate) || (!gyro_.empty() && t <= gyro_.back().utime)) {
+  if (!std::isfinite(rate)) {
     ++c_.gyro_rejected;
     return false;
+  }
+  switch (gyro_order_.Check(t)) {
+    case StampOrder::Verdict::kOld:
+      ++c_.gyro_rejected;
+      return false;
+    case StampOrder::Verdict::kRebase:  // the clock went back (or a sample was from the future)
+      ++c_.time_rebases;
+      Restart();
+      (void)gyro_order_.Check(t);
+      break;
+    case StampOrder::Verdict::kInOrder:
+      if (!gyro_.empty() && t == gyro_.back().utime) {
+        ++c_.gyro_rejected;
+        return false;
+      }
+      break;
   }
   double integral = 0;
   if (!gyro_.empty()) {
@@ -32,8 +60,10 @@ bool SlipMonitor::AddGyro(int64_t t, double rate) {
 
 void SlipMonitor::AddOdometry(int64_t t, const Pose2& p) {
   if (!odom_.empty() && t <= odom_.back().first) {
-    odom_.clear();  // time went back: start over (the windows need one time line)
-    bias_.Reset();
+    // The bridge's own clock went back: start over (the windows need one time line); the
+    // gyro's samples on the old clock go too, the IMU driver's clock being the same.
+    ++c_.time_rebases;
+    Restart();
   }
   const double yaw =
       odom_.empty() ? p.theta : odom_.back().second + WrapAngle(p.theta - odom_.back().second);

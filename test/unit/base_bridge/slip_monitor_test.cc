@@ -70,5 +70,30 @@ TEST(SlipMonitor, ASilentGyroClearsTheVerdict) {
   EXPECT_EQ(m.counters().slip_events, 1);
 }
 
+// The machine's clock set back by 100 s (both streams are stamped by it): the histories start
+// over on the new time line and the windows are judged again; a lone gyro sample from the
+// past is refused.
+TEST(SlipMonitor, StartsOverWhenTheClockGoesBack) {
+  SlipMonitor m{SlipOptions{}};
+  double enc = 0;
+  auto feed = [&](int64_t t0, int n) {
+    for (int k = 1; k <= n; ++k) {
+      const int64_t t = t0 + 10'000 * int64_t{k};
+      m.AddGyro(t, 0.5);
+      enc += 0.005;
+      m.AddOdometry(t, Pose2(0, 0, WrapAngle(enc)));
+    }
+  };
+  feed(200'000'000, 200);
+  const int64_t judged = m.counters().windows;
+  EXPECT_GE(judged, 6);
+  EXPECT_FALSE(m.AddGyro(100'000'000, 0.5));  // one from the past: refused
+  feed(100'000'000, 200);                     // the clock went back for good
+  EXPECT_GE(m.counters().windows, judged + 6);
+  EXPECT_GE(m.counters().time_rebases, 1);
+  EXPECT_EQ(m.counters().slip_windows, 0);
+  EXPECT_FALSE(m.slipping());
+}
+
 }  // namespace
 }  // namespace omni::base_bridge

@@ -15,6 +15,7 @@
 
 #include "omni/common/geometry.h"
 #include "omni/common/gyro_bias.h"
+#include "omni/common/stamp_order.h"
 
 namespace omni::base_bridge {
 
@@ -33,6 +34,7 @@ struct SlipCounters {
   int64_t windows = 0;        // windows judged (both sources covered them)
   int64_t slip_windows = 0;   // ... of which the headings disagreed
   int64_t slip_events = 0;    // runs of slipping windows
+  int64_t time_rebases = 0;   // a clock that went back: the history is started over
 };
 
 class SlipMonitor {
@@ -54,6 +56,7 @@ class SlipMonitor {
 
  private:
   void Judge();
+  void Restart();  // forgets both histories and the verdict (a clock went back)
   // Raw gyro heading change over [t0, t1] (no bias removed); false if not covered.
   bool GyroRaw(int64_t t0, int64_t t1, double* yaw) const;
   bool OdomYaw(int64_t t, double* yaw) const;  // unwrapped heading, interpolated
@@ -66,6 +69,7 @@ class SlipMonitor {
   };
   std::deque<GyroSample> gyro_;
   std::deque<std::pair<int64_t, double>> odom_;  // (utime, unwrapped heading)
+  StampOrder gyro_order_;
   int64_t last_judged_end_ = 0;
   bool slipping_ = false;
   double last_enc_ = 0, last_gyro_ = 0;  // of the last judged window
