@@ -5,41 +5,6 @@
 
 namespace omni::pgm {
 
-bool GyroYawSource::AddSample(int64_t utime, double rate) {
-  if (!std::isfinite(rate)) return false;
-  switch (order_.Check(utime)) {
-    case StampOrder::Verdict::kOld:
-      return false;
-    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
-      while (!samples_.empty() && samples_.back().utime >= utime) samples_.pop_back();
-      break;
-    case StampOrder::Verdict::kInOrder:
-      if (!samples_.empty() && utime == samples_.back().utime) return false;  // strictly newer
-      break;
-  }
-  double integral = 0.0;
-  if (!samples_.empty()) {
-    const Sample& last = samples_.back();
-    integral =
-        last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
-  }
-  samples_.push_back({utime, rate, integral});
-  while (samples_.size() > capacity_) samples_.pop_front();
-  return true;
-}
-
-double GyroYawSource::IntegralAt(int64_t t) const {
-  const auto it = std::lower_bound(samples_.begin(), samples_.end(), t,
-                                   [](const Sample& s, int64_t v) { return s.utime < v; });
-  if (it->utime == t || it == samples_.begin()) return it->integral;
-  const Sample& a = *(it - 1);
-  const Sample& b = *it;
-  const double dt = 1e-6 * static_cast<double>(t - a.utime);
-  const double span = 1e-6 * static_cast<double>(b.utime - a.utime);
-  const double rate_t = a.rate + (b.rate - a.rate) * dt / span;
-  return a.integral + 0.5 * (a.rate + rate_t) * dt;
-}
-
 std::optional<GyroYawSource::Yaw> GyroYawSource::Between(int64_t t0, int64_t t1) const {
   const std::optional<double> raw = RawBetween(t0, t1);
   if (!raw) return std::nullopt;
@@ -48,12 +13,6 @@ std::optional<GyroYawSource::Yaw> GyroYawSource::Between(int64_t t0, int64_t t1)
   y.variance = noise_.angle_var_per_s * 1e-6 * static_cast<double>(t1 - t0) +
                noise_.angle_var_per_rad * std::abs(y.delta_rad);
   return y;
-}
-
-std::optional<double> GyroYawSource::RawBetween(int64_t t0, int64_t t1) const {
-  if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
-    return std::nullopt;
-  return IntegralAt(t1) - IntegralAt(t0);
 }
 
 std::optional<RelativeMotion> OdometryGyroSource::Between(int64_t t0, int64_t t1) const {

@@ -12,14 +12,13 @@ constexpr size_t kKeep = 4096;  // samples of each source kept (40 s at 100 Hz)
 }
 
 SlipMonitor::SlipMonitor(const SlipOptions& options)
-    : o_(options), bias_(options.bias_learning, options.gyro_bias_rad_s) {
+    : o_(options), bias_(options.bias_learning, options.gyro_bias_rad_s), gyro_(kKeep) {
   Restart();
 }
 
 void SlipMonitor::Restart() {
-  gyro_.clear();
+  gyro_.Reset();
   odom_.clear();
-  gyro_order_.Reset();
   bias_.Reset();
   last_judged_end_ = std::numeric_limits<int64_t>::min() / 2;
   slipping_ = false;
@@ -27,33 +26,18 @@ void SlipMonitor::Restart() {
 
 bool SlipMonitor::AddGyro(int64_t t, double rate) {
   ++c_.gyro_in;
-  if (!std::isfinite(rate)) {
-    ++c_.gyro_rejected;
-    return false;
-  }
-  switch (gyro_order_.Check(t)) {
-    case StampOrder::Verdict::kOld:
+  switch (gyro_.Add(t, rate)) {
+    case GyroRateHistory::Added::kRefused:  // non-finite, older, or the same time
       ++c_.gyro_rejected;
       return false;
-    case StampOrder::Verdict::kRebase:  // the clock went back (or a sample was from the future)
+    case GyroRateHistory::Added::kRebased:  // the clock went back, or one was from the future
       ++c_.time_rebases;
-      Restart();
-      (void)gyro_order_.Check(t);
+      last_judged_end_ = std::numeric_limits<int64_t>::min() / 2;
+      slipping_ = false;
       break;
-    case StampOrder::Verdict::kInOrder:
-      if (!gyro_.empty() && t == gyro_.back().utime) {
-        ++c_.gyro_rejected;
-        return false;
-      }
+    case GyroRateHistory::Added::kInOrder:
       break;
   }
-  double integral = 0;
-  if (!gyro_.empty()) {
-    const GyroSample& b = gyro_.back();
-    integral = b.integral + 0.5 * (b.rate + rate) * 1e-6 * static_cast<double>(t - b.utime);
-  }
-  gyro_.push_back({t, rate, integral});
-  while (gyro_.size() > kKeep) gyro_.pop_front();
   Judge();
   return true;
 }
@@ -71,29 +55,9 @@ void SlipMonitor::AddOdometry(int64_t t, const Pose2& p) {
   while (odom_.size() > kKeep) odom_.pop_front();
   // A gyro that fell silent judges nothing: the last verdict does not stand for it.
   const int64_t window = static_cast<int64_t>(o_.window_s * 1e6);
-  if (gyro_.empty() || t - gyro_.back().utime > 2 * window) slipping_ = false;
-  bias_.AddOdometry(t, p, [this](int64_t a, int64_t b) -> std::optional<double> {
-    double y = 0;
-    return GyroRaw(a, b, &y) ? std::optional<double>(y) : std::nullopt;
-  });
+  if (gyro_.empty() || t - gyro_.newest_utime() > 2 * window) slipping_ = false;
+  bias_.AddOdometry(t, p, [this](int64_t a, int64_t b) { return gyro_.Between(a, b); });
   Judge();
-}
-
-bool SlipMonitor::GyroRaw(int64_t t0, int64_t t1, double* yaw) const {
-  if (gyro_.size() < 2 || t0 < gyro_.front().utime || t1 > gyro_.back().utime || t1 < t0)
-    return false;
-  auto at = [this](int64_t t) {
-    const auto it = std::lower_bound(gyro_.begin(), gyro_.end(), t,
-                                     [](const GyroSample& s, int64_t v) { return s.utime < v; });
-    if (it->utime == t || it == gyro_.begin()) return it->integral;
-    const GyroSample& a = *(it - 1);
-    const double dt = 1e-6 * static_cast<double>(t - a.utime);
-    const double span = 1e-6 * static_cast<double>(it->utime - a.utime);
-    const double rate_t = a.rate + (it->rate - a.rate) * dt / span;
-    return a.integral + 0.5 * (a.rate + rate_t) * dt;
-  };
-  *yaw = at(t1) - at(t0);
-  return true;
 }
 
 bool SlipMonitor::OdomYaw(int64_t t, double* yaw) const {
@@ -115,12 +79,13 @@ void SlipMonitor::Judge() {
   if (!o_.enabled || gyro_.empty() || odom_.empty()) return;
   const int64_t window = static_cast<int64_t>(o_.window_s * 1e6);
   const int64_t step = std::max<int64_t>(1, window / 2);  // windows overlap by half
-  const int64_t end = std::min(gyro_.back().utime, odom_.back().first);
+  const int64_t end = std::min(gyro_.newest_utime(), odom_.back().first);
   if (end - last_judged_end_ < step) return;
-  double g = 0, e0 = 0, e1 = 0;
-  if (!GyroRaw(end - window, end, &g) || !OdomYaw(end - window, &e0) || !OdomYaw(end, &e1)) return;
+  const std::optional<double> g = gyro_.Between(end - window, end);
+  double e0 = 0, e1 = 0;
+  if (!g || !OdomYaw(end - window, &e0) || !OdomYaw(end, &e1)) return;
   last_judged_end_ = end;
-  last_gyro_ = g - bias_.bias() * o_.window_s;
+  last_gyro_ = *g - bias_.bias() * o_.window_s;
   last_enc_ = e1 - e0;
   ++c_.windows;
   const bool slip = std::abs(last_enc_ - last_gyro_) >

@@ -12,10 +12,11 @@
 #include <cstdint>
 #include <deque>
 #include <string>
+#include <utility>
 
 #include "omni/common/geometry.h"
 #include "omni/common/gyro_bias.h"
-#include "omni/common/stamp_order.h"
+#include "omni/common/gyro_history.h"
 
 namespace omni::base_bridge {
 
@@ -57,19 +58,12 @@ class SlipMonitor {
  private:
   void Judge();
   void Restart();  // forgets both histories and the verdict (a clock went back)
-  // Raw gyro heading change over [t0, t1] (no bias removed); false if not covered.
-  bool GyroRaw(int64_t t0, int64_t t1, double* yaw) const;
   bool OdomYaw(int64_t t, double* yaw) const;  // unwrapped heading, interpolated
 
   SlipOptions o_;
   StillGyroBias bias_;
-  struct GyroSample {
-    int64_t utime;
-    double rate, integral;
-  };
-  std::deque<GyroSample> gyro_;
+  GyroRateHistory gyro_;                         // the samples as measured
   std::deque<std::pair<int64_t, double>> odom_;  // (utime, unwrapped heading)
-  StampOrder gyro_order_;
   int64_t last_judged_end_ = 0;
   bool slipping_ = false;
   double last_enc_ = 0, last_gyro_ = 0;  // of the last judged window

@@ -10,11 +10,10 @@
 
 #include <atomic>
 #include <cstdint>
-#include <deque>
 #include <optional>
 #include <string>
 
-#include "omni/common/stamp_order.h"
+#include "omni/common/gyro_history.h"
 #include "omni/pose_graph_mapper/continuous_source.h"
 
 namespace omni::pgm {
@@ -32,17 +31,16 @@ class GyroYawSource {
   // read afterwards: the samples are kept as measured); `capacity` samples are kept (oldest
   // dropped).
   explicit GyroYawSource(GyroNoise noise = {}, double bias_rad_s = 0.0, size_t capacity = 200000)
-      : noise_(noise), bias_(bias_rad_s), capacity_(capacity) {}
+      : noise_(noise), bias_(bias_rad_s), history_(capacity) {}
   // False (to be counted by the caller) for a non-finite rate or a time older than the newest
   // sample; a repeated time replaces nothing and is also refused. A run of older samples in
   // order re-bases the stream (the newest was stamped in the future; stamp_order.h).
-  bool AddSample(int64_t utime, double yaw_rate_rad_s);
-  int64_t rebases() const { return order_.rebases(); }
-  // Forgets every sample and the stream's order (the caller moved to another time line).
-  void Reset() {
-    samples_.clear();
-    order_.Reset();
+  bool AddSample(int64_t utime, double yaw_rate_rad_s) {
+    return history_.Add(utime, yaw_rate_rad_s) != GyroRateHistory::Added::kRefused;
   }
+  int64_t rebases() const { return history_.rebases(); }
+  // Forgets every sample and the stream's order (the caller moved to another time line).
+  void Reset() { history_.Reset(); }
   struct Yaw {
     double delta_rad = 0;
     double variance = 0;
@@ -52,25 +50,18 @@ class GyroYawSource {
   std::optional<Yaw> Between(int64_t t0_us, int64_t t1_us) const;
   // The heading change over [t0, t1] as measured (no bias removed), nullopt when not covered;
   // what a bias estimate (omni/common/gyro_bias.h) learns from.
-  std::optional<double> RawBetween(int64_t t0_us, int64_t t1_us) const;
+  std::optional<double> RawBetween(int64_t t0_us, int64_t t1_us) const {
+    return history_.Between(t0_us, t1_us);
+  }
   double bias() const { return bias_; }
   void set_bias(double bias_rad_s) { bias_ = bias_rad_s; }
-  bool empty() const { return samples_.empty(); }
-  size_t size() const { return samples_.size(); }
+  bool empty() const { return history_.empty(); }
+  size_t size() const { return history_.size(); }
 
  private:
-  struct Sample {
-    int64_t utime;
-    double rate;      // rad/s as measured (bias not removed)
-    double integral;  // rad, from the oldest sample ever kept to this one
-  };
-  double IntegralAt(int64_t utime) const;  // utime within the kept samples
-
   GyroNoise noise_;
   double bias_;
-  size_t capacity_;
-  std::deque<Sample> samples_;
-  StampOrder order_;
+  GyroRateHistory history_;  // the samples as measured (bias not removed)
 };
 
 // Wheel odometry with the gyro's heading fused in, step by step (see the top of this file).

@@ -1,0 +1,54 @@
+// A gyro's yaw-rate samples as measured, with their running integral: the heading change between
+// any two times they cover (the rate taken as linear between samples, so a ramp integrates
+// exactly). Time order is kept as for the other streams (stamp_order.h): an older sample is
+// refused, unless a run of them shows the clock went back, which re-bases the history.
+// The pose graph's gyro source and the base bridge's slip check keep their samples in one.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <optional>
+
+#include "omni/common/stamp_order.h"
+
+namespace omni {
+
+class GyroRateHistory {
+ public:
+  explicit GyroRateHistory(size_t capacity) : capacity_(capacity < 2 ? 2 : capacity) {}
+
+  enum class Added {
+    kInOrder,  // taken
+    kRebased,  // taken; the samples at or after it (stamped ahead of the new run) were dropped
+    kRefused,  // non-finite, older than the newest (it may start a run), or the same time
+  };
+  // The oldest samples are dropped beyond `capacity`.
+  Added Add(int64_t utime, double rate_rad_s);
+  // The heading change over [t0, t1] (rad, as measured: no bias removed), nullopt when the
+  // samples do not cover the interval.
+  std::optional<double> Between(int64_t t0_us, int64_t t1_us) const;
+  // Forgets every sample and the stream's order (the caller moved to another time line).
+  void Reset() {
+    samples_.clear();
+    order_.Reset();
+  }
+  int64_t rebases() const { return order_.rebases(); }
+  bool empty() const { return samples_.empty(); }
+  size_t size() const { return samples_.size(); }
+  int64_t newest_utime() const { return samples_.empty() ? INT64_MIN : samples_.back().utime; }
+
+ private:
+  struct Sample {
+    int64_t utime;
+    double rate;      // rad/s
+    double integral;  // rad, from the oldest sample ever kept to this one
+  };
+  double IntegralAt(int64_t utime) const;  // utime within the kept samples
+
+  size_t capacity_;
+  std::deque<Sample> samples_;
+  StampOrder order_;
+};
+
+}  // namespace omni

@@ -1,0 +1,51 @@
+#include "omni/common/gyro_history.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace omni {
+
+GyroRateHistory::Added GyroRateHistory::Add(int64_t utime, double rate) {
+  if (!std::isfinite(rate)) return Added::kRefused;
+  Added added = Added::kInOrder;
+  switch (order_.Check(utime)) {
+    case StampOrder::Verdict::kOld:
+      return Added::kRefused;
+    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
+      while (!samples_.empty() && samples_.back().utime >= utime) samples_.pop_back();
+      added = Added::kRebased;
+      break;
+    case StampOrder::Verdict::kInOrder:
+      if (!samples_.empty() && utime == samples_.back().utime) return Added::kRefused;
+      break;
+  }
+  double integral = 0.0;
+  if (!samples_.empty()) {
+    const Sample& last = samples_.back();
+    integral =
+        last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
+  }
+  samples_.push_back({utime, rate, integral});
+  while (samples_.size() > capacity_) samples_.pop_front();
+  return added;
+}
+
+double GyroRateHistory::IntegralAt(int64_t t) const {
+  const auto it = std::lower_bound(samples_.begin(), samples_.end(), t,
+                                   [](const Sample& s, int64_t v) { return s.utime < v; });
+  if (it->utime == t || it == samples_.begin()) return it->integral;
+  const Sample& a = *(it - 1);
+  const Sample& b = *it;
+  const double dt = 1e-6 * static_cast<double>(t - a.utime);
+  const double span = 1e-6 * static_cast<double>(b.utime - a.utime);
+  const double rate_t = a.rate + (b.rate - a.rate) * dt / span;
+  return a.integral + 0.5 * (a.rate + rate_t) * dt;
+}
+
+std::optional<double> GyroRateHistory::Between(int64_t t0, int64_t t1) const {
+  if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
+    return std::nullopt;
+  return IntegralAt(t1) - IntegralAt(t0);
+}
+
+}  // namespace omni
