@@ -198,12 +198,11 @@ void RbpfSlam::Reset(const RbpfOptions& o) {
   master_rng_.seed(o.seed);
   counters_ = RbpfCounters{};
   odom_buffer_ = StampedBuffer<Pose2>(100000);
-  imu_.clear();
+  imu_.Reset();
   imu_bias_ = StillGyroBias(o.imu_bias_learning, o.imu_bias_rad_s);
   records_.clear();
   next_scan_index_ = 0;
   scan_order_ = StampOrder();
-  imu_order_ = StampOrder();
   last_raw_odom_.reset();
   odom_correction_ = Pose2();
   have_update_ = false;
@@ -298,23 +297,16 @@ bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
       prelude_.emplace_back(ImuEvent{utime, rate});
   }
   ++counters_.imu_in;
-  if (!std::isfinite(rate)) {
-    ++counters_.imu_invalid;
-    return false;
-  }
-  switch (imu_order_.Check(utime)) {
-    case StampOrder::Verdict::kOld:
+  switch (imu_.Add(utime, rate)) {
+    case GyroRateHistory::Added::kRefused:  // non-finite, older, or the same time again
       ++counters_.imu_invalid;
       return false;
-    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
+    case GyroRateHistory::Added::kRebased:  // the newest samples were stamped in the future
       ++counters_.time_rebases;
-      while (!imu_.empty() && imu_.back().first > utime) imu_.pop_back();
       break;
-    case StampOrder::Verdict::kInOrder:
+    case GyroRateHistory::Added::kInOrder:
       break;
   }
-  imu_.emplace_back(utime, rate);
-  while (imu_.size() > 100000) imu_.pop_front();
   return true;
 }
 
@@ -325,21 +317,8 @@ std::optional<double> RbpfSlam::ImuYawIncrement(int64_t t0, int64_t t1) const {
 }
 
 std::optional<double> RbpfSlam::ImuRawIncrement(int64_t t0, int64_t t1) const {
-  if (imu_.size() < 2 || imu_.front().first > t0 || imu_.back().first < t1 || t1 <= t0)
-    return std::nullopt;
-  // Trapezoid over the samples, with the rate held piecewise-linear between samples.
-  double sum = 0;
-  for (size_t i = 1; i < imu_.size(); ++i) {
-    const int64_t a = std::max(imu_[i - 1].first, t0), b = std::min(imu_[i].first, t1);
-    if (b <= a) continue;
-    const double span = static_cast<double>(imu_[i].first - imu_[i - 1].first);
-    auto rate_at = [&](int64_t t) {
-      const double f = span > 0 ? static_cast<double>(t - imu_[i - 1].first) / span : 0.0;
-      return imu_[i - 1].second + f * (imu_[i].second - imu_[i - 1].second);
-    };
-    sum += 0.5 * (rate_at(a) + rate_at(b)) * static_cast<double>(b - a) * 1e-6;
-  }
-  return sum;
+  if (t1 <= t0) return std::nullopt;
+  return imu_.Between(t0, t1);
 }
 
 std::optional<Pose2> RbpfSlam::RawOdometryAt(int64_t utime) const {

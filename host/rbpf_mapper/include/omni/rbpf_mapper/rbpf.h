@@ -23,6 +23,7 @@
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
 #include "omni/common/gyro_bias.h"
+#include "omni/common/gyro_history.h"
 #include "omni/common/odometry_calibration.h"
 #include "omni/common/result.h"
 #include "omni/common/stamp_order.h"
@@ -325,11 +326,11 @@ class RbpfSlam {
   std::vector<Particle> particles_;
   RbpfCounters counters_;
   StampedBuffer<Pose2> odom_buffer_;
-  std::deque<std::pair<int64_t, double>> imu_;  // (utime, yaw rate)
-  StillGyroBias imu_bias_;                      // learned from the odometry's still stretches
+  GyroRateHistory imu_{100000};  // the gyro's yaw rates as measured
+  StillGyroBias imu_bias_;       // learned from the odometry's still stretches
   std::vector<ScanRecord> records_;
   int64_t next_scan_index_ = 0;
-  StampOrder scan_order_, imu_order_;
+  StampOrder scan_order_;
   std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
