@@ -38,7 +38,7 @@ double StillGyroBias::OdometryYawAt(int64_t t) const {
   const auto& a = *(it - 1);
   const auto& b = *it;
   const double f = static_cast<double>(t - a.first) / static_cast<double>(b.first - a.first);
-  return a.second + f * WrapAngle(b.second - a.second);
+  return a.second + f * (b.second - a.second);  // unwrapped (AddOdometry)
 }
 
 bool StillGyroBias::AddOdometry(int64_t t, const Pose2& p, const RawYaw& gyro) {

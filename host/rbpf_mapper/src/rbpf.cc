@@ -281,7 +281,7 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
   }
   counters_.time_rebases += odom_buffer_.rebases() - rebases;
   if (opt_.use_imu) {
-    if (odom_buffer_.rebases() != rebases) imu_bias_.Reset();  // its still stretch is gone
+    // (A re-based, older sample also restarts the estimator's still stretch.)
     imu_bias_.AddOdometry(utime, p, [this](int64_t a, int64_t b) { return ImuRawIncrement(a, b); });
     counters_.imu_bias_samples = imu_bias_.samples();
     counters_.imu_bias_refused = imu_bias_.refused();
