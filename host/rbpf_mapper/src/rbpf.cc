@@ -55,6 +55,10 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("likelihood_gain", &o.likelihood_gain, Optional(), InRange(1e-6, 100.0));
   r.Get("sparse_likelihood_gain", &o.sparse_likelihood_gain, Optional(), InRange(1e-6, 100.0));
   r.Get("report_switch_log_margin", &o.report_switch_log_margin, Optional(), InRange(0.0, 1000.0));
+  std::string final_particle = o.final_particle == FinalParticle::kCurrent ? "current" : "ancestry";
+  r.Get("final_particle", &final_particle, Optional(), OneOf({"ancestry", "current"}));
+  o.final_particle =
+      final_particle == "current" ? FinalParticle::kCurrent : FinalParticle::kAncestry;
   std::string proposal = o.proposal == ProposalKind::kGaussian ? "gaussian" : "match";
   r.Get("proposal", &proposal, Optional(), OneOf({"match", "gaussian"}));
   o.proposal = proposal == "gaussian" ? ProposalKind::kGaussian : ProposalKind::kMatch;
@@ -508,6 +512,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
         log_w = opt_.likelihood_gain * matcher_.Score(p.map, pred, mscan).log_likelihood;
       }
       p.log_weight += log_w;
+      p.path_log_weight += log_w;
     }
     p.map.IntegrateScan(p.pose * scan.sensor_in_base, points, hit);
     auto node = std::make_shared<TrajectoryNode>();
@@ -554,7 +559,12 @@ void RbpfSlam::Resample() {
   for (size_t i = 0; i < n; ++i) sum += (w[i] = std::exp(particles_[i].log_weight - mx));
   for (auto& v : w) v /= sum;
   // Keep log weights bounded without changing their ratios.
-  for (auto& p : particles_) p.log_weight -= mx;
+  double path_mx = -std::numeric_limits<double>::infinity();
+  for (const auto& p : particles_) path_mx = std::max(path_mx, p.path_log_weight);
+  for (auto& p : particles_) {
+    p.log_weight -= mx;
+    p.path_log_weight -= path_mx;
+  }
   if (EffectiveSampleSize(w) >= opt_.resample_threshold * static_cast<double>(n)) return;
   ++counters_.resamplings;
   const std::vector<int> pick = LowVarianceResample(w, static_cast<int>(n), master_rng_);
@@ -575,6 +585,7 @@ void RbpfSlam::Resample() {
     const Particle& src = particles_[static_cast<size_t>(pick[j])];
     c.pose = src.pose;
     c.log_weight = 0;
+    c.path_log_weight = src.path_log_weight;
     c.map = src.map;  // shares every tile
     c.node = src.node;
     c.rng.seed(master_rng_());
@@ -591,10 +602,19 @@ int RbpfSlam::HeaviestIndex() const {
   return best;
 }
 
+int RbpfSlam::final_index() const {
+  if (opt_.final_particle == FinalParticle::kCurrent) return best_index();
+  int best = best_index();  // ties go to the best by the current weight
+  for (size_t i = 0; i < particles_.size(); ++i)
+    if (particles_[i].path_log_weight > particles_[static_cast<size_t>(best)].path_log_weight)
+      best = static_cast<int>(i);
+  return best;
+}
+
 std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
   std::vector<EstimatedPose> out;
   if (records_.empty()) return out;
-  const Particle& b = particles_[static_cast<size_t>(best_index())];
+  const Particle& b = particles_[static_cast<size_t>(final_index())];
   // Processed scan index -> pose on the best particle's path.
   std::vector<std::pair<int64_t, Pose2>> path;
   for (const TrajectoryNode* n = b.node.get(); n; n = n->parent.get())

@@ -180,7 +180,7 @@ TEST(RbpfMapperNode, PublishesAFineMapOnCoarserCells) {
   while (b.HandleTimeout(0) > 0) {
   }
   EXPECT_GE(grids, 2);
-  const io::GridMap fine = node.slam().BestMap();
+  const io::GridMap fine = node.slam().ReportedMap();  // the published particle's
   ASSERT_DOUBLE_EQ(fine.resolution_m, 0.025);
   const io::GridMap expected = io::CoarsenGrid(fine, 2);
   EXPECT_EQ(last.width, expected.width);

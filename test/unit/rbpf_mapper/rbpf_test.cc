@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -597,6 +598,7 @@ TEST(RbpfSlam, TheBestParticleSurvivesAResamplingAsItsChild) {
   o.threads = 2;
   o.report_switch_log_margin = 0.0;
   o.resample_threshold = 1.0;  // resample after (nearly) every update
+  o.final_particle = FinalParticle::kCurrent;
   int not_first = 0;
   ScanResult last;
   const PrefixRun run = RunPrefixWith(path, 150, o, [&](const RbpfSlam& slam, const ScanResult& r) {
@@ -616,6 +618,61 @@ TEST(RbpfSlam, TheBestParticleSurvivesAResamplingAsItsChild) {
   ASSERT_EQ(end.scan_index, last.scan_index);
   EXPECT_EQ(end.pose.x, last.pose.x);
   EXPECT_EQ(end.pose.theta, last.pose.theta);
+}
+
+// The final estimate is the particle whose whole ancestry weighs most: a resampling hands its
+// path weight to every child, and without resamplings it is the heaviest since the start.
+TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  RbpfOptions o;
+  o.particles = 8;
+  o.threads = 2;
+  o.resample_threshold = 0.0;  // never resample: both weights sum the same factors
+  int updates = 0;
+  RunPrefixWith(path, 80, o, [&](const RbpfSlam& slam, const ScanResult& r) {
+    if (!r.processed) return;
+    ++updates;
+    EXPECT_EQ(slam.final_index(), slam.best_index()) << r.scan_index;
+  });
+  EXPECT_GT(updates, 20);
+
+  o.resample_threshold = 1.0;  // resample after (nearly) every update
+  int differs = 0, sibling_pairs = 0;
+  int64_t last_processed = -1;
+  RbpfSlam slam(o);
+  auto log = io::ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok());
+  size_t n = 0;
+  for (const auto& rec : log->records) {
+    if (rec.kind != io::CarmenRecord::Kind::kLaser) continue;
+    if (n++ >= 150) break;
+    const ScanResult r = slam.AddScan(ToInput(rec.laser));
+    if (!r.processed) continue;
+    last_processed = r.scan_index;
+    const auto& ps = slam.particles();
+    double heaviest = -std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < ps.size(); ++i) {
+      heaviest = std::max(heaviest, ps[i].path_log_weight);
+      for (size_t j = i + 1; j < ps.size(); ++j)
+        if (ps[i].log_weight == 0 && ps[i].node == ps[j].node) {  // children of one parent
+          ++sibling_pairs;
+          EXPECT_EQ(ps[i].path_log_weight, ps[j].path_log_weight) << r.scan_index;
+        }
+    }
+    EXPECT_EQ(ps[static_cast<size_t>(slam.final_index())].path_log_weight, heaviest);
+    differs += slam.final_index() != slam.best_index();
+  }
+  EXPECT_GT(slam.counters().resamplings, 20);
+  EXPECT_GT(sibling_pairs, 5);
+  EXPECT_GT(differs, 5);  // the weight since the last resampling is one update's
+  // The final trajectory is the final particle's path: its pose at the last update.
+  const Pose2 final_pose = slam.particles()[static_cast<size_t>(slam.final_index())].pose;
+  const auto traj = slam.BestTrajectory();
+  ASSERT_GT(last_processed, 0);
+  ASSERT_GT(traj.size(), static_cast<size_t>(last_processed));
+  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].scan_index, last_processed);
+  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].pose.x, final_pose.x);
+  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].pose.theta, final_pose.theta);
 }
 
 // A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the

@@ -38,6 +38,8 @@
 namespace omni::rbpf {
 
 // How a particle's new pose follows from its scan match.
+enum class FinalParticle { kAncestry, kCurrent };
+
 enum class ProposalKind {
   kMatch,     // the particle becomes the match optimum; weight: likelihood there
   kGaussian,  // drawn from the Gaussian fitted around the optimum (proposal.h); weight: eta
@@ -80,8 +82,14 @@ struct RbpfOptions {
   // published stays the same lineage until another particle's log weight exceeds its own by
   // this much; 0: always the best. With flat weights the best changes often between particles
   // whose paths differ, and each change is a jump of the published pose. The final
-  // trajectory and saved maps are always the best particle's (docs/rbpf.md, "Flat weights").
+  // trajectory and saved maps are final_particle's (docs/rbpf.md, "Flat weights").
   double report_switch_log_margin = 3.0;
+  // The particle whose path and map are the final estimate (BestTrajectory, BestMap): kAncestry
+  // the highest weight summed over every update of its whole ancestry (GMapping's choice for
+  // its final map); kCurrent the heaviest since the last resampling (best_index()). With flat
+  // weights the weights since a resampling hardly differ, and the whole path's weight is the
+  // better judge (docs/rbpf.md, "The final particle by its whole path's weight").
+  FinalParticle final_particle = FinalParticle::kAncestry;
   ProposalKind proposal = ProposalKind::kMatch;
   ProposalGridOptions proposal_grid;  // kGaussian: the points the Gaussian is fitted on
   bool proposal_draw = true;  // kGaussian: draw the pose (false: keep the optimum, weigh by eta)
@@ -187,7 +195,8 @@ struct TrajectoryNode {
 
 struct Particle {
   Pose2 pose;
-  double log_weight = 0;
+  double log_weight = 0;       // since the last resampling
+  double path_log_weight = 0;  // every update's factor over the whole ancestry (shifted together)
   TiledGrid map;
   std::shared_ptr<const TrajectoryNode> node;
   std::mt19937_64 rng;
@@ -253,8 +262,11 @@ class RbpfSlam {
   // weight is then equal), the heaviest's child.
   int best_index() const { return best_lineage_; }
   Pose2 BestPose() const { return particles_[static_cast<size_t>(best_index())].pose; }
+  // The final estimate's particle (RbpfOptions::final_particle); BestMap and BestTrajectory
+  // are its map and path.
+  int final_index() const;
   io::GridMap BestMap() const {
-    return particles_[static_cast<size_t>(best_index())].map.ToGridMap();
+    return particles_[static_cast<size_t>(final_index())].map.ToGridMap();
   }
   // The reported particle (RbpfOptions::report_switch_log_margin): its pose is the one AddScan
   // returns; the process publishes its map.
