@@ -639,15 +639,9 @@ TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
   o.resample_threshold = 1.0;  // resample after (nearly) every update
   int differs = 0, sibling_pairs = 0;
   int64_t last_processed = -1;
-  RbpfSlam slam(o);
-  auto log = io::ReadCarmenLog(path);
-  ASSERT_TRUE(log.ok());
-  size_t n = 0;
-  for (const auto& rec : log->records) {
-    if (rec.kind != io::CarmenRecord::Kind::kLaser) continue;
-    if (n++ >= 150) break;
-    const ScanResult r = slam.AddScan(ToInput(rec.laser));
-    if (!r.processed) continue;
+  Pose2 final_pose;  // the final particle's pose after the last update
+  const PrefixRun run = RunPrefixWith(path, 150, o, [&](const RbpfSlam& slam, const ScanResult& r) {
+    if (!r.processed) return;
     last_processed = r.scan_index;
     const auto& ps = slam.particles();
     double heaviest = -std::numeric_limits<double>::infinity();
@@ -661,18 +655,18 @@ TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
     }
     EXPECT_EQ(ps[static_cast<size_t>(slam.final_index())].path_log_weight, heaviest);
     differs += slam.final_index() != slam.best_index();
-  }
-  EXPECT_GT(slam.counters().resamplings, 20);
+    final_pose = ps[static_cast<size_t>(slam.final_index())].pose;
+  });
+  EXPECT_GT(run.counters.resamplings, 20);
   EXPECT_GT(sibling_pairs, 5);
   EXPECT_GT(differs, 5);  // the weight since the last resampling is one update's
   // The final trajectory is the final particle's path: its pose at the last update.
-  const Pose2 final_pose = slam.particles()[static_cast<size_t>(slam.final_index())].pose;
-  const auto traj = slam.BestTrajectory();
   ASSERT_GT(last_processed, 0);
-  ASSERT_GT(traj.size(), static_cast<size_t>(last_processed));
-  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].scan_index, last_processed);
-  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].pose.x, final_pose.x);
-  EXPECT_EQ(traj[static_cast<size_t>(last_processed)].pose.theta, final_pose.theta);
+  ASSERT_GT(run.trajectory.size(), static_cast<size_t>(last_processed));
+  const EstimatedPose& at = run.trajectory[static_cast<size_t>(last_processed)];
+  EXPECT_EQ(at.scan_index, last_processed);
+  EXPECT_EQ(at.pose.x, final_pose.x);
+  EXPECT_EQ(at.pose.theta, final_pose.theta);
 }
 
 // A base that never moves: the inputs held for the choice stop at kMaxPreludeScans, and the
