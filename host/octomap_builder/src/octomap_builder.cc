@@ -75,8 +75,10 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   mount.Get("roll_rad", &o.mount.roll_rad, Optional(), InRange(-M_PI, M_PI));
 
   auto poses = r.Section("poses");
-  double latency_s = 0.5, gap_s = 2.0;
-  int queue = 30;
+  // Optional keys fall back to the built-in defaults (FramePoserOptions).
+  double latency_s = static_cast<double>(o.poser.max_latency_us) * 1e-6;
+  double gap_s = static_cast<double>(o.poser.max_pose_gap_us) * 1e-6;
+  int queue = static_cast<int>(o.poser.max_queued_frames);
   poses.Get("max_latency_s", &latency_s, Required(), InRange(0.0, 60.0));
   poses.Get("max_pose_gap_s", &gap_s, Optional(), Positive<double>());
   poses.Get("max_queued_frames", &queue, Optional(), InRange(1, 10000));
