@@ -34,6 +34,10 @@ TEST(OctomapBuilderConfig, MinimalFileAndDerivedChannel) {
   ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(o->PoseChannel(), "POSE_PG");
   EXPECT_EQ(o->poser.max_latency_us, 200000);
+  // Keys left out take the built-in defaults.
+  const FramePoserOptions defaults;
+  EXPECT_EQ(o->poser.max_queued_frames, defaults.max_queued_frames);
+  EXPECT_EQ(o->poser.max_pose_gap_us, defaults.max_pose_gap_us);
 }
 
 TEST(OctomapBuilderConfig, UnknownKeysAndBadValuesAreNamed) {
