@@ -61,7 +61,16 @@ bool StillGyroBias::AddOdometry(int64_t t, const Pose2& p, const RawYaw& gyro) {
   while (t - edge - learn_from_ >= chunk) {
     const int64_t a = learn_from_, b = a + chunk;
     const std::optional<double> g = gyro(a, b);
-    if (!g) break;  // the gyro's samples come later than the odometry's: next time
+    if (!g) {
+      // The gyro's samples come later than the odometry's: next time. A chunk still not
+      // covered kMaxGyroWaitS after its end never will be (no gyro, or one that started after
+      // it, or whose history no longer reaches back to it): skipped, so the stop's later
+      // chunks are learned and the stretch's poses do not pile up.
+      if (t - edge - b <= static_cast<int64_t>(kMaxGyroWaitS * 1e6)) break;
+      ++uncovered_;
+      learn_from_ = b;
+      continue;
+    }
     changed |= Learn(1e-6 * static_cast<double>(chunk), *g, OdometryYawAt(b) - OdometryYawAt(a));
     learn_from_ = b;
   }

@@ -295,6 +295,7 @@ void PoseGraphSlam::TakeOdometry(int64_t utime, const Pose2& raw) {
     gyro_.set_bias(gyro_bias_.bias());
   c_.gyro_bias_samples = gyro_bias_.samples();
   c_.gyro_bias_refused = gyro_bias_.refused();
+  c_.gyro_bias_uncovered = gyro_bias_.uncovered();
   have_odom_ = true;
   last_odom_utime_ = utime;
   last_odom_stamp_ = stamp;

@@ -34,8 +34,10 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
     heartbeat_.AddCounter("slip_windows_slipping", [sc] { return sc->slip_windows; });
     heartbeat_.AddCounter("slip_events", [sc] { return sc->slip_events; });
     heartbeat_.AddCounter("slip_time_rebases", [sc] { return sc->time_rebases; });
+    heartbeat_.AddCounter("slip_odom_duplicates", [sc] { return sc->odom_duplicates; });
     heartbeat_.AddCounter("slipping", [this] { return int64_t{slip_.slipping() ? 1 : 0}; });
     heartbeat_.AddCounter("gyro_bias_samples", [this] { return slip_.bias_samples(); });
+    heartbeat_.AddCounter("gyro_bias_uncovered", [this] { return slip_.bias_uncovered(); });
     heartbeat_.AddCounter("gyro_bias_urad_s", [this] {
       return static_cast<int64_t>(std::llround(slip_.gyro_bias() * 1e6));
     });

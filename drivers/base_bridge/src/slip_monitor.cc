@@ -43,7 +43,11 @@ bool SlipMonitor::AddGyro(int64_t t, double rate) {
 }
 
 void SlipMonitor::AddOdometry(int64_t t, const Pose2& p) {
-  if (!odom_.empty() && t <= odom_.back().first) {
+  if (!odom_.empty() && t == odom_.back().first) {
+    ++c_.odom_duplicates;  // the same time again (a coarse clock): nothing new
+    return;
+  }
+  if (!odom_.empty() && t < odom_.back().first) {
     // The bridge's own clock went back: start over (the windows need one time line); the
     // gyro's samples on the old clock go too, the IMU driver's clock being the same.
     ++c_.time_rebases;
@@ -56,7 +60,8 @@ void SlipMonitor::AddOdometry(int64_t t, const Pose2& p) {
   // A gyro that fell silent judges nothing: the last verdict does not stand for it.
   const int64_t window = static_cast<int64_t>(o_.window_s * 1e6);
   if (gyro_.empty() || t - gyro_.newest_utime() > 2 * window) slipping_ = false;
-  bias_.AddOdometry(t, p, [this](int64_t a, int64_t b) { return gyro_.Between(a, b); });
+  if (!gyro_.empty())  // no IMU (yet): nothing to learn the bias from
+    bias_.AddOdometry(t, p, [this](int64_t a, int64_t b) { return gyro_.Between(a, b); });
   Judge();
 }
 

@@ -117,6 +117,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
                           [this] { return static_cast<int64_t>(slam_.gyro_missing_steps()); });
     heartbeat_.AddCounter("gyro_bias_samples", [&c] { return c.gyro_bias_samples; });
     heartbeat_.AddCounter("gyro_bias_refused", [&c] { return c.gyro_bias_refused; });
+    heartbeat_.AddCounter("gyro_bias_uncovered", [&c] { return c.gyro_bias_uncovered; });
     heartbeat_.AddCounter("gyro_bias_urad_s", [this] {
       return static_cast<int64_t>(std::llround(slam_.gyro_bias_rad_s() * 1e6));
     });

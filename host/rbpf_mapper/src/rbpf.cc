@@ -289,6 +289,7 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
     imu_bias_.AddOdometry(utime, p, [this](int64_t a, int64_t b) { return ImuRawIncrement(a, b); });
     counters_.imu_bias_samples = imu_bias_.samples();
     counters_.imu_bias_refused = imu_bias_.refused();
+    counters_.imu_bias_uncovered = imu_bias_.uncovered();
   }
   return true;
 }

@@ -72,6 +72,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   if (slam_.options().use_imu) {
     heartbeat_.AddCounter("imu_bias_samples", [&c] { return c.imu_bias_samples; });
     heartbeat_.AddCounter("imu_bias_refused", [&c] { return c.imu_bias_refused; });
+    heartbeat_.AddCounter("imu_bias_uncovered", [&c] { return c.imu_bias_uncovered; });
     heartbeat_.AddCounter("imu_bias_urad_s", [this] {
       return static_cast<int64_t>(std::llround(slam_.imu_bias_rad_s() * 1e6));
     });

@@ -93,6 +93,14 @@ TEST(SlipMonitor, StartsOverWhenTheClockGoesBack) {
   EXPECT_GE(m.counters().time_rebases, 1);
   EXPECT_EQ(m.counters().slip_windows, 0);
   EXPECT_FALSE(m.slipping());
+  // The same time again (a coarse clock) is not the clock going back: counted and ignored.
+  const int64_t rebases = m.counters().time_rebases, windows = m.counters().windows;
+  const int64_t last = 100'000'000 + 10'000 * 200;
+  m.AddOdometry(last, Pose2(0, 0, WrapAngle(enc)));
+  EXPECT_EQ(m.counters().time_rebases, rebases);
+  EXPECT_EQ(m.counters().odom_duplicates, 1);
+  feed(last, 30);  // and the windows go on without a restart
+  EXPECT_GT(m.counters().windows, windows);
 }
 
 }  // namespace

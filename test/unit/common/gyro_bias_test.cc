@@ -76,5 +76,32 @@ TEST(StillGyroBias, SamplesWholeChunksOfStillStretchesOnceTheGyroCoversThem) {
   EXPECT_EQ(none.bias(), 0.001);
 }
 
+// A gyro that starts 3 s after the odometry (the IMU driver came up late) while the base stands
+// still for a minute: the chunks before its first sample are waited for kMaxGyroWaitS, then
+// skipped, and the rest of the stop is learned. No gyro at all: every chunk is skipped and the
+// stretch's poses stay bounded.
+TEST(StillGyroBias, AGyroThatStartsLateOrNeverIsWaitedForThenSkipped) {
+  const int64_t first_gyro = 3'000'000;
+  const StillGyroBias::RawYaw late = [&](int64_t t0, int64_t t1) -> std::optional<double> {
+    if (t0 < first_gyro) return std::nullopt;  // before its first sample: never covered
+    return 0.002 * 1e-6 * static_cast<double>(t1 - t0);
+  };
+  const StillGyroBias::RawYaw never = [](int64_t, int64_t) { return std::nullopt; };
+  StillGyroBias b, n;
+  for (int k = 0; k <= 3000; ++k) {  // 60 s at 50 Hz
+    const int64_t t = 20'000 * int64_t{k};
+    b.AddOdometry(t, Pose2(1, 2, 0.5), late);
+    n.AddOdometry(t, Pose2(1, 2, 0.5), never);
+  }
+  // [0.2, 1.2], [1.2, 2.2] and [2.2, 3.2] skipped; [3.2, 4.2] ... [58.2, 59.2] learned.
+  EXPECT_EQ(b.uncovered(), 3);
+  EXPECT_EQ(b.samples(), 56);
+  EXPECT_NEAR(b.bias(), 0.002, 1e-12);
+  EXPECT_EQ(n.samples(), 0);
+  EXPECT_GE(n.uncovered(), 50);
+  // Kept: the poses since the oldest chunk still waited for (5 s + a chunk + the edge).
+  EXPECT_LT(n.held_poses(), 400u);
+}
+
 }  // namespace
 }  // namespace omni

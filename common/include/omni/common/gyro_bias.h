@@ -6,6 +6,7 @@
 // model); they own the gyro's samples and hand in their raw integral.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <deque>
 #include <functional>
@@ -41,7 +42,8 @@ class StillGyroBias {
   using RawYaw = std::function<std::optional<double>(int64_t t0_us, int64_t t1_us)>;
   // An odometry pose at `utime`, in time order. Follows the still stretches and takes a bias
   // sample from every whole chunk of one that ends edge_s before `utime`; a chunk the gyro does
-  // not cover yet is tried again with the next pose. Returns true when the bias changed.
+  // not cover yet is tried again with the next pose, and skipped (uncovered()) once it is
+  // kMaxGyroWaitS old. Returns true when the bias changed.
   bool AddOdometry(int64_t utime, const Pose2& pose, const RawYaw& gyro);
   // Forgets the open still stretch (the caller's clock stepped, or samples were dropped).
   void Reset() { stretch_.clear(); }
@@ -52,9 +54,14 @@ class StillGyroBias {
   // False (counted as refused) for a sample beyond max_abs_rad_s.
   bool Learn(double span_s, double gyro_yaw_rad, double odometry_yaw_rad);
 
+  // A chunk the gyro has not covered this long after its end is skipped (counted).
+  static constexpr double kMaxGyroWaitS = 5.0;
+
   double bias() const { return bias_; }
   int64_t samples() const { return samples_; }
   int64_t refused() const { return refused_; }
+  int64_t uncovered() const { return uncovered_; }       // chunks skipped: no gyro samples for them
+  size_t held_poses() const { return stretch_.size(); }  // of the open still stretch
   const GyroBiasOptions& options() const { return o_; }
 
  private:
@@ -63,7 +70,7 @@ class StillGyroBias {
   GyroBiasOptions o_;
   double bias_;
   double learned_s_ = 0;  // still time behind the estimate
-  int64_t samples_ = 0, refused_ = 0;
+  int64_t samples_ = 0, refused_ = 0, uncovered_ = 0;
   // The open still stretch: its poses (time, heading) from where it began, the first one its
   // anchor; learn_from_ is where the next chunk starts.
   std::deque<std::pair<int64_t, double>> stretch_;

@@ -31,11 +31,12 @@ struct SlipOptions {
 
 struct SlipCounters {
   int64_t gyro_in = 0;
-  int64_t gyro_rejected = 0;  // non-finite, or not newer than the last sample
-  int64_t windows = 0;        // windows judged (both sources covered them)
-  int64_t slip_windows = 0;   // ... of which the headings disagreed
-  int64_t slip_events = 0;    // runs of slipping windows
-  int64_t time_rebases = 0;   // a clock that went back: the history is started over
+  int64_t gyro_rejected = 0;    // non-finite, or not newer than the last sample
+  int64_t windows = 0;          // windows judged (both sources covered them)
+  int64_t slip_windows = 0;     // ... of which the headings disagreed
+  int64_t slip_events = 0;      // runs of slipping windows
+  int64_t time_rebases = 0;     // a clock that went back: the history is started over
+  int64_t odom_duplicates = 0;  // odometry with the same time as the last: ignored
 };
 
 class SlipMonitor {
@@ -53,6 +54,7 @@ class SlipMonitor {
   const SlipCounters& counters() const { return c_; }
   double gyro_bias() const { return bias_.bias(); }
   int64_t bias_samples() const { return bias_.samples(); }
+  int64_t bias_uncovered() const { return bias_.uncovered(); }
   int64_t bias_refused() const { return bias_.refused(); }
 
  private:

@@ -171,7 +171,7 @@ struct SlamCounters {
   int64_t imu_in = 0, imu_rejected = 0;
   // Gyro bias samples taken while the base stood still, and refused (beyond
   // gyro.bias_learning.max_rad_s: the base turned although its wheels did not).
-  int64_t gyro_bias_samples = 0, gyro_bias_refused = 0;
+  int64_t gyro_bias_samples = 0, gyro_bias_refused = 0, gyro_bias_uncovered = 0;
   int64_t window_updates = 0, window_failures = 0;
   // Window updates whose information matrix gave no marginal covariance (the published
   // covariance then stays the odometry-predicted one).

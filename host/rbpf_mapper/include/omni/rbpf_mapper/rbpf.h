@@ -152,7 +152,7 @@ struct RbpfCounters {
   int64_t imu_invalid = 0;
   // Gyro bias samples taken while the base stood still, and refused (the base turned beyond
   // imu_bias_learning.max_rad_s although its wheels did not).
-  int64_t imu_bias_samples = 0, imu_bias_refused = 0;
+  int64_t imu_bias_samples = 0, imu_bias_refused = 0, imu_bias_uncovered = 0;
   int64_t match_failures = 0;  // particle updates that fell back to odometry
   int64_t match_searches = 0;  // particle updates that needed the correlative search
   int64_t resamplings = 0;
