@@ -55,7 +55,6 @@ class SlipMonitor {
   double gyro_bias() const { return bias_.bias(); }
   int64_t bias_samples() const { return bias_.samples(); }
   int64_t bias_uncovered() const { return bias_.uncovered(); }
-  int64_t bias_refused() const { return bias_.refused(); }
 
  private:
   void Judge();

@@ -37,9 +37,10 @@
 
 namespace omni::rbpf {
 
-// How a particle's new pose follows from its scan match.
+// Which particle is the final estimate (RbpfOptions::final_particle).
 enum class FinalParticle { kAncestry, kCurrent };
 
+// How a particle's new pose follows from its scan match.
 enum class ProposalKind {
   kMatch,     // the particle becomes the match optimum; weight: likelihood there
   kGaussian,  // drawn from the Gaussian fitted around the optimum (proposal.h); weight: eta
