@@ -7,27 +7,35 @@ namespace omni {
 
 GyroRateHistory::Added GyroRateHistory::Add(int64_t utime, double rate) {
   if (!std::isfinite(rate)) return Added::kRefused;
-  Added added = Added::kInOrder;
-  switch (order_.Check(utime)) {
+  bool taken = false;  // the last sample handed over (this one) was appended
+  const StampOrder::Verdict v = held_.Add(
+      utime, rate,
+      [this](int64_t run_first) {  // the newest samples are ahead of the new time line
+        while (!samples_.empty() && samples_.back().utime >= run_first) samples_.pop_back();
+      },
+      [this, &taken](int64_t t, double r) { taken = Push(t, r); });
+  switch (v) {
     case StampOrder::Verdict::kOld:
       return Added::kRefused;
-    case StampOrder::Verdict::kRebase:  // the newest samples were stamped in the future
-      while (!samples_.empty() && samples_.back().utime >= utime) samples_.pop_back();
-      added = Added::kRebased;
-      break;
+    case StampOrder::Verdict::kRebase:
+      return Added::kRebased;
     case StampOrder::Verdict::kInOrder:
-      if (!samples_.empty() && utime == samples_.back().utime) return Added::kRefused;
       break;
   }
+  return taken ? Added::kInOrder : Added::kRefused;
+}
+
+bool GyroRateHistory::Push(int64_t utime, double rate) {
   double integral = 0.0;
   if (!samples_.empty()) {
     const Sample& last = samples_.back();
+    if (utime == last.utime) return false;
     integral =
         last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
   }
   samples_.push_back({utime, rate, integral});
   while (samples_.size() > capacity_) samples_.pop_front();
-  return added;
+  return true;
 }
 
 double GyroRateHistory::IntegralAt(int64_t t) const {

@@ -110,7 +110,25 @@ TEST(PoseGraphGyro, AFutureStampedSampleIsDroppedAfterFiveInOrder) {
   for (int k = 106; k <= 200; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.5));
   const auto y = gyro.Between(0, 2'000'000);
   ASSERT_TRUE(y);
-  EXPECT_NEAR(y->delta_rad, 1.0, 1e-9);  // 0.5 rad/s for 2 s; the four held samples are skipped
+  EXPECT_NEAR(y->delta_rad, 1.0, 1e-9);  // 0.5 rad/s for 2 s; the four held samples are taken
+}
+
+// The clock set back by 1.5 s (a reboot, an NTP step) while the base turns the other way: once
+// five samples re-base the gyro, the history holds only the new time line from the run's first
+// sample on — none of the old samples stamped inside the new run stays between them.
+TEST(PoseGraphGyro, AClockSetBackKeepsNoOldSampleInsideTheNewRun) {
+  GyroYawSource gyro;
+  for (int k = 0; k <= 200; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.5));
+  for (int k = 50; k <= 53; ++k) EXPECT_FALSE(gyro.AddSample(10'000 * k, -1.0));  // held
+  EXPECT_TRUE(gyro.AddSample(540'000, -1.0));
+  EXPECT_EQ(gyro.rebases(), 1);
+  for (int k = 55; k <= 80; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, -1.0));
+  const auto turned = gyro.Between(500'000, 800'000);
+  ASSERT_TRUE(turned);
+  EXPECT_NEAR(turned->delta_rad, -0.3, 1e-9);  // -1 rad/s for 0.3 s, the held run included
+  const auto before = gyro.Between(0, 490'000);
+  ASSERT_TRUE(before);
+  EXPECT_NEAR(before->delta_rad, 0.245, 1e-9);  // the old line before the run is kept
 }
 
 TEST(PoseGraphGyro, BiasIsRemoved) {

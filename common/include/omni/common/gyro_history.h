@@ -1,7 +1,9 @@
 // A gyro's yaw-rate samples as measured, with their running integral: the heading change between
 // any two times they cover (the rate taken as linear between samples, so a ramp integrates
 // exactly). Time order is kept as for the other streams (stamp_order.h): an older sample is
-// refused, unless a run of them shows the clock went back, which re-bases the history.
+// held, not taken; when a run of them shows the clock went back (or the newest sample was
+// stamped in the future) the history is re-based: the samples stamped at or after the run's
+// first are dropped and the held run is taken, so no sample of the new time line is lost.
 // The pose graph's gyro source and the base bridge's slip check keep their samples in one.
 #pragma once
 
@@ -20,8 +22,10 @@ class GyroRateHistory {
 
   enum class Added {
     kInOrder,  // taken
-    kRebased,  // taken; the samples at or after it (stamped ahead of the new run) were dropped
-    kRefused,  // non-finite, older than the newest (it may start a run), or the same time
+    kRebased,  // taken with the held run; the samples stamped at or after the run's first
+               // (ahead of the new time line) were dropped
+    kRefused,  // non-finite, the same time as the newest, or older (held: taken if a run of
+               // them re-bases the history; `abandoned()` counts those never taken)
   };
   // The oldest samples are dropped beyond `capacity`.
   Added Add(int64_t utime, double rate_rad_s);
@@ -31,9 +35,10 @@ class GyroRateHistory {
   // Forgets every sample and the stream's order (the caller moved to another time line).
   void Reset() {
     samples_.clear();
-    order_.Reset();
+    held_.Reset();
   }
-  int64_t rebases() const { return order_.rebases(); }
+  int64_t rebases() const { return held_.order().rebases(); }
+  int64_t abandoned() const { return held_.abandoned(); }
   bool empty() const { return samples_.empty(); }
   size_t size() const { return samples_.size(); }
   int64_t newest_utime() const { return samples_.empty() ? INT64_MIN : samples_.back().utime; }
@@ -45,10 +50,11 @@ class GyroRateHistory {
     double integral;  // rad, from the oldest sample ever kept to this one
   };
   double IntegralAt(int64_t utime) const;  // utime within the kept samples
+  bool Push(int64_t utime, double rate);   // appends unless the same time as the newest
 
   size_t capacity_;
   std::deque<Sample> samples_;
-  StampOrder order_;
+  HeldRun<double> held_;
 };
 
 }  // namespace omni
