@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -22,6 +23,7 @@
 
 #include "omni/bus/slam_log.h"
 #include "omni/common/config.h"
+#include "omni/common/geometry.h"
 #include "omni/common/time.h"
 #include "omni/io/grid.h"
 #include "omni/io/image_io.h"
@@ -40,7 +42,9 @@ void Usage(std::FILE* f) {
       "  Maps INPUT offline with the RBPF mapper library (the rbpf_mapper process's algorithm).\n"
       "  INPUT: CARMEN log (.clf/.log, optionally gzip) or LCM log (LIDAR_SCAN, WHEEL_ODOM, IMU).\n"
       "  Writes DIR/trajectory.txt (scan_index timestamp x y theta, every accepted scan, 0-based\n"
-      "  in input order), DIR/map.pgm + map.yaml (ROS map_server), DIR/map.png, DIR/stats.json.\n"
+      "  in input order; the final estimate), DIR/live_trajectory.txt (the pose the filter\n"
+      "  returned at each scan, what the process publishes on POSE_RBPF), DIR/map.pgm + map.yaml\n"
+      "  (ROS map_server), DIR/map.png, DIR/map_trajectory.png, DIR/stats.json.\n"
       "  --config FILE   rbpf_mapper YAML (default: built-in defaults = config/rbpf_mapper.yaml)\n"
       "  --seed N        overrides the config's seed\n"
       "  --particles N, --threads N   override the config\n"
@@ -187,6 +191,7 @@ int main(int argc, char** argv) {
   const int64_t t_start = omni::MonotonicMicros();
   omni::rbpf::RbpfSlam slam(opt);
   int64_t scans = 0;
+  std::vector<omni::io::TrajectoryEntry> live;  // the pose returned at each scan (POSE_RBPF)
   auto report = [&](const omni::rbpf::ScanResult& r) {
     if (!quiet && r.scan_index % 500 == 0)
       std::fprintf(stderr, "omni-slam: scan %lld  pose %.2f %.2f %.3f\n",
@@ -209,7 +214,10 @@ int main(int argc, char** argv) {
     s.ranges_m = in.ranges_m;
     s.scan_time_s = in.scan_time_s;
     s.odom = in.odom;
-    report(slam.AddScan(s));
+    const omni::rbpf::ScanResult r = slam.AddScan(s);
+    if (r.accepted)
+      live.push_back(omni::io::MakeEntry2D(r.scan_index, omni::UtimeToSeconds(s.utime), r.pose));
+    report(r);
     return !(max_scans >= 0 && ++scans >= max_scans);
   };
   handlers.odom = [&](int64_t utime, const omni::Pose2& p) { slam.AddOdometry(utime, p); };
@@ -243,6 +251,10 @@ int main(int argc, char** argv) {
   omni::Status s = omni::io::WriteTrajectory2D(
       out_dir + "/trajectory.txt", entries,
       "scan_index timestamp x y theta (RBPF best particle, final estimate)");
+  if (s.ok())
+    s = omni::io::WriteTrajectory2D(
+        out_dir + "/live_trajectory.txt", live,
+        "scan_index timestamp x y theta (RBPF reported particle at each scan, as POSE_RBPF)");
   if (s.ok()) s = omni::io::WriteMapServer(map, out_dir + "/map");
   if (s.ok()) s = omni::io::WritePng(out_dir + "/map.png", omni::io::RenderGrid(map, {}, 1));
   if (s.ok())
@@ -289,6 +301,14 @@ int main(int argc, char** argv) {
                static_cast<long long>(c.imu_in), static_cast<long long>(c.imu_invalid),
                static_cast<long long>(c.imu_bias_samples),
                static_cast<long long>(c.imu_bias_refused), slam.imu_bias_rad_s());
+  {
+    // How far the published (reported) particle ends from the final estimate's particle.
+    const omni::Pose2& fin = slam.particles()[static_cast<size_t>(slam.final_index())].pose;
+    const omni::Pose2 rep = slam.ReportedPose();
+    std::fprintf(f, ", \"reported_to_final_m\": %.4f, \"reported_to_final_rad\": %.5f",
+                 std::hypot(rep.x - fin.x, rep.y - fin.y),
+                 std::fabs(omni::WrapAngle(rep.theta - fin.theta)));
+  }
   const omni::rbpf::ResolutionChoice& choice = slam.resolution_choice();
   std::fprintf(f,
                ", \"grid_resolution_m\": %.4f, \"likelihood_gain\": %.6g, "
@@ -311,7 +331,7 @@ int main(int argc, char** argv) {
   std::fclose(f);
   std::printf(
       "omni-slam rbpf: %lld scans (%lld updates), %d particles, %.3f m cells, %lld resamplings, "
-      "%lld match failures, %.1f s -> %s/{trajectory.txt,map.pgm,map.yaml,map.png,stats.json}\n",
+      "%lld match failures, %.1f s -> %s/{trajectory.txt,live_trajectory.txt,map.*,stats.json}\n",
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed), opt.particles,
       slam.options().grid.resolution_m, static_cast<long long>(c.resamplings),
       static_cast<long long>(c.match_failures), wall_s, out_dir.c_str());

@@ -530,11 +530,10 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
   last_update_odom_ = odom;
   last_update_utime_ = scan.utime;
   best_lineage_ = HeaviestIndex();
-  if (best_lineage_ != reported_lineage_ &&
-      particles_[static_cast<size_t>(best_lineage_)].log_weight -
-              particles_[static_cast<size_t>(reported_lineage_)].log_weight >
-          opt_.report_switch_log_margin) {
-    reported_lineage_ = best_lineage_;
+  const int candidate = ReportCandidate();
+  if (candidate != reported_lineage_ &&
+      ReportWeight(candidate) - ReportWeight(reported_lineage_) > opt_.report_switch_log_margin) {
+    reported_lineage_ = candidate;
     ++counters_.reported_switches;
   }
   // An odometry jump inside the interval left one step out of the jump-free odometry that the
@@ -571,14 +570,11 @@ void RbpfSlam::Resample() {
   const std::vector<int> pick = LowVarianceResample(w, static_cast<int>(n), master_rng_);
   const auto child = std::find(pick.begin(), pick.end(), best_lineage_);
   best_lineage_ = child == pick.end() ? 0 : static_cast<int>(child - pick.begin());
-  // The reported lineage goes on in its first child; when it left none, in the best's.
+  // The reported lineage goes on in its first child; when it left none, in the candidate
+  // among the children (below).
   const auto reported_child = std::find(pick.begin(), pick.end(), reported_lineage_);
-  if (reported_child == pick.end()) {
-    reported_lineage_ = best_lineage_;
-    ++counters_.reported_switches;
-  } else {
-    reported_lineage_ = static_cast<int>(reported_child - pick.begin());
-  }
+  const bool reported_lost = reported_child == pick.end();
+  if (!reported_lost) reported_lineage_ = static_cast<int>(reported_child - pick.begin());
   std::vector<Particle> next;
   next.reserve(n);
   for (size_t j = 0; j < n; ++j) {
@@ -593,6 +589,19 @@ void RbpfSlam::Resample() {
     next.push_back(std::move(c));
   }
   particles_ = std::move(next);
+  if (reported_lost) {
+    reported_lineage_ = ReportCandidate();
+    ++counters_.reported_switches;
+  }
+}
+
+int RbpfSlam::ReportCandidate() const {
+  return opt_.final_particle == FinalParticle::kAncestry ? final_index() : best_lineage_;
+}
+
+double RbpfSlam::ReportWeight(int i) const {
+  const Particle& p = particles_[static_cast<size_t>(i)];
+  return opt_.final_particle == FinalParticle::kAncestry ? p.path_log_weight : p.log_weight;
 }
 
 int RbpfSlam::HeaviestIndex() const {

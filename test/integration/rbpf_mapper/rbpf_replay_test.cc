@@ -312,17 +312,24 @@ TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {
   auto r = testing::Run(testing::Bin("omni-slam") + " rbpf " + clf + " --out " + dir +
                         " --seed 3 --particles 10 --max-scans 60 --quiet");
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  for (const char* f : {"map.pgm", "map.yaml", "map.png", "trajectory.txt", "stats.json"})
+  for (const char* f : {"map.pgm", "map.yaml", "map.png", "map_trajectory.png", "trajectory.txt",
+                        "live_trajectory.txt", "stats.json"})
     EXPECT_TRUE(std::filesystem::exists(dir + "/" + f)) << f;
   std::ifstream stats(dir + "/stats.json");
   std::string json((std::istreambuf_iterator<char>(stats)), std::istreambuf_iterator<char>());
   for (const char* k : {"\"wall_s\"", "\"scans\": 60", "\"particles\": 10", "\"resamplings\"",
-                        "\"match_failures\"", "\"seed\": 3"})
+                        "\"match_failures\"", "\"seed\": 3", "\"reported_to_final_m\""})
     EXPECT_NE(json.find(k), std::string::npos) << k << " in " << json;
   auto t = io::ReadTrajectory(dir + "/trajectory.txt");
   ASSERT_TRUE(t.ok());
   EXPECT_EQ(t->entries.size(), 60u);
   EXPECT_EQ(t->entries.front().index, 0);
+  // The pose returned at each scan (what POSE_RBPF carries), one per scan in input order.
+  auto live = io::ReadTrajectory(dir + "/live_trajectory.txt");
+  ASSERT_TRUE(live.ok());
+  ASSERT_EQ(live->entries.size(), 60u);
+  for (size_t i = 0; i < live->entries.size(); ++i)
+    EXPECT_EQ(live->entries[i].index, static_cast<int64_t>(i));
 
   r = testing::Run(testing::Bin("omni-slam") + " gmapping x --out " + dir);
   EXPECT_NE(r.exit_code, 0);

@@ -589,6 +589,39 @@ TEST(RbpfSlam, TheReportedParticleChangesOnlyPastTheMargin) {
   ExpectSameTrajectory(a.trajectory, b.trajectory);
 }
 
+// With final_particle: ancestry the reported particle is judged by the same weight as the final
+// one, the weight summed over its whole ancestry: after every update no particle's exceeds the
+// reported one's by more than the margin, and with margin 0 the reported particle is the final.
+TEST(RbpfSlam, TheReportedParticleFollowsTheWholePathsWeight) {
+  OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
+  for (const double margin : {0.0, 3.0}) {
+    RbpfOptions o;
+    o.particles = 8;
+    o.threads = 2;
+    o.report_switch_log_margin = margin;
+    ASSERT_EQ(o.final_particle, FinalParticle::kAncestry);
+    int updates = 0, behind = 0;
+    const PrefixRun run =
+        RunPrefixWith(path, 300, o, [&](const RbpfSlam& slam, const ScanResult& r) {
+          if (!r.processed) return;
+          ++updates;
+          const auto& ps = slam.particles();
+          const double reported = ps[static_cast<size_t>(slam.reported_index())].path_log_weight;
+          const double top = ps[static_cast<size_t>(slam.final_index())].path_log_weight;
+          EXPECT_LE(top - reported, margin + 1e-9) << r.scan_index;
+          behind += top > reported;
+          if (margin == 0.0) {
+            EXPECT_EQ(top, reported) << r.scan_index;
+          }
+        });
+    EXPECT_GT(updates, 50);
+    EXPECT_GT(run.counters.reported_switches, 0);
+    if (margin > 0) {
+      EXPECT_GT(behind, 0);  // the margin holds a lineage some of the time
+    }
+  }
+}
+
 // After an update that resampled every weight is equal; the best particle is then the child of
 // the update's heaviest, which is also the reported one when the margin is 0.
 TEST(RbpfSlam, TheBestParticleSurvivesAResamplingAsItsChild) {

@@ -81,9 +81,11 @@ struct RbpfOptions {
   double likelihood_gain = 0.01;
   // The particle whose pose is returned per scan (the process's POSE_RBPF) and whose map is
   // published stays the same lineage until another particle's log weight exceeds its own by
-  // this much; 0: always the best. With flat weights the best changes often between particles
-  // whose paths differ, and each change is a jump of the published pose. The final
-  // trajectory and saved maps are final_particle's (docs/rbpf.md, "Flat weights").
+  // this much; 0: always the best. The weight is final_particle's: with kAncestry the weight
+  // summed over the whole ancestry (so the reported particle is the final one's, give or take
+  // the margin), with kCurrent the weight since the last resampling. With flat weights the
+  // best changes often between particles whose paths differ, and each change is a jump of the
+  // published pose (docs/rbpf.md, "Flat weights").
   double report_switch_log_margin = 3.0;
   // The particle whose path and map are the final estimate (BestTrajectory, BestMap): kAncestry
   // the highest weight summed over every update of its whole ancestry (GMapping's choice for
@@ -270,7 +272,7 @@ class RbpfSlam {
     return particles_[static_cast<size_t>(final_index())].map.ToGridMap();
   }
   // The reported particle (RbpfOptions::report_switch_log_margin): its pose is the one AddScan
-  // returns; the process publishes its map.
+  // returns; the process publishes its map. It follows final_particle's weight.
   int reported_index() const { return reported_lineage_; }
   Pose2 ReportedPose() const { return particles_[static_cast<size_t>(reported_lineage_)].pose; }
   io::GridMap ReportedMap() const {
@@ -330,6 +332,10 @@ class RbpfSlam {
   void Resample();
   // The particle with the largest weight now (the first on a tie).
   int HeaviestIndex() const;
+  // The particle the reported one would switch to, and the weight the switch compares
+  // (final_particle's: the whole ancestry's, or since the last resampling).
+  int ReportCandidate() const;
+  double ReportWeight(int i) const;
 
   RbpfOptions opt_;
   OmniMotionModel motion_;
