@@ -25,7 +25,7 @@ class GyroRateHistory {
     kRebased,  // taken with the held run; the samples stamped at or after the run's first
                // (ahead of the new time line) were dropped
     kRefused,  // non-finite, the same time as the newest, or older (held: taken if a run of
-               // them re-bases the history; `abandoned()` counts those never taken)
+               // them re-bases the history, else dropped when the run breaks)
   };
   // The oldest samples are dropped beyond `capacity`.
   Added Add(int64_t utime, double rate_rad_s);
@@ -38,7 +38,6 @@ class GyroRateHistory {
     held_.Reset();
   }
   int64_t rebases() const { return held_.order().rebases(); }
-  int64_t abandoned() const { return held_.abandoned(); }
   bool empty() const { return samples_.empty(); }
   size_t size() const { return samples_.size(); }
   int64_t newest_utime() const { return samples_.empty() ? INT64_MIN : samples_.back().utime; }
