@@ -2,6 +2,7 @@
 // `./omni slam posegraph INPUT --out DIR` reaches it through omni-slam.
 //   INPUT: CARMEN (.clf, .log, gzip too) or an LCM log (LIDAR_SCAN + WHEEL_ODOM).
 //   DIR/trajectory.txt   scan_index timestamp x y theta, every accepted scan, final estimate
+//   DIR/live_trajectory.txt   the same form: each scan's estimate when it was accepted (POSE_PG)
 //   DIR/map.{pgm,yaml,png}, DIR/map_trajectory.png   grid of the optimised keyframes
 //   DIR/graph.g2o        keyframe graph at the final estimate
 //   DIR/stats.json       counters, wall time, window-update latency
@@ -13,6 +14,7 @@
 
 #include "omni/bus/slam_log.h"
 #include "omni/common/time.h"
+#include "omni/io/trajectory_io.h"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 #include "omni/pose_graph_mapper/slam_outputs.h"
 
@@ -26,8 +28,10 @@ void Usage(std::FILE* f) {
       "usage: omni-posegraph-slam INPUT --out DIR [--config FILE] [--max-scans N] [--quiet]\n"
       "  Online pose-graph SLAM (keyframes, scan matching, sliding window, verified loop\n"
       "  closures with global optimisation) over a CARMEN log (.clf/.log, gzip too) or an LCM\n"
-      "  log (LIDAR_SCAN + WHEEL_ODOM). Writes DIR/trajectory.txt (every scan), DIR/map.pgm,\n"
-      "  map.yaml, map.png, map_trajectory.png, DIR/graph.g2o and DIR/stats.json.\n"
+      "  log (LIDAR_SCAN + WHEEL_ODOM). Writes DIR/trajectory.txt (every scan, the final\n"
+      "  estimate), DIR/live_trajectory.txt (each scan's estimate when it was accepted, what the\n"
+      "  process publishes on POSE_PG), DIR/map.pgm, map.yaml, map.png, map_trajectory.png,\n"
+      "  DIR/graph.g2o and DIR/stats.json.\n"
       "  --config FILE   default: the built-in defaults (see config/pose_graph_mapper.yaml)\n");
 }
 
@@ -108,6 +112,7 @@ int main(int argc, char** argv) {
   omni::SystemClock clock;
   omni::pgm::PoseGraphSlam slam(opt, batch, &clock);
   int64_t scans = 0;
+  std::vector<omni::io::TrajectoryEntry> live;  // each scan's pose when accepted (POSE_PG)
   auto progress = [&]() {
     if (!quiet && scans % 1000 == 0)
       std::fprintf(stderr, "omni-posegraph-slam: scan %lld, %zu keyframes, %lld loops\n",
@@ -128,7 +133,9 @@ int main(int argc, char** argv) {
     s.scan_time_s = in.scan_time_s;
     // A CARMEN laser line carries the odometry pose at the scan.
     if (in.odom) slam.AddOdometry(s.utime, *in.odom);
-    slam.AddScan(scans, s);
+    omni::pgm::ScanPose sp;
+    if (slam.AddScan(scans, s) && slam.LastScanPose(&sp))
+      live.push_back(omni::io::MakeEntry2D(sp.scan_index, omni::UtimeToSeconds(sp.utime), sp.pose));
     ++scans;
     progress();
     return !(max_scans >= 0 && scans >= max_scans);
@@ -150,7 +157,12 @@ int main(int argc, char** argv) {
   info.extra.emplace_back("skipped_bytes", static_cast<int64_t>(read->skipped_bytes));
   info.window_size = opt.window_size;
   info.wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
-  if (omni::Status s = omni::pgm::WriteSlamOutputs(slam, out_dir, info); !s.ok()) {
+  omni::Status written = omni::pgm::WriteSlamOutputs(slam, out_dir, info);
+  if (written.ok())
+    written = omni::io::WriteTrajectory2D(
+        out_dir + "/live_trajectory.txt", live,
+        "scan_index timestamp x y theta (pose-graph SLAM, each scan when accepted, as POSE_PG)");
+  if (omni::Status s = written; !s.ok()) {
     std::fprintf(stderr, "omni-posegraph-slam: %s\n", s.message().c_str());
     return 1;
   }
@@ -161,7 +173,7 @@ int main(int argc, char** argv) {
   std::printf(
       "omni-posegraph-slam: %lld scans (%lld used), %lld keyframes, %lld loops (%lld rejected), "
       "%lld global optimisations, window p50/p99 %.2f/%.2f ms, %.1f s -> "
-      "%s/{trajectory.txt,map.pgm,map.yaml,map.png,graph.g2o,stats.json}\n",
+      "%s/{trajectory.txt,live_trajectory.txt,map.*,graph.g2o,stats.json}\n",
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_used),
       static_cast<long long>(c.keyframes), static_cast<long long>(c.loops_accepted),
       static_cast<long long>(c.loops_rejected), static_cast<long long>(c.global_optimizations),
