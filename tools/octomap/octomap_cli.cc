@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omni/bus/bus.h"
@@ -23,6 +24,7 @@
 #include "omni/depth_image_t.hpp"
 #include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
+#include "omni/io/trajectory_io.h"
 #include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/octomap_builder.h"
 #include "omni/octomap_builder/octomap_node.h"
@@ -58,6 +60,10 @@ void Usage(std::FILE* f) {
       "  --up x|y|z|-x|-y|-z  the map's up axis for the grid and view (default z; the camera-\n"
       "                       posed rgbd datasets have -y)\n"
       "  --source rbpf|pg     pose channel for a log INPUT (POSE_RBPF / POSE_PG)\n"
+      "  --poses TRAJ.txt     for a log INPUT: pose the frames by this trajectory (robot in the\n"
+      "                       map; the indexed form omni slam writes, or TUM) instead of the\n"
+      "                       log's pose channel, e.g. a mapper's final trajectory.txt: the 3D\n"
+      "                       map at the corrected poses, not the ones published live\n"
       "  --pcd                also write the aggregate point cloud\n"
       "  --color              also build a ColorOcTree: DIR/map_color.ot, DIR/view_color.png;\n"
       "                       a folder needs color/N.png (same camera and size as depth/N),\n"
@@ -144,9 +150,10 @@ int main(int argc, char** argv) {
   Args a;
   a.input = argv[2];
   static const std::vector<std::string> kValued = {
-      "--out",    "--config",       "--resolution", "--max-range",  "--min-depth", "--max-depth",
-      "--stride", "--voxel-filter", "--threads",    "--fx",         "--fy",        "--cx",
-      "--cy",     "--depth-scale",  "--grid-min-z", "--grid-max-z", "--source",    "--up"};
+      "--out",        "--config", "--resolution",   "--max-range",   "--min-depth",
+      "--max-depth",  "--stride", "--voxel-filter", "--threads",     "--fx",
+      "--fy",         "--cx",     "--cy",           "--depth-scale", "--grid-min-z",
+      "--grid-max-z", "--source", "--up",           "--poses"};
   for (int i = 3; i < argc; ++i) {
     const std::string s = argv[i];
     if (s == "--help" || s == "-h") {
@@ -237,6 +244,8 @@ int main(int argc, char** argv) {
   const int64_t t0 = omni::octo::ParallelKeySetInserter::NowMicros();
   if (fs::is_directory(a.input)) {
     // A folder of depth images with camera poses.
+    if (!Get(a, "--poses").empty())
+      return Fail("--poses is for a log INPUT (a folder has its own pose.txt)");
     omni::octo::DepthIntrinsics k;
     const std::string yaml = a.input + "/intrinsics.yaml";
     if (fs::exists(yaml)) {
@@ -304,7 +313,37 @@ int main(int argc, char** argv) {
   auto reader = omni::io::LcmLogReader::Open(a.input);
   if (!reader.ok()) return Fail(reader.error().message);
   omni::octo::OctomapPipeline pipeline(o);
-  const std::string pose_channel = o.PoseChannel();
+  // --poses: the trajectory file's poses, handed to the pipeline in time order as the frames
+  // come (each frame gets the poses up to its time and the first after it), instead of the
+  // log's pose channel.
+  const std::string poses_path = Get(a, "--poses");
+  std::vector<std::pair<int64_t, omni::Pose2>> file_poses;
+  size_t next_pose = 0;
+  int64_t file_poses_skipped = 0;
+  if (!poses_path.empty()) {
+    auto traj = omni::io::ReadTrajectory(poses_path);
+    if (!traj.ok()) return Fail(traj.error().message);
+    for (const auto& e : traj->entries) {
+      const int64_t u = std::llround(e.timestamp_s * 1e6);
+      if (!file_poses.empty() && u <= file_poses.back().first) {
+        ++file_poses_skipped;  // not after the previous pose: the poser would refuse it
+        continue;
+      }
+      file_poses.emplace_back(u, e.pose2());
+    }
+    if (file_poses.size() < 2) return Fail(poses_path + ": fewer than two poses in time order");
+  }
+  auto feed_file_poses = [&](int64_t until_utime) {
+    while (next_pose < file_poses.size() && file_poses[next_pose].first <= until_utime) {
+      pipeline.AddPose(file_poses[next_pose].first, file_poses[next_pose].second);
+      ++next_pose;
+    }
+    if (next_pose < file_poses.size()) {  // the first after: the frame can be interpolated now
+      pipeline.AddPose(file_poses[next_pose].first, file_poses[next_pose].second);
+      ++next_pose;
+    }
+  };
+  const std::string pose_channel = file_poses.empty() ? o.PoseChannel() : poses_path;
   int64_t decode_errors = 0, color_decode_errors = 0, events = 0;
   omni::io::LcmLogEvent ev;
   for (;;) {
@@ -312,7 +351,7 @@ int main(int argc, char** argv) {
     if (!more.ok()) return Fail(more.error().message);
     if (!*more) break;
     ++events;
-    if (ev.channel == pose_channel) {
+    if (file_poses.empty() && ev.channel == pose_channel) {
       omni::pose2d_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
         ++decode_errors;
@@ -330,6 +369,7 @@ int main(int argc, char** argv) {
         ++decode_errors;
         continue;
       }
+      if (!file_poses.empty()) feed_file_poses(im->utime);
       pipeline.AddDepth(std::move(*im));
     } else if (o.color && ev.channel == o.color_channel) {
       omni::color_image_t m;
@@ -349,6 +389,7 @@ int main(int argc, char** argv) {
     pipeline.Process(pipeline.newest_utime());
   }
   // End of log: whatever still waits for a pose can only be posed by what is there.
+  if (!file_poses.empty()) feed_file_poses(std::numeric_limits<int64_t>::max());
   pipeline.Process(pipeline.newest_utime());
   pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
   pipeline.FlushAwaitingColor();
@@ -366,6 +407,9 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
         static_cast<long long>(c.frames_uncolored),
         static_cast<long long>(color_decode_errors + c.color_invalid), a.out.c_str());
+  if (!file_poses.empty())
+    std::printf("omni-octomap: %zu poses from %s (%lld not after the one before, skipped)\n",
+                next_pose, poses_path.c_str(), static_cast<long long>(file_poses_skipped));
   std::printf(
       "omni-octomap: %lld events; %lld frames in, %lld inserted, %lld dropped without pose, %lld "
       "out of order, %lld decode errors, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",

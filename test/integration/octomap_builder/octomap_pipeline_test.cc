@@ -194,6 +194,41 @@ TEST(OctomapCli, BuildsFromAnLcmLogPosedBy2dSlam) {
   ASSERT_TRUE(grid->Contains(col, row));
   EXPECT_EQ(grid->at(col, row), 100);
   EXPECT_EQ(grid->at(col - 10, row), 0);
+
+  // --poses: the same frames posed by a trajectory file (e.g. a mapper's final estimate) in
+  // place of the log's POSE_RBPF. This one says the robot was 0.5 m further along x at every
+  // time, so the wall is mapped at x = 3.5 m; the log's poses are not read.
+  const std::string traj = dir + "/final.txt";
+  {
+    std::ofstream t(traj);
+    t << "# scan_index timestamp x y theta\n";
+    t.setf(std::ios::fixed);
+    t.precision(6);
+    for (int i = 0; i <= 10; ++i)
+      t << i << ' ' << 1700000000.0 + 0.1 * i << ' ' << 0.1 * i + 0.5 << " 0 0\n";
+  }
+  const std::string out2 = dir + "/out_poses";
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --config " +
+                 Config() + " --poses " + traj);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("11 poses from " + traj), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("6 frames in, 5 inserted, 1 dropped without pose"), std::string::npos)
+      << r.output;
+  auto shifted = io::ReadMapServer(out2 + "/grid.yaml");
+  ASSERT_TRUE(shifted.ok()) << shifted.error().message;
+  const int col2 = static_cast<int>((kWallX + 0.5 + 0.025 - shifted->origin_x_m) / 0.05);
+  const int row2 = static_cast<int>((0.0 - shifted->origin_y_m) / 0.05);
+  ASSERT_TRUE(shifted->Contains(col2, row2));
+  EXPECT_EQ(shifted->at(col2, row2), 100);
+  EXPECT_EQ(shifted->at(col2 - 10, row2), 0);  // x = 3.0 m: free now
+  // A file that is not a trajectory, or --poses with a folder INPUT: errors that say so.
+  std::ofstream(dir + "/bad.txt") << "not a trajectory\n";
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --poses " + dir +
+                 "/bad.txt");
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  r = RunCommand(Bin("omni-octomap") + " build " + dir + " --out " + out2 + " --poses " + traj);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--poses is for a log INPUT"), std::string::npos) << r.output;
 }
 
 TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
