@@ -21,6 +21,7 @@
 #include "omni/bus/bus.h"
 #include "omni/color_image_t.hpp"
 #include "omni/common/config.h"
+#include "omni/common/time.h"
 #include "omni/depth_image_t.hpp"
 #include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
@@ -231,6 +232,8 @@ int main(int argc, char** argv) {
       !up.empty() && !omni::octo::UpAxis::Parse(up, &o.grid.up))
     return Fail("--up must be one of x y z -x -y -z");
   const std::string source = Get(a, "--source");
+  if (!source.empty() && !Get(a, "--poses").empty())
+    return Fail("--source and --poses exclude each other (--poses replaces the pose channel)");
   if (!source.empty()) {
     if (source != "rbpf" && source != "pg") return Fail("--source must be rbpf or pg");
     o.pose_source = source;
@@ -313,18 +316,16 @@ int main(int argc, char** argv) {
   auto reader = omni::io::LcmLogReader::Open(a.input);
   if (!reader.ok()) return Fail(reader.error().message);
   omni::octo::OctomapPipeline pipeline(o);
-  // --poses: the trajectory file's poses, handed to the pipeline in time order as the frames
-  // come (each frame gets the poses up to its time and the first after it), instead of the
-  // log's pose channel.
+  // --poses: the trajectory file's poses, handed to the pipeline as the frames come (PoseFeed),
+  // instead of the log's pose channel.
   const std::string poses_path = Get(a, "--poses");
   std::vector<std::pair<int64_t, omni::Pose2>> file_poses;
-  size_t next_pose = 0;
   int64_t file_poses_skipped = 0;
   if (!poses_path.empty()) {
     auto traj = omni::io::ReadTrajectory(poses_path);
     if (!traj.ok()) return Fail(traj.error().message);
     for (const auto& e : traj->entries) {
-      const int64_t u = std::llround(e.timestamp_s * 1e6);
+      const int64_t u = omni::SecondsToUtime(e.timestamp_s);
       if (!file_poses.empty() && u <= file_poses.back().first) {
         ++file_poses_skipped;  // not after the previous pose: the poser would refuse it
         continue;
@@ -332,18 +333,18 @@ int main(int argc, char** argv) {
       file_poses.emplace_back(u, e.pose2());
     }
     if (file_poses.size() < 2) return Fail(poses_path + ": fewer than two poses in time order");
+    if (file_poses_skipped > 0)
+      std::fprintf(stderr,
+                   "omni-octomap: warning: %lld of %zu poses in %s are not later than the pose "
+                   "before them (a clock that went back?) and are skipped; frames in those "
+                   "stretches are posed by the poses around them or dropped\n",
+                   static_cast<long long>(file_poses_skipped), traj->entries.size(),
+                   poses_path.c_str());
   }
-  auto feed_file_poses = [&](int64_t until_utime) {
-    while (next_pose < file_poses.size() && file_poses[next_pose].first <= until_utime) {
-      pipeline.AddPose(file_poses[next_pose].first, file_poses[next_pose].second);
-      ++next_pose;
-    }
-    if (next_pose < file_poses.size()) {  // the first after: the frame can be interpolated now
-      pipeline.AddPose(file_poses[next_pose].first, file_poses[next_pose].second);
-      ++next_pose;
-    }
-  };
-  const std::string pose_channel = file_poses.empty() ? o.PoseChannel() : poses_path;
+  const bool use_file = !file_poses.empty();
+  omni::octo::PoseFeed feed(std::move(file_poses));
+  auto add_pose = [&pipeline](int64_t utime, const omni::Pose2& p) { pipeline.AddPose(utime, p); };
+  const std::string pose_channel = use_file ? poses_path : o.PoseChannel();
   int64_t decode_errors = 0, color_decode_errors = 0, events = 0;
   omni::io::LcmLogEvent ev;
   for (;;) {
@@ -351,7 +352,7 @@ int main(int argc, char** argv) {
     if (!more.ok()) return Fail(more.error().message);
     if (!*more) break;
     ++events;
-    if (file_poses.empty() && ev.channel == pose_channel) {
+    if (!use_file && ev.channel == pose_channel) {
       omni::pose2d_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
         ++decode_errors;
@@ -369,7 +370,7 @@ int main(int argc, char** argv) {
         ++decode_errors;
         continue;
       }
-      if (!file_poses.empty()) feed_file_poses(im->utime);
+      if (use_file) feed.FeedFor(im->utime, add_pose);
       pipeline.AddDepth(std::move(*im));
     } else if (o.color && ev.channel == o.color_channel) {
       omni::color_image_t m;
@@ -389,7 +390,7 @@ int main(int argc, char** argv) {
     pipeline.Process(pipeline.newest_utime());
   }
   // End of log: whatever still waits for a pose can only be posed by what is there.
-  if (!file_poses.empty()) feed_file_poses(std::numeric_limits<int64_t>::max());
+  if (use_file) feed.FeedRest(add_pose);
   pipeline.Process(pipeline.newest_utime());
   pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
   pipeline.FlushAwaitingColor();
@@ -407,9 +408,9 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
         static_cast<long long>(c.frames_uncolored),
         static_cast<long long>(color_decode_errors + c.color_invalid), a.out.c_str());
-  if (!file_poses.empty())
+  if (use_file)
     std::printf("omni-octomap: %zu poses from %s (%lld not after the one before, skipped)\n",
-                next_pose, poses_path.c_str(), static_cast<long long>(file_poses_skipped));
+                feed.fed(), poses_path.c_str(), static_cast<long long>(file_poses_skipped));
   std::printf(
       "omni-octomap: %lld events; %lld frames in, %lld inserted, %lld dropped without pose, %lld "
       "out of order, %lld decode errors, %.2f s -> %s/map.{bt,ot} (%zu leaves at %.3f m)\n",

@@ -113,6 +113,18 @@ int main(int argc, char** argv) {
   omni::pgm::PoseGraphSlam slam(opt, batch, &clock);
   int64_t scans = 0;
   std::vector<omni::io::TrajectoryEntry> live;  // each scan's pose when accepted (POSE_PG)
+  auto record_live = [&]() {
+    omni::pgm::ScanPose sp;
+    if (slam.LastScanPose(&sp))
+      live.push_back(omni::io::MakeEntry2D(sp.scan_index, omni::UtimeToSeconds(sp.utime), sp.pose));
+  };
+  // Odometry as the node hands it over: when it proves a clock step back, the scans held
+  // meanwhile are mapped and the newest one's pose is what the node publishes.
+  auto add_odometry = [&](int64_t utime, const omni::Pose2& p) {
+    const int64_t replayed = slam.counters().scans_replayed;
+    slam.AddOdometry(utime, p);
+    if (slam.counters().scans_replayed > replayed) record_live();
+  };
   auto progress = [&]() {
     if (!quiet && scans % 1000 == 0)
       std::fprintf(stderr, "omni-posegraph-slam: scan %lld, %zu keyframes, %lld loops\n",
@@ -132,15 +144,13 @@ int main(int argc, char** argv) {
     s.ranges_m = in.ranges_m;
     s.scan_time_s = in.scan_time_s;
     // A CARMEN laser line carries the odometry pose at the scan.
-    if (in.odom) slam.AddOdometry(s.utime, *in.odom);
-    omni::pgm::ScanPose sp;
-    if (slam.AddScan(scans, s) && slam.LastScanPose(&sp))
-      live.push_back(omni::io::MakeEntry2D(sp.scan_index, omni::UtimeToSeconds(sp.utime), sp.pose));
+    if (in.odom) add_odometry(s.utime, *in.odom);
+    if (slam.AddScan(scans, s)) record_live();
     ++scans;
     progress();
     return !(max_scans >= 0 && scans >= max_scans);
   };
-  handlers.odom = [&](int64_t utime, const omni::Pose2& p) { slam.AddOdometry(utime, p); };
+  handlers.odom = add_odometry;
   // The gyro (an LCM log's IMU channel) is read only when the config enables it.
   if (opt.use_gyro)
     handlers.imu = [&](int64_t utime, double rate) { slam.AddImuYawRate(utime, rate); };

@@ -221,11 +221,19 @@ TEST(OctomapCli, BuildsFromAnLcmLogPosedBy2dSlam) {
   ASSERT_TRUE(shifted->Contains(col2, row2));
   EXPECT_EQ(shifted->at(col2, row2), 100);
   EXPECT_EQ(shifted->at(col2 - 10, row2), 0);  // x = 3.0 m: free now
-  // A file that is not a trajectory, or --poses with a folder INPUT: errors that say so.
+  // A file that is not a trajectory, --poses with --source, or with a folder INPUT: errors that
+  // say so.
   std::ofstream(dir + "/bad.txt") << "not a trajectory\n";
-  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --poses " + dir +
-                 "/bad.txt");
-  EXPECT_NE(r.exit_code, 0) << r.output;
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --config " +
+                 Config() + " --poses " + dir + "/bad.txt");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("bad.txt:1: 'not' is not a finite number"), std::string::npos)
+      << r.output;
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --config " +
+                 Config() + " --poses " + traj + " --source pg");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--source and --poses exclude each other"), std::string::npos)
+      << r.output;
   r = RunCommand(Bin("omni-octomap") + " build " + dir + " --out " + out2 + " --poses " + traj);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("--poses is for a log INPUT"), std::string::npos) << r.output;

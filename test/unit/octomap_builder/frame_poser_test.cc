@@ -1,3 +1,7 @@
+#include <cstdint>
+#include <utility>
+#include <vector>
+
 #include <gtest/gtest.h>
 
 #include "omni/octomap_builder/frame_poser.h"
@@ -144,6 +148,46 @@ TEST(CameraMount, OpticalAxesOnTheBase) {
   const Eigen::Vector3d axis =
       CameraInMap(Pose2(1, 2, M_PI / 2), m).linear() * Eigen::Vector3d::UnitZ();
   EXPECT_TRUE(axis.isApprox(-Eigen::Vector3d::UnitX(), 1e-12));
+}
+
+}  // namespace
+}  // namespace omni::octo
+
+namespace omni::octo {
+namespace {
+
+// A recorded trajectory fed to the poser as the frames come (omni octomap build --poses), with
+// the frames three times as fast as the poses for longer than the poser keeps poses (2000):
+// the poses handed over stay at most one ahead of the frames, so every frame is posed.
+TEST(PoseFeed, FramesFasterThanPosesStayPosedPastThePoseBuffer) {
+  FramePoserOptions o;
+  o.max_latency_us = 2000000;
+  o.max_pose_gap_us = 2000000;
+  ASSERT_LT(o.pose_capacity, 2500u);
+  FramePoser<int64_t> poser(o);
+  std::vector<std::pair<int64_t, Pose2>> poses;
+  const int64_t t0 = 1000000;
+  for (int i = 0; i < 2500; ++i) poses.emplace_back(t0 + 100000LL * i, Pose2(0.01 * i, 0, 0));
+  PoseFeed feed(poses);
+  int64_t frames = 0, posed = 0;
+  for (int64_t t = t0 - 50000; t < poses.back().first; t += 33333) {
+    feed.FeedFor(t, [&](int64_t u, const Pose2& p) { poser.AddPose(u, p); });
+    ASSERT_GE(feed.fed(), 1u);
+    ASSERT_GE(poses[feed.fed() - 1].first, t);  // the newest handed over is at or after t ...
+    if (feed.fed() >= 2) {
+      ASSERT_LT(poses[feed.fed() - 2].first, t);  // ... and the first such
+    }
+    poser.AddFrame(t, t);
+    ++frames;
+    for (const auto& out : poser.Poll(t)) {
+      ++posed;
+      EXPECT_NEAR(out.robot_in_map.x, 0.01 * static_cast<double>(out.frame - t0) / 100000.0, 1e-9);
+    }
+  }
+  EXPECT_EQ(posed, frames - 2);  // the two frames before the first pose cannot be posed
+  EXPECT_EQ(poser.counters().frames_dropped_no_pose, 2);
+  EXPECT_LE(feed.FeedRest([&](int64_t u, const Pose2& p) { poser.AddPose(u, p); }), 1u);
+  EXPECT_EQ(feed.fed(), poses.size());
 }
 
 }  // namespace

@@ -110,7 +110,8 @@ TEST(PoseGraphGyro, AFutureStampedSampleIsDroppedAfterFiveInOrder) {
   for (int k = 106; k <= 200; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.5));
   const auto y = gyro.Between(0, 2'000'000);
   ASSERT_TRUE(y);
-  EXPECT_NEAR(y->delta_rad, 1.0, 1e-9);  // 0.5 rad/s for 2 s; the four held samples are taken
+  EXPECT_NEAR(y->delta_rad, 1.0, 1e-9);  // 0.5 rad/s for 2 s (AClockSetBack... below checks
+                                         // that the held samples are taken)
 }
 
 // The clock set back by 1.5 s (a reboot, an NTP step) while the base turns the other way: once

@@ -563,9 +563,10 @@ TEST(RbpfSlam, DenseScansKeepTheFineGrid) {
   ExpectSameTrajectory(a.trajectory, RunPrefixWith(path, 250, fixed).trajectory);
 }
 
-// With flat weights the best particle changes often; the reported one (the pose AddScan
-// returns, the process's POSE_RBPF) changes lineage only past report_switch_log_margin. The
-// filter itself, and so the final trajectory, is the same whatever the margin.
+// With flat weights the heaviest particle (by final_particle's weight, the whole ancestry's by
+// default) changes often; the reported one (the pose AddScan returns, the process's POSE_RBPF)
+// changes lineage only past report_switch_log_margin. The filter itself, and so the final
+// trajectory, is the same whatever the margin.
 TEST(RbpfSlam, TheReportedParticleChangesOnlyPastTheMargin) {
   OMNI_REQUIRE_DATASET(path, "intel-raw/intel.clf");
   auto run = [&](double margin) {

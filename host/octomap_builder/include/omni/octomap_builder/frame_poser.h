@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <deque>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -179,6 +180,42 @@ class FramePoser {
   StampOrder frame_order_;
   int64_t last_frame_utime_ = INT64_MIN;
   int64_t trusted_frame_utime_ = 0;
+};
+
+// A recorded trajectory (poses in strictly increasing time) handed to a FramePoser as the frames
+// come, instead of live pose messages (`omni octomap build LOG --poses FILE`): before a frame at
+// time t, every pose up to t, and the first pose after t unless one at or after t was already
+// handed over. So the poses handed over never run more than one ahead of the frames, whatever
+// the two rates, and the poser's bounded pose buffer keeps what the waiting frames need.
+class PoseFeed {
+ public:
+  explicit PoseFeed(std::vector<std::pair<int64_t, Pose2>> poses) : poses_(std::move(poses)) {}
+  // Calls add(utime, pose) for the poses a frame at `utime` needs; returns how many.
+  template <class Add>
+  size_t FeedFor(int64_t utime, Add&& add) {
+    const size_t before = next_;
+    while (next_ < poses_.size() && poses_[next_].first <= utime) Next(add);
+    if (next_ < poses_.size() && (next_ == 0 || poses_[next_ - 1].first < utime)) Next(add);
+    return next_ - before;
+  }
+  // Every pose not yet handed over (the end of the frames).
+  template <class Add>
+  size_t FeedRest(Add&& add) {
+    const size_t before = next_;
+    while (next_ < poses_.size()) Next(add);
+    return next_ - before;
+  }
+  size_t size() const { return poses_.size(); }
+  size_t fed() const { return next_; }
+
+ private:
+  template <class Add>
+  void Next(Add& add) {
+    add(poses_[next_].first, poses_[next_].second);
+    ++next_;
+  }
+  std::vector<std::pair<int64_t, Pose2>> poses_;
+  size_t next_ = 0;
 };
 
 }  // namespace omni::octo
