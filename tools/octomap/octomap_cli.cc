@@ -55,6 +55,9 @@ void Usage(std::FILE* f) {
       "  --min-depth M --max-depth M --stride N --voxel-filter M\n"
       "  --exact              no discretize: the same key sets as "
       "insertPointCloud(discretize=false)\n"
+      "  --discretize         one ray per leaf-sized voxel (insertPointCloud(discretize=true))\n"
+      "  --subvoxel N         one ray per (resolution/N) cell to its centroid (config subvoxel;\n"
+      "                       0 = every point)\n"
       "  --threads N          threads for the key sets (default 2)\n"
       "  --fx F --fy F --cx F --cy F --depth-scale S   intrinsics for a folder INPUT\n"
       "  --grid-min-z M --grid-max-z M                  height band of the 2D grid\n"
@@ -154,7 +157,7 @@ int main(int argc, char** argv) {
       "--out",        "--config", "--resolution",   "--max-range",   "--min-depth",
       "--max-depth",  "--stride", "--voxel-filter", "--threads",     "--fx",
       "--fy",         "--cx",     "--cy",           "--depth-scale", "--grid-min-z",
-      "--grid-max-z", "--source", "--up",           "--poses"};
+      "--grid-max-z", "--source", "--up",           "--poses",       "--subvoxel"};
   for (int i = 3; i < argc; ++i) {
     const std::string s = argv[i];
     if (s == "--help" || s == "-h") {
@@ -226,6 +229,7 @@ int main(int argc, char** argv) {
   if (!(o.resolution_m >= 0.001 && o.resolution_m <= 10))
     return Fail("--resolution must be in [0.001, 10]");
   if (o.depth.pixel_stride < 1 || o.threads < 1) return Fail("--stride and --threads must be >= 1");
+  if (o.subvoxel < 0 || o.subvoxel > 16) return Fail("--subvoxel must be in [0, 16]");
   if (!(o.depth.min_depth_m < o.depth.max_depth_m)) return Fail("need --min-depth < --max-depth");
   if (!(o.grid.min_z_m < o.grid.max_z_m)) return Fail("need --grid-min-z < --grid-max-z");
   if (const std::string up = Get(a, "--up");

@@ -237,6 +237,16 @@ TEST(OctomapCli, BuildsFromAnLcmLogPosedBy2dSlam) {
   r = RunCommand(Bin("omni-octomap") + " build " + dir + " --out " + out2 + " --poses " + traj);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("--poses is for a log INPUT"), std::string::npos) << r.output;
+  // --subvoxel overrides the config (0: a ray to every point, the same wall).
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + dir + "/out_all --config " +
+                 Config() + " --subvoxel 0");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto all_rays = LoadTree(dir + "/out_all/map.ot");
+  ASSERT_TRUE(all_rays.ok()) << all_rays.error().message;
+  ExpectWall(**all_rays);
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --subvoxel 99");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--subvoxel must be in [0, 16]"), std::string::npos) << r.output;
 }
 
 TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
