@@ -84,7 +84,10 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   r.Get("imu_channel", &o.imu_channel, Optional(), NonEmpty());
   r.Get("pose_channel", &o.pose_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
+  r.Get("trajectory_channel", &o.trajectory_channel, Optional(), NonEmpty());
   r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.05, 3600.0));
+  r.Get("trajectory_publish_interval_s", &o.trajectory_publish_interval_s, Optional(),
+        InRange(0.0, 3600.0));
   r.Get("grid_publish_resolution_m", &o.grid_publish_resolution_m, Optional(), InRange(0.0, 1.0));
   ConfigReader oc = r.Section("odometry_calibration");
   ReadOdometryCalibratorOptions(oc, &o.odometry_calibration, /*graph_keys=*/false);
@@ -621,11 +624,12 @@ int RbpfSlam::final_index() const {
   return best;
 }
 
-std::vector<EstimatedPose> RbpfSlam::BestTrajectory() const {
+std::vector<EstimatedPose> RbpfSlam::TrajectoryOf(int particle) const {
   std::vector<EstimatedPose> out;
-  if (records_.empty()) return out;
-  const Particle& b = particles_[static_cast<size_t>(final_index())];
-  // Processed scan index -> pose on the best particle's path.
+  if (records_.empty() || particle < 0 || static_cast<size_t>(particle) >= particles_.size())
+    return out;
+  const Particle& b = particles_[static_cast<size_t>(particle)];
+  // Processed scan index -> pose on the particle's path.
   std::vector<std::pair<int64_t, Pose2>> path;
   for (const TrajectoryNode* n = b.node.get(); n; n = n->parent.get())
     path.emplace_back(n->scan_index, n->pose);

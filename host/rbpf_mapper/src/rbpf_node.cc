@@ -14,6 +14,7 @@
 #include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
+#include "omni/trajectory_t.hpp"
 
 namespace omni::rbpf {
 
@@ -259,6 +260,27 @@ void RbpfNode::PublishGrid() {
     ++grids_published_;
 }
 
+void RbpfNode::PublishTrajectory() {
+  const std::vector<EstimatedPose> traj = slam_.ReportedTrajectory();
+  if (traj.empty()) return;
+  omni::trajectory_t m;
+  m.utime = traj.back().utime;
+  m.frame = "map";
+  m.source = "rbpf";
+  m.num_poses = static_cast<int32_t>(traj.size());
+  m.pose_utime.reserve(traj.size());
+  m.x_m.reserve(traj.size());
+  m.y_m.reserve(traj.size());
+  m.yaw_rad.reserve(traj.size());
+  for (const auto& e : traj) {
+    m.pose_utime.push_back(e.utime);
+    m.x_m.push_back(e.pose.x);
+    m.y_m.push_back(e.pose.y);
+    m.yaw_rad.push_back(e.pose.theta);
+  }
+  if (bus_->Publish(opt_.trajectory_channel, m)) ++trajectories_published_;
+}
+
 void RbpfNode::Tick() {
   heartbeat_.Tick();
   const int64_t now = clock_->NowUtime();
@@ -267,6 +289,13 @@ void RbpfNode::Tick() {
     PublishGrid();
     last_grid_utime_ = now;
   }
+  const int64_t processed = slam_.counters().scans_processed;
+  if (opt_.trajectory_publish_interval_s > 0 && processed > processed_at_last_traj_ &&
+      now - last_traj_utime_ >= static_cast<int64_t>(opt_.trajectory_publish_interval_s * 1e6)) {
+    PublishTrajectory();
+    last_traj_utime_ = now;
+    processed_at_last_traj_ = processed;
+  }
 }
 
 void RbpfNode::Flush() { Drain(true, INT32_MAX); }
@@ -274,6 +303,7 @@ void RbpfNode::Flush() { Drain(true, INT32_MAX); }
 Status RbpfNode::WriteOutputs(const std::string& dir) {
   Flush();
   PublishGrid();
+  PublishTrajectory();
   heartbeat_.Tick(true);
   return SaveMaps(dir);
 }

@@ -27,6 +27,7 @@
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "omni/rbpf_mapper/rbpf_node.h"
+#include "omni/trajectory_t.hpp"
 
 namespace omni {
 namespace {
@@ -97,6 +98,7 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   rbpf::RbpfOptions opt;
   opt.particles = 10;
   opt.grid_publish_interval_s = 0.5;
+  opt.trajectory_publish_interval_s = 0.5;
   opt.grid_publish_resolution_m = 0;  // the map's own cells: the switch shows in the grids
   // Active within the prefix, so its counters in the heartbeat have something to count.
   opt.odometry_calibration.min_pairs = 5;
@@ -105,10 +107,32 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   int poses = 0, grids = 0, heartbeats = 0;
   int64_t cal_pairs = -1, cell_mm = -1, switched = -1;
   double first_grid_resolution = 0, last_grid_resolution = 0;
+  std::vector<omni::pose2d_t> published;
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
     EXPECT_EQ(p.source, "rbpf");
     EXPECT_TRUE(std::isfinite(p.x_m));
+    published.push_back(p);
     ++poses;
+  });
+  // The reported particle's path: one pose per scan accepted so far, in time order, ending at the
+  // pose just published for the newest scan.
+  int trajectories = 0, trajectory_ends_checked = 0;
+  b.Subscribe<omni::trajectory_t>("TRAJECTORY_RBPF", [&](const omni::trajectory_t& t, int64_t) {
+    ++trajectories;
+    EXPECT_EQ(t.source, "rbpf");
+    ASSERT_EQ(t.num_poses, static_cast<int32_t>(t.pose_utime.size()));
+    ASSERT_GT(t.num_poses, 0);
+    EXPECT_LE(t.num_poses, static_cast<int32_t>(published.size()));
+    for (size_t i = 1; i < t.pose_utime.size(); ++i)
+      EXPECT_LT(t.pose_utime[i - 1], t.pose_utime[i]);
+    EXPECT_EQ(t.utime, t.pose_utime.back());
+    for (const auto& p : published) {
+      if (p.utime != t.utime) continue;
+      EXPECT_NEAR(p.x_m, t.x_m.back(), 1e-9);
+      EXPECT_NEAR(p.y_m, t.y_m.back(), 1e-9);
+      EXPECT_NEAR(p.yaw_rad, t.yaw_rad.back(), 1e-9);
+      ++trajectory_ends_checked;
+    }
   });
   b.Subscribe<omni::occupancy_grid_t>("GRID_RBPF", [&](const omni::occupancy_grid_t& g, int64_t) {
     if (++grids == 1) first_grid_resolution = g.resolution_m;
@@ -136,6 +160,9 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   }
   EXPECT_EQ(poses, 60);
   EXPECT_GE(grids, 5);
+  EXPECT_GE(trajectories, 5);
+  EXPECT_EQ(trajectory_ends_checked, trajectories);
+  EXPECT_EQ(node.trajectories_published(), trajectories);
   EXPECT_GE(heartbeats, 5);
   EXPECT_EQ(b.counters().decode_errors.load(), 60);
   EXPECT_GE(node.slam().counters().invalid_beams, 180);

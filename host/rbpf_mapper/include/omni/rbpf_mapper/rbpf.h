@@ -119,7 +119,11 @@ struct RbpfOptions {
   std::string imu_channel = "IMU";
   std::string pose_channel = "POSE_RBPF";
   std::string grid_channel = "GRID_RBPF";
+  // The reported particle's whole path (trajectory_t), so a consumer posed by POSE_RBPF can
+  // re-pose what it placed when that path changes (the OctoMap builder's `repose`).
+  std::string trajectory_channel = "TRAJECTORY_RBPF";
   double grid_publish_interval_s = 5.0;
+  double trajectory_publish_interval_s = 2.0;  // 0: only at exit
   // The published grid's cell size: a finer map is published on cells an integer multiple of
   // its own (the multiple nearest this size; each takes the largest value it covers, so walls
   // stay), a quarter of the bytes for 2.5 cm cells. 0: the map's own cells. Map files on disk
@@ -280,7 +284,11 @@ class RbpfSlam {
   }
   // The best particle's path at every accepted scan (processed scans from its trajectory tree,
   // the others placed by odometry relative to the nearest processed scan).
-  std::vector<EstimatedPose> BestTrajectory() const;
+  std::vector<EstimatedPose> BestTrajectory() const { return TrajectoryOf(final_index()); }
+  // The reported particle's path, the same way: what POSE_RBPF would have carried had the
+  // particle's present estimate been known at each scan.
+  std::vector<EstimatedPose> ReportedTrajectory() const { return TrajectoryOf(reported_lineage_); }
+  std::vector<EstimatedPose> TrajectoryOf(int particle) const;
   const std::vector<Particle>& particles() const { return particles_; }
   const RbpfCounters& counters() const { return counters_; }
   // The options in use: grid.resolution_m is the cell size chosen (see ResolutionChoice).

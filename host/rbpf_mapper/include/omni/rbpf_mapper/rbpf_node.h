@@ -1,8 +1,10 @@
 // The rbpf_mapper node: bus I/O around the RbpfSlam library. Subscribes LIDAR_SCAN
 // (laser_scan_t), WHEEL_ODOM (odometry_t) and IMU (imu_t, when use_imu), publishes POSE_RBPF
 // (pose2d_t, the reported particle's pose at every accepted scan:
-// RbpfOptions::report_switch_log_margin), GRID_RBPF (occupancy_grid_t, at grid_publish_interval_s)
-// and HEARTBEAT with the filter's counters.
+// RbpfOptions::report_switch_log_margin), GRID_RBPF (occupancy_grid_t, at grid_publish_interval_s),
+// TRAJECTORY_RBPF (trajectory_t, the reported particle's path at every accepted scan, at
+// trajectory_publish_interval_s and at exit: earlier poses move when a loop closes or the reported
+// particle changes lineage) and HEARTBEAT with the filter's counters.
 //
 // Scans wait in a queue until odometry at or after their time has arrived (bus order is not
 // guaranteed), or until they are older than max_odom_gap_s behind the newest message.
@@ -39,7 +41,8 @@ class RbpfNode {
   int ProcessReady(int max_scans);
   size_t pending() const { return pending_.size(); }
   int64_t max_pending_seen() const { return max_pending_seen_; }
-  // Publishes the final grid and writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
+  // Publishes the final grid and trajectory and writes DIR/map.{pgm,yaml,png} and
+  // DIR/trajectory.txt.
   Status WriteOutputs(const std::string& dir);
   // The same files, now, from the best particle as it stands (a map save request while
   // mapping: nothing is flushed, the filter goes on).
@@ -47,6 +50,7 @@ class RbpfNode {
   const RbpfSlam& slam() const { return slam_; }
   int64_t poses_published() const { return poses_published_; }
   int64_t grids_published() const { return grids_published_; }
+  int64_t trajectories_published() const { return trajectories_published_; }
   int64_t scans_lost() const { return scans_lost_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
@@ -56,6 +60,7 @@ class RbpfNode {
   int Drain(bool all, int max_scans);
   void AttachOdometry();
   void PublishGrid();
+  void PublishTrajectory();
   // The time stale scans are measured against: the newest scan or odometry stamp.
   int64_t NewestMessageUtime() const;
 
@@ -77,6 +82,9 @@ class RbpfNode {
   int64_t poses_published_ = 0;
   int64_t grids_published_ = 0;
   int64_t last_grid_utime_ = 0;
+  int64_t trajectories_published_ = 0;
+  int64_t last_traj_utime_ = 0;
+  int64_t processed_at_last_traj_ = 0;
   int64_t pose_seq_ = 0;
   bool deferred_ = false;
   int64_t max_pending_seen_ = 0;
