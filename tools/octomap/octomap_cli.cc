@@ -30,6 +30,7 @@
 #include "omni/octomap_builder/octomap_builder.h"
 #include "omni/octomap_builder/octomap_node.h"
 #include "omni/pose2d_t.hpp"
+#include "omni/trajectory_t.hpp"
 
 namespace fs = std::filesystem;
 using omni::octo::DepthImage;
@@ -68,6 +69,10 @@ void Usage(std::FILE* f) {
       "                       map; the indexed form omni slam writes, or TUM) instead of the\n"
       "                       log's pose channel, e.g. a mapper's final trajectory.txt: the 3D\n"
       "                       map at the corrected poses, not the ones published live\n"
+      "  --repose, --no-repose  for a log INPUT: re-pose keyframes by the source's whole\n"
+      "                       trajectories in the log (TRAJECTORY_RBPF / TRAJECTORY_PG), as the\n"
+      "                       process does (default: the config's repose.enabled, off with\n"
+      "                       --poses); the last trajectory in the log is applied at the end\n"
       "  --pcd                also write the aggregate point cloud\n"
       "  --color              also build a ColorOcTree: DIR/map_color.ot, DIR/view_color.png;\n"
       "                       a folder needs color/N.png (same camera and size as depth/N),\n"
@@ -78,6 +83,7 @@ struct Args {
   std::string input, out, config;
   std::vector<std::pair<std::string, std::string>> opts;  // option -> value, in order
   bool exact = false, discretize = false, pcd = false, color = false;
+  int repose = -1;  // --repose 1, --no-repose 0, else the config's repose.enabled
 };
 
 std::string Get(const Args& a, const std::string& key, const std::string& def = "") {
@@ -171,6 +177,8 @@ int main(int argc, char** argv) {
       a.pcd = true;
     } else if (s == "--color") {
       a.color = true;
+    } else if (s == "--repose" || s == "--no-repose") {
+      a.repose = s == "--repose" ? 1 : 0;
     } else if (std::find(kValued.begin(), kValued.end(), s) != kValued.end()) {
       if (i + 1 >= argc) return Fail(s + " needs a value");
       a.opts.emplace_back(s, argv[++i]);
@@ -236,13 +244,20 @@ int main(int argc, char** argv) {
       !up.empty() && !omni::octo::UpAxis::Parse(up, &o.grid.up))
     return Fail("--up must be one of x y z -x -y -z");
   const std::string source = Get(a, "--source");
-  if (!source.empty() && !Get(a, "--poses").empty())
-    return Fail("--source and --poses exclude each other (--poses replaces the pose channel)");
+  if (!source.empty() && !Get(a, "--poses").empty() && a.repose != 1)
+    return Fail(
+        "--source and --poses exclude each other (--poses replaces the pose channel; with "
+        "--repose, --source picks the trajectory channel)");
   if (!source.empty()) {
     if (source != "rbpf" && source != "pg") return Fail("--source must be rbpf or pg");
     o.pose_source = source;
     o.pose_channel.clear();
+    o.repose.trajectory_channel.clear();
   }
+  // With --poses (usually a final trajectory) the log's trajectories are not applied unless
+  // --repose asks for them (then the file stands in for the live poses).
+  if (!Get(a, "--poses").empty()) o.repose.enabled = false;
+  if (a.repose >= 0) o.repose.enabled = a.repose == 1;
 
   std::error_code ec;
   fs::create_directories(a.out, ec);
@@ -349,7 +364,8 @@ int main(int argc, char** argv) {
   omni::octo::PoseFeed feed(std::move(file_poses));
   auto add_pose = [&pipeline](int64_t utime, const omni::Pose2& p) { pipeline.AddPose(utime, p); };
   const std::string pose_channel = use_file ? poses_path : o.PoseChannel();
-  int64_t decode_errors = 0, color_decode_errors = 0, events = 0;
+  const std::string trajectory_channel = o.repose.enabled ? o.TrajectoryChannel() : "";
+  int64_t decode_errors = 0, color_decode_errors = 0, events = 0, trajectories_rejected = 0;
   omni::io::LcmLogEvent ev;
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
@@ -363,6 +379,18 @@ int main(int argc, char** argv) {
         continue;
       }
       pipeline.AddPose(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
+    } else if (!trajectory_channel.empty() && ev.channel == trajectory_channel) {
+      omni::trajectory_t m;
+      if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
+        ++decode_errors;
+        continue;
+      }
+      auto poses = omni::octo::FromTrajectoryMessage(m, o.map_frame);
+      if (!poses.ok()) {
+        ++trajectories_rejected;
+        continue;
+      }
+      pipeline.AddTrajectory(std::move(*poses));
     } else if (ev.channel == o.depth_channel) {
       omni::depth_image_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), static_cast<int>(ev.data.size())) < 0) {
@@ -398,6 +426,7 @@ int main(int argc, char** argv) {
   pipeline.Process(pipeline.newest_utime());
   pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
   pipeline.FlushAwaitingColor();
+  pipeline.FinishRepose();
   const auto& pc = pipeline.poser_counters();
   const auto& c = pipeline.counters();
   if (c.frames_inserted == 0)
@@ -412,6 +441,16 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
         static_cast<long long>(c.frames_uncolored),
         static_cast<long long>(color_decode_errors + c.color_invalid), a.out.c_str());
+  if (o.repose.enabled)
+    std::printf(
+        "omni-octomap: repose: %lld trajectories on %s (%lld rejected), %lld keyframes (%lld "
+        "points), %lld rebuilds (the last %.2f s, for a shift of %.3f m)%s\n",
+        static_cast<long long>(c.trajectories_in + trajectories_rejected),
+        trajectory_channel.c_str(),
+        static_cast<long long>(c.trajectories_invalid + trajectories_rejected),
+        static_cast<long long>(c.keyframes), static_cast<long long>(c.keyframe_points),
+        static_cast<long long>(c.rebuilds_done), c.last_rebuild_us * 1e-6,
+        c.last_rebuild_shift_mm * 1e-3, c.repose_stopped ? "; stopped at repose.max_points" : "");
   if (use_file)
     std::printf("omni-octomap: %zu poses from %s (%lld not after the one before, skipped)\n",
                 feed.fed(), poses_path.c_str(), static_cast<long long>(file_poses_skipped));

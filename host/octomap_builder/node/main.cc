@@ -75,7 +75,9 @@ int main(int argc, char** argv) {
   omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
                                   &node.heartbeat());
   LOG_INFO << "listening on " << opt->depth_channel << " + " << opt->PoseChannel()
-           << (opt->color ? " + " + opt->color_channel : std::string());
+           << (opt->color ? " + " + opt->color_channel : std::string())
+           << (opt->repose.enabled ? " + " + opt->TrajectoryChannel() + " (repose)"
+                                   : std::string());
   int64_t last_msg_us = 0;
   while (!g_stop) {
     const int r = (*bus_or)->HandleTimeout(50);
@@ -112,6 +114,8 @@ int main(int argc, char** argv) {
   const auto& c = node.pipeline().counters();
   // Posed frames still waiting for a colour partner: insert them with what has come.
   node.pipeline().FlushAwaitingColor();
+  // A rebuild asked for or under way: the saved map is at the newest trajectory.
+  node.pipeline().FinishRepose();
   omni::Status s = node.SaveOutputs();
   std::printf(
       "octomap_builder: %lld frames in (%lld lost before arriving), %lld posed, %lld inserted, "
@@ -130,6 +134,15 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.color_frames_in), static_cast<long long>(c.frames_colored),
         static_cast<long long>(c.frames_uncolored),
         static_cast<long long>(node.color_decode_errors() + c.color_invalid), opt->out_dir.c_str());
+  if (opt->repose.enabled)
+    std::printf(
+        "octomap_builder: repose: %lld trajectories (%lld rejected), %lld keyframes (%lld "
+        "points), %lld rebuilds (the last %.2f s, for a shift of %.3f m)%s\n",
+        static_cast<long long>(c.trajectories_in + node.trajectories_rejected()),
+        static_cast<long long>(c.trajectories_invalid + node.trajectories_rejected()),
+        static_cast<long long>(c.keyframes), static_cast<long long>(c.keyframe_points),
+        static_cast<long long>(c.rebuilds_done), c.last_rebuild_us * 1e-6,
+        c.last_rebuild_shift_mm * 1e-3, c.repose_stopped ? "; stopped at repose.max_points" : "");
   if (!s.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", s.message().c_str());
     return 1;

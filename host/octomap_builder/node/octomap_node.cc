@@ -43,6 +43,21 @@ Result<ColorImage> FromColorMessage(const omni::color_image_t& m) {
   return im;
 }
 
+Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni::trajectory_t& m,
+                                                                     const std::string& map_frame) {
+  const auto n = static_cast<size_t>(std::max(m.num_poses, 0));
+  if (m.pose_utime.size() != n || m.x_m.size() != n || m.y_m.size() != n || m.yaw_rad.size() != n)
+    return MakeError(ErrorCode::kParse, "trajectory message: arrays disagree with num_poses");
+  if (!m.frame.empty() && m.frame != map_frame)
+    return MakeError(ErrorCode::kInvalidArgument, "trajectory in frame '" + m.frame +
+                                                      "', not the map frame '" + map_frame + "'");
+  std::vector<std::pair<int64_t, Pose2>> poses;
+  poses.reserve(n);
+  for (size_t i = 0; i < n; ++i)
+    poses.emplace_back(m.pose_utime[i], Pose2(m.x_m[i], m.y_m[i], m.yaw_rad[i]));
+  return poses;
+}
+
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source, bool binary) {
   omni::octomap_t msg;
@@ -99,6 +114,20 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
           pipeline_.AddColor(std::move(*im));
         });
   }
+  if (options_.repose.enabled) {
+    pipeline_.set_rebuild_budget_us(
+        static_cast<int64_t>(std::llround(options_.repose.rebuild_budget_ms * 1000)));
+    bus_->Subscribe<omni::trajectory_t>(options_.TrajectoryChannel(),
+                                        [this](const omni::trajectory_t& m, int64_t) {
+                                          auto poses = FromTrajectoryMessage(m, options_.map_frame);
+                                          if (!poses.ok()) {
+                                            ++trajectories_rejected_;
+                                            LOG_DEBUG << poses.error().message << "; ignored";
+                                            return;
+                                          }
+                                          pipeline_.AddTrajectory(std::move(*poses));
+                                        });
+  }
   const auto& pc = pipeline_.poser_counters();
   const auto& c = pipeline_.counters();
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
@@ -128,12 +157,27 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
                           [this, &c] { return color_decode_errors_ + c.color_invalid; });
     heartbeat_.AddCounter("color_dropped", [&c] { return c.color_dropped + c.color_out_of_order; });
   }
+  if (options_.repose.enabled) {
+    heartbeat_.AddCounter("trajectories_in",
+                          [this, &c] { return c.trajectories_in + trajectories_rejected_; });
+    // Another frame, inconsistent sizes, or not finite / not in time order.
+    heartbeat_.AddCounter("trajectories_rejected",
+                          [this, &c] { return trajectories_rejected_ + c.trajectories_invalid; });
+    heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
+    heartbeat_.AddCounter("keyframe_points", [&c] { return c.keyframe_points; });
+    heartbeat_.AddCounter("rebuilds_started", [&c] { return c.rebuilds_started; });
+    heartbeat_.AddCounter("rebuilds_done", [&c] { return c.rebuilds_done; });
+    heartbeat_.AddCounter("last_rebuild_ms", [&c] { return c.last_rebuild_us / 1000; });
+    heartbeat_.AddCounter("last_rebuild_shift_mm", [&c] { return c.last_rebuild_shift_mm; });
+    heartbeat_.AddCounter("repose_stopped", [&c] { return c.repose_stopped; });
+  }
   heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "waiting for depth and poses");
 }
 
 void OctomapNode::Tick(int64_t mono_us) {
   pipeline_.Process(pipeline_.newest_utime());
-  const int64_t inserted = pipeline_.counters().frames_inserted;
+  // Changes with every insertion and with a completed rebuild (repose).
+  const int64_t inserted = pipeline_.tree_version();
   auto due = [mono_us](int64_t* last, double period_s) {
     if (*last < 0) *last = mono_us;  // periods count from the first tick
     if (mono_us - *last < static_cast<int64_t>(period_s * 1e6)) return false;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "omni/common/log.h"
+
 namespace omni::octo {
 namespace {
 
@@ -105,6 +107,19 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   out.Get("cloud_voxel_m", &o.cloud_voxel_m, Optional(), Positive<double>());
   r.Get("heartbeat_period_s", &o.heartbeat_period_s, Optional(), InRange(0.05, 60.0));
 
+  auto rp = r.Section("repose");
+  ReposeOptions& ro = o.repose;
+  rp.Get("enabled", &ro.enabled, Optional());
+  rp.Get("trajectory_channel", &ro.trajectory_channel, Optional());
+  rp.Get("keyframe_distance_m", &ro.keyframe_distance_m, Optional(), Positive<double>());
+  rp.Get("keyframe_angle_rad", &ro.keyframe_angle_rad, Optional(), Positive<double>());
+  rp.Get("keyframe_interval_s", &ro.keyframe_interval_s, Optional(), Positive<double>());
+  rp.Get("point_spacing_m", &ro.point_spacing_m, Optional(), InRange(0.0, 1.0));
+  rp.Get("min_shift_m", &ro.min_shift_m, Optional(), InRange(0.0, 10.0));
+  rp.Get("min_interval_s", &ro.min_interval_s, Optional(), InRange(0.0, 3600.0));
+  rp.Get("rebuild_budget_ms", &ro.rebuild_budget_ms, Optional(), InRange(1.0, 10000.0));
+  rp.Get("max_points", &ro.max_points, Optional(), InRange<int64_t>(1000, int64_t{1} << 32));
+
   if (Status s = r.Finish(); !s.ok()) return s.error();
   return o;
 }
@@ -118,6 +133,11 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::LoadFile(const std::string&
 std::string OctomapBuilderOptions::PoseChannel() const {
   if (!pose_channel.empty()) return pose_channel;
   return pose_source == "pg" ? "POSE_PG" : "POSE_RBPF";
+}
+
+std::string OctomapBuilderOptions::TrajectoryChannel() const {
+  if (!repose.trajectory_channel.empty()) return repose.trajectory_channel;
+  return pose_source == "pg" ? "TRAJECTORY_PG" : "TRAJECTORY_RBPF";
 }
 
 OctomapBuilder::OctomapBuilder(const OctomapBuilderOptions& options)
@@ -138,21 +158,31 @@ OctomapBuilder::OctomapBuilder(const OctomapBuilderOptions& options)
 }
 
 Result<FrameStats> OctomapBuilder::InsertDepth(const DepthImage& image,
-                                               const Eigen::Isometry3d& camera_in_map) {
+                                               const Eigen::Isometry3d& camera_in_map,
+                                               ColoredPoints* kept) {
   auto pts = DepthToPoints(image, options_.depth);
   if (!pts.ok()) return pts.error();
+  if (kept) {
+    kept->points = *pts;
+    kept->colors.clear();
+  }
   return InsertPoints(*pts, camera_in_map);
 }
 
 Result<FrameStats> OctomapBuilder::InsertDepthColor(const DepthImage& image,
                                                     const ColorImage& color,
-                                                    const Eigen::Isometry3d& camera_in_map) {
+                                                    const Eigen::Isometry3d& camera_in_map,
+                                                    ColoredPoints* kept) {
   if (!color_tree_)
     return MakeError(ErrorCode::kInvalidArgument, "colour insertion needs the colour option");
   const int64_t t0 = ParallelKeySetInserter::NowMicros();
   auto pts = DepthToColoredPoints(image, color, options_.depth);
   if (!pts.ok()) return pts.error();
   const int64_t registration_us = ParallelKeySetInserter::NowMicros() - t0;
+  if (kept) {
+    kept->points = pts->points;
+    kept->colors = pts->colors;
+  }
   FrameStats st = InsertPoints(pts->points, camera_in_map, &pts->colors);
   st.colored_points = pts->colored;
   st.color_us += registration_us;
@@ -226,7 +256,7 @@ std::vector<Eigen::Vector3f> OctomapBuilder::AggregateCloud() const {
 }
 
 OctomapPipeline::OctomapPipeline(const OctomapBuilderOptions& options)
-    : builder_(options), poser_(options.poser) {}
+    : builder_(std::make_unique<OctomapBuilder>(options)), poser_(options.poser) {}
 
 void OctomapPipeline::AddPose(int64_t utime, const Pose2& robot_in_map) {
   poser_.AddPose(utime, robot_in_map);
@@ -243,7 +273,7 @@ int64_t OctomapPipeline::newest_utime() const {
 }
 
 void OctomapPipeline::AddColor(ColorImage image) {
-  const OctomapBuilderOptions& o = builder_.options();
+  const OctomapBuilderOptions& o = builder_->options();
   if (!o.color) return;
   ++counters_.color_frames_in;
   switch (color_order_.Check(image.utime)) {
@@ -269,7 +299,7 @@ void OctomapPipeline::AddColor(ColorImage image) {
 
 int OctomapPipeline::NearestColor(int64_t utime) const {
   int best = -1;
-  int64_t best_dt = builder_.options().color_max_dt_us;
+  int64_t best_dt = builder_->options().color_max_dt_us;
   for (size_t i = 0; i < colors_.size(); ++i) {
     const int64_t dt = std::abs(colors_[i].image.utime - utime);
     if (dt <= best_dt) {  // ties: the later frame
@@ -282,13 +312,15 @@ int OctomapPipeline::NearestColor(int64_t utime) const {
 
 void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
   const int64_t t0 = ParallelKeySetInserter::NowMicros();
-  const Eigen::Isometry3d cam = CameraInMap(posed.robot_in_map, builder_.options().mount);
+  const Eigen::Isometry3d cam = CameraInMap(posed.robot_in_map, builder_->options().mount);
   Result<FrameStats> st = MakeError(ErrorCode::kInternal, "not inserted");
+  ColoredPoints kept_points;
+  ColoredPoints* kept = IsKeyframe(posed) ? &kept_points : nullptr;
   if (color) {
-    st = builder_.InsertDepthColor(posed.frame, *color, cam);
+    st = builder_->InsertDepthColor(posed.frame, *color, cam, kept);
     if (st.ok()) {
       ++counters_.frames_colored;
-    } else if (CheckDepthFrame(posed.frame, builder_.options().depth).ok()) {
+    } else if (CheckDepthFrame(posed.frame, builder_->options().depth).ok()) {
       // The depth frame is fine: the colour frame is what cannot be used.
       ++counters_.color_invalid;
       last_error_ = "colour frame " + std::to_string(color->utime) + ": " + st.error().message;
@@ -296,8 +328,8 @@ void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
     }
   }
   if (!color) {
-    st = builder_.InsertDepth(posed.frame, cam);
-    if (st.ok() && builder_.options().color) ++counters_.frames_uncolored;
+    st = builder_->InsertDepth(posed.frame, cam, kept);
+    if (st.ok() && builder_->options().color) ++counters_.frames_uncolored;
   }
   if (!st.ok()) {
     ++counters_.frames_invalid;
@@ -313,11 +345,12 @@ void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
   ++counters_.frames_inserted;
   counters_.points_inserted += static_cast<int64_t>(st->points);
   counters_.last_frame_us = ParallelKeySetInserter::NowMicros() - t0;
+  if (kept) KeepKeyframe(posed, kept_points);
   newest_inserted_utime_ = std::max(newest_inserted_utime_, posed.utime);
 }
 
 int OctomapPipeline::Process(int64_t now_utime) {
-  const OctomapBuilderOptions& o = builder_.options();
+  const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
   for (auto& posed : poser_.Poll(now_utime)) {
     if (!o.color) {
@@ -328,13 +361,15 @@ int OctomapPipeline::Process(int64_t now_utime) {
       awaiting_color_.push_back(std::move(posed));
     }
   }
-  return n + PairAndInsert(now_utime, false);
+  n += PairAndInsert(now_utime, false);
+  StepRepose();
+  return n;
 }
 
 int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime(), true); }
 
 int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
-  const OctomapBuilderOptions& o = builder_.options();
+  const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
   while (!awaiting_color_.empty()) {
     const Posed& f = awaiting_color_.front();
@@ -361,6 +396,162 @@ int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
     }
   }
   return n;
+}
+
+// ---- Re-posing (repose.h) ----
+
+bool OctomapPipeline::IsKeyframe(const Posed& posed) const {
+  const ReposeOptions& r = builder_->options().repose;
+  if (!r.enabled || counters_.repose_stopped) return false;
+  if (keyframes_.empty()) return true;
+  const Keyframe& last = keyframes_.back();
+  return std::hypot(posed.robot_in_map.x - last.pose.x, posed.robot_in_map.y - last.pose.y) >=
+             r.keyframe_distance_m ||
+         std::abs(WrapAngle(posed.robot_in_map.theta - last.pose.theta)) >= r.keyframe_angle_rad ||
+         static_cast<double>(posed.utime - last.utime) >= r.keyframe_interval_s * 1e6;
+}
+
+void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& points) {
+  const OctomapBuilderOptions& o = builder_->options();
+  Keyframe kf;
+  kf.utime = posed.utime;
+  kf.pose = posed.robot_in_map;
+  const double spacing = o.repose.point_spacing_m > 0 ? o.repose.point_spacing_m : o.resolution_m;
+  ThinPoints(points.points, points.colors.empty() ? nullptr : &points.colors, spacing, &kf.points,
+             &kf.colors);
+  kf.radius_m = KeyframeRadius(kf.points, o.mount, o.max_range_m);
+  const auto n = static_cast<int64_t>(kf.points.size());
+  if (counters_.keyframe_points + n > o.repose.max_points && keyframes_.size() >= 2) {
+    // Every other keyframe goes, but the first and the newest stay: the whole run stays covered,
+    // at half the density. A running rebuild started from the old list: it starts again (the
+    // tree keeps the old map meanwhile).
+    std::deque<Keyframe> kept;
+    const size_t last = keyframes_.size() - 1;
+    for (size_t i = 0; i <= last; ++i)
+      if (i % 2 == 0 || i == last) kept.push_back(std::move(keyframes_[i]));
+    keyframes_ = std::move(kept);
+    counters_.keyframe_points = 0;
+    for (const Keyframe& k : keyframes_)
+      counters_.keyframe_points += static_cast<int64_t>(k.points.size());
+    counters_.keyframes = static_cast<int64_t>(keyframes_.size());
+    ++counters_.keyframe_thinnings;
+    if (shadow_) {
+      shadow_.reset();
+      rebuilt_poses_.clear();
+      wanted_shift_m_ = std::max(wanted_shift_m_, MaxShift());
+    }
+    LOG_INFO << "octomap repose: repose.max_points " << o.repose.max_points
+             << " reached; every other keyframe dropped (" << keyframes_.size() << " kept, "
+             << counters_.keyframe_points << " points)";
+  }
+  if (counters_.keyframe_points + n > o.repose.max_points) {
+    // A rebuild without every keyframe would lose what the others saw: stop re-posing instead.
+    LOG_WARN << "octomap repose: a keyframe of " << n << " points does not fit in "
+             << "repose.max_points " << o.repose.max_points
+             << "; re-posing stops here (the tree keeps growing at the published poses)";
+    counters_.repose_stopped = 1;
+    keyframes_.clear();
+    shadow_.reset();
+    rebuilt_poses_.clear();
+    wanted_shift_m_ = 0;
+    counters_.keyframes = 0;
+    counters_.keyframe_points = 0;
+    return;
+  }
+  keyframes_.push_back(std::move(kf));
+  ++counters_.keyframes;
+  counters_.keyframe_points += n;
+}
+
+bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses) {
+  const OctomapBuilderOptions& o = builder_->options();
+  if (!o.repose.enabled) return false;
+  ++counters_.trajectories_in;
+  bool ok = !poses.empty();
+  for (size_t i = 0; ok && i < poses.size(); ++i) {
+    const Pose2& p = poses[i].second;
+    ok = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta) &&
+         (i == 0 || poses[i - 1].first < poses[i].first);
+  }
+  if (!ok) {
+    ++counters_.trajectories_invalid;
+    last_error_ = "trajectory of " + std::to_string(poses.size()) +
+                  " poses: empty, not finite or not in time order; ignored";
+    return false;
+  }
+  trajectory_ = TrajectoryLookup(std::move(poses));
+  // While a rebuild runs, the keyframes it has not reached take the newest poses; whether the
+  // ones it has passed need another is decided when it completes.
+  if (!shadow_) wanted_shift_m_ = std::max(wanted_shift_m_, MaxShift());
+  return true;
+}
+
+Pose2 OctomapPipeline::TargetPose(const Keyframe& kf) const {
+  Pose2 p;
+  if (trajectory_.At(kf.utime, builder_->options().poser.max_pose_gap_us, &p)) return p;
+  return kf.pose;
+}
+
+double OctomapPipeline::MaxShift() const {
+  const ReposeOptions& r = builder_->options().repose;
+  const double threshold = r.min_shift_m > 0 ? r.min_shift_m : 2 * builder_->options().resolution_m;
+  double worst = 0;
+  for (const Keyframe& kf : keyframes_)
+    worst = std::max(worst, PoseShift(kf.pose, TargetPose(kf), kf.radius_m));
+  return worst > threshold ? worst : 0;
+}
+
+void OctomapPipeline::StepRepose() {
+  const ReposeOptions& r = builder_->options().repose;
+  if (!r.enabled || counters_.repose_stopped) return;
+  if (!shadow_ && wanted_shift_m_ > 0 && !keyframes_.empty()) {
+    const int64_t now = newest_utime();
+    if (last_rebuild_start_utime_ == INT64_MIN ||
+        static_cast<double>(now - last_rebuild_start_utime_) >= r.min_interval_s * 1e6) {
+      shadow_ = std::make_unique<OctomapBuilder>(builder_->options());
+      rebuilt_poses_.clear();
+      rebuild_us_ = 0;
+      counters_.last_rebuild_shift_mm = std::llround(wanted_shift_m_ * 1000);
+      wanted_shift_m_ = 0;
+      last_rebuild_start_utime_ = now;
+      ++counters_.rebuilds_started;
+    }
+  }
+  if (shadow_) RunRebuild(rebuild_budget_us_);
+}
+
+void OctomapPipeline::RunRebuild(int64_t budget_us) {
+  const OctomapBuilderOptions& o = builder_->options();
+  const int64_t t0 = ParallelKeySetInserter::NowMicros();
+  while (rebuilt_poses_.size() < keyframes_.size()) {
+    const Keyframe& kf = keyframes_[rebuilt_poses_.size()];
+    const Pose2 pose = TargetPose(kf);
+    shadow_->InsertPoints(kf.points, CameraInMap(pose, o.mount),
+                          o.color && !kf.colors.empty() ? &kf.colors : nullptr);
+    rebuilt_poses_.push_back(pose);
+    if (budget_us >= 0 && ParallelKeySetInserter::NowMicros() - t0 >= budget_us) break;
+  }
+  rebuild_us_ += ParallelKeySetInserter::NowMicros() - t0;
+  if (rebuilt_poses_.size() < keyframes_.size()) return;
+  builder_ = std::move(shadow_);
+  for (size_t i = 0; i < keyframes_.size(); ++i) keyframes_[i].pose = rebuilt_poses_[i];
+  rebuilt_poses_.clear();
+  ++counters_.rebuilds_done;
+  counters_.last_rebuild_us = rebuild_us_;
+  // The trajectory may have moved on while this ran.
+  wanted_shift_m_ = MaxShift();
+}
+
+void OctomapPipeline::FinishRepose() {
+  if (!builder_->options().repose.enabled) return;
+  if (shadow_) RunRebuild(-1);
+  if (wanted_shift_m_ > 0 && !counters_.repose_stopped) {
+    last_rebuild_start_utime_ = INT64_MIN;  // now, whatever the interval
+    const int64_t budget = rebuild_budget_us_;
+    rebuild_budget_us_ = -1;
+    StepRepose();
+    rebuild_budget_us_ = budget;
+  }
 }
 
 }  // namespace omni::octo

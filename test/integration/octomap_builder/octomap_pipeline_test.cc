@@ -23,6 +23,7 @@
 #include "omni/octomap_builder/map_output.h"
 #include "omni/octomap_builder/octomap_node.h"
 #include "omni/pose2d_t.hpp"
+#include "omni/trajectory_t.hpp"
 
 namespace omni::octo {
 namespace {
@@ -247,6 +248,172 @@ TEST(OctomapCli, BuildsFromAnLcmLogPosedBy2dSlam) {
   r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + out2 + " --subvoxel 99");
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("--subvoxel must be in [0, 16]"), std::string::npos) << r.output;
+}
+
+// The robot's poses, each `dx` further along x than the log's POSE_RBPF: what the SLAM says once
+// it has corrected its path.
+omni::trajectory_t ShiftedTrajectory(int64_t t0, int n, double dx, const std::string& frame) {
+  omni::trajectory_t m;
+  m.frame = frame;
+  m.source = "rbpf";
+  m.num_poses = n;
+  for (int i = 0; i < n; ++i) {
+    m.pose_utime.push_back(t0 + i * 100000);
+    m.x_m.push_back(0.1 * i + dx);
+    m.y_m.push_back(0);
+    m.yaw_rad.push_back(0);
+  }
+  m.utime = m.pose_utime.back();
+  return m;
+}
+
+bool GridOccupiedAt(const io::GridMap& g, double x) {
+  const int col = static_cast<int>((x - g.origin_x_m) / g.resolution_m);
+  const int row = static_cast<int>((0.0 - g.origin_y_m) / g.resolution_m);
+  return g.Contains(col, row) && g.at(col, row) == 100;
+}
+
+// A log whose POSE_RBPF put the wall at x = 3 m and whose last TRAJECTORY_RBPF says every pose
+// was 0.5 m further: with repose (the shipped config) the map is rebuilt there.
+TEST(OctomapCli, RebuildsAtTheLogsNewestTrajectory) {
+  const std::string dir = testing::TempDir() + "/octo_cli_repose";
+  fs::create_directories(dir);
+  const std::string log = dir + "/in.lcmlog";
+  const int64_t t0 = 1700000000000000;
+  {
+    auto w = io::LcmLogWriter::Open(log);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    for (int i = 0; i <= 10; ++i) {
+      const int64_t t = t0 + i * 100000;
+      auto p = Encode(Pose(t, 0.1 * i, i));
+      ASSERT_TRUE(w->Write(t, "POSE_RBPF", p.data(), p.size()).ok());
+      if (i % 2 == 0 && i < 10) {
+        auto d = Encode(WallFrame(t + 50000, 0.1 * i + 0.05, i + 1));
+        ASSERT_TRUE(w->Write(t + 50000, "DEPTH", d.data(), d.size()).ok());
+      }
+    }
+    auto other = Encode(ShiftedTrajectory(t0, 11, 2.0, "odom"));  // another frame: ignored
+    ASSERT_TRUE(w->Write(t0 + 1000000, "TRAJECTORY_RBPF", other.data(), other.size()).ok());
+    auto tr = Encode(ShiftedTrajectory(t0, 11, 0.5, "map"));
+    ASSERT_TRUE(w->Write(t0 + 1000000, "TRAJECTORY_RBPF", tr.data(), tr.size()).ok());
+    ASSERT_TRUE(w->Close().ok());
+  }
+  auto r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + dir + "/out --config " +
+                      Config());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("repose: 2 trajectories on TRAJECTORY_RBPF (1 rejected)"),
+            std::string::npos)
+      << r.output;
+  EXPECT_NE(r.output.find("1 rebuilds"), std::string::npos) << r.output;
+  auto grid = io::ReadMapServer(dir + "/out/grid.yaml");
+  ASSERT_TRUE(grid.ok()) << grid.error().message;
+  EXPECT_TRUE(GridOccupiedAt(*grid, kWallX + 0.5 + 0.025));
+  EXPECT_FALSE(GridOccupiedAt(*grid, kWallX + 0.025));
+  // --no-repose: the published poses as they were.
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + dir + "/out_live --config " +
+                 Config() + " --no-repose");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("repose:"), std::string::npos) << r.output;
+  grid = io::ReadMapServer(dir + "/out_live/grid.yaml");
+  ASSERT_TRUE(grid.ok()) << grid.error().message;
+  EXPECT_TRUE(GridOccupiedAt(*grid, kWallX + 0.025));
+  EXPECT_FALSE(GridOccupiedAt(*grid, kWallX + 0.5 + 0.025));
+  // --poses stands in for the live poses: without --repose the file's poses are the map's (the
+  // log's trajectory is not applied), with it the log's newest trajectory moves the keyframes.
+  const std::string traj = dir + "/live.txt";
+  {
+    std::ofstream t(traj);
+    t << "# scan_index timestamp x y theta\n";
+    t.setf(std::ios::fixed);
+    t.precision(6);
+    for (int i = 0; i <= 10; ++i)
+      t << i << ' ' << 1700000000.0 + 0.1 * i << ' ' << 0.1 * i - 1.0 << " 0 0\n";
+  }
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + dir + "/out_file --config " +
+                 Config() + " --poses " + traj);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("repose:"), std::string::npos) << r.output;
+  grid = io::ReadMapServer(dir + "/out_file/grid.yaml");
+  ASSERT_TRUE(grid.ok()) << grid.error().message;
+  EXPECT_TRUE(GridOccupiedAt(*grid, kWallX - 1.0 + 0.025));
+  r = RunCommand(Bin("omni-octomap") + " build " + log + " --out " + dir +
+                 "/out_file_repose --config " + Config() + " --poses " + traj + " --repose");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("1 rebuilds (the last"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("for a shift of 1.500 m"), std::string::npos) << r.output;
+  grid = io::ReadMapServer(dir + "/out_file_repose/grid.yaml");
+  ASSERT_TRUE(grid.ok()) << grid.error().message;
+  EXPECT_TRUE(GridOccupiedAt(*grid, kWallX + 0.5 + 0.025));
+  EXPECT_FALSE(GridOccupiedAt(*grid, kWallX - 1.0 + 0.025));
+}
+
+// The node: TRAJECTORY_RBPF on the bus moves the published map; a trajectory in another frame is
+// rejected and an undecodable one a decode error, both counted in the heartbeat.
+TEST(OctomapNode, RebuildsWhenTheTrajectoryMovesOnMemq) {
+  auto bus = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok()) << bus.error().message;
+  auto opt = OctomapBuilderOptions::LoadFile(Config());
+  ASSERT_TRUE(opt.ok()) << opt.error().message;
+  ASSERT_TRUE(opt->repose.enabled);
+  opt->out_dir = testing::TempDir() + "/octo_node_repose";
+  opt->octomap_interval_s = 0.5;
+  ManualClock clock(1700000000000000);
+  OctomapNode node(bus->get(), *opt, &clock);
+  std::vector<omni::octomap_t> maps;
+  std::vector<omni::heartbeat_t> beats;
+  (*bus)->Subscribe<omni::octomap_t>("OCTOMAP",
+                                     [&](const omni::octomap_t& m, int64_t) { maps.push_back(m); });
+  (*bus)->Subscribe<omni::heartbeat_t>(
+      "HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) { beats.push_back(m); });
+  const int64_t t0 = 1700000000000000;
+  int64_t mono = 0;
+  auto pump = [&] {
+    while ((*bus)->HandleTimeout(0) > 0) {
+    }
+    mono += 600000;
+    clock.Advance(600000);
+    node.Tick(mono);
+    while ((*bus)->HandleTimeout(0) > 0) {
+    }
+  };
+  for (int i = 0; i <= 10; ++i) {
+    (*bus)->Publish("POSE_RBPF", Pose(t0 + i * 100000, 0.1 * i, i));
+    if (i % 2 == 0 && i < 10)
+      (*bus)->Publish("DEPTH", WallFrame(t0 + i * 100000 + 50000, 0.1 * i + 0.05, i + 1));
+    pump();
+  }
+  auto wall_at = [](const omni::octomap_t& m, double x) {
+    std::istringstream bt(std::string(m.data.begin(), m.data.end()));
+    octomap::OcTree t(0.05);
+    if (!t.readBinary(bt)) return false;
+    const octomap::OcTreeNode* n = t.search(x, 0.0, 0.45);
+    return n && t.isNodeOccupied(n);
+  };
+  ASSERT_FALSE(maps.empty());
+  EXPECT_TRUE(wall_at(maps.back(), kWallX + 0.01));
+  const size_t before = maps.size();
+  (*bus)->Publish("TRAJECTORY_RBPF", ShiftedTrajectory(t0, 11, 2.0, "odom"));
+  std::vector<uint8_t> undecodable(12, 0x5a);
+  (*bus)->PublishRaw("TRAJECTORY_RBPF", undecodable.data(), static_cast<int>(undecodable.size()));
+  (*bus)->Publish("TRAJECTORY_RBPF", ShiftedTrajectory(t0, 11, 0.5, "map"));
+  for (int i = 0; i < 4; ++i) pump();
+  node.heartbeat().Tick(true);
+  while ((*bus)->HandleTimeout(0) > 0) {
+  }
+  EXPECT_EQ(node.pipeline().counters().rebuilds_done, 1);
+  ASSERT_GT(maps.size(), before);  // the rebuilt tree went out without a new frame
+  EXPECT_TRUE(wall_at(maps.back(), kWallX + 0.5 + 0.01));
+  EXPECT_FALSE(wall_at(maps.back(), kWallX + 0.01));
+  ASSERT_FALSE(beats.empty());
+  std::map<std::string, int64_t> counters;
+  for (int i = 0; i < beats.back().num_counters; ++i)
+    counters[beats.back().counter_names[i]] = beats.back().counter_values[i];
+  EXPECT_EQ(counters["trajectories_in"], 2);
+  EXPECT_EQ(counters["trajectories_rejected"], 1);
+  EXPECT_EQ(counters["rebuilds_done"], 1);
+  EXPECT_EQ(counters["last_rebuild_shift_mm"], 500);
+  EXPECT_GE(counters["keyframes"], 3);
+  EXPECT_EQ(counters["decode_errors"], 1);
 }
 
 TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {

@@ -16,6 +16,9 @@ TEST(OctomapBuilderConfig, ShippedFileLoads) {
   EXPECT_EQ(o->poser.max_latency_us, 2000000);
   EXPECT_GT(o->mount.height_m, 0.0);
   EXPECT_LT(o->grid.min_z_m, o->grid.max_z_m);
+  EXPECT_TRUE(o->repose.enabled);
+  EXPECT_EQ(o->TrajectoryChannel(), "TRAJECTORY_RBPF");
+  EXPECT_DOUBLE_EQ(o->repose.rebuild_budget_ms, 20);
 }
 
 constexpr const char* kMinimal = R"(
@@ -38,6 +41,33 @@ TEST(OctomapBuilderConfig, MinimalFileAndDerivedChannel) {
   const FramePoserOptions defaults;
   EXPECT_EQ(o->poser.max_queued_frames, defaults.max_queued_frames);
   EXPECT_EQ(o->poser.max_pose_gap_us, defaults.max_pose_gap_us);
+  EXPECT_FALSE(o->repose.enabled);  // off unless asked for
+  EXPECT_EQ(o->TrajectoryChannel(), "TRAJECTORY_PG");
+}
+
+TEST(OctomapBuilderConfig, ReposeKeysAreCheckedAndNamed) {
+  auto r = ConfigReader::FromString(std::string(kMinimal) +
+                                        "repose: {enabled: true, trajectory_channel: T2, "
+                                        "min_shift_m: 0.2, max_points: 5000}\n",
+                                    "repose.yaml");
+  ASSERT_TRUE(r.ok());
+  auto o = OctomapBuilderOptions::Load(*r);
+  ASSERT_TRUE(o.ok()) << o.error().message;
+  EXPECT_TRUE(o->repose.enabled);
+  EXPECT_EQ(o->TrajectoryChannel(), "T2");
+  EXPECT_DOUBLE_EQ(o->repose.min_shift_m, 0.2);
+  EXPECT_EQ(o->repose.max_points, 5000);
+  r = ConfigReader::FromString(std::string(kMinimal) +
+                                   "repose: {enabled: true, keyframe_distance: 0.2, "
+                                   "rebuild_budget_ms: 0}\n",
+                               "repose_bad.yaml");
+  ASSERT_TRUE(r.ok());
+  o = OctomapBuilderOptions::Load(*r);
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("repose.keyframe_distance"), std::string::npos)
+      << o.error().message;
+  EXPECT_NE(o.error().message.find("repose.rebuild_budget_ms"), std::string::npos)
+      << o.error().message;
 }
 
 TEST(OctomapBuilderConfig, UnknownKeysAndBadValuesAreNamed) {

@@ -21,6 +21,7 @@
 #include "omni/octomap_builder/frame_poser.h"
 #include "omni/octomap_builder/key_set_inserter.h"
 #include "omni/octomap_builder/map_output.h"
+#include "omni/octomap_builder/repose.h"
 
 namespace omni::octo {
 
@@ -58,6 +59,7 @@ struct OctomapBuilderOptions {
   CameraMount mount;
   FramePoserOptions poser;
   GridProjectionOptions grid;
+  ReposeOptions repose;
 
   // Outputs (node).
   std::string out_dir = "out/octomap";
@@ -73,6 +75,8 @@ struct OctomapBuilderOptions {
   static Result<OctomapBuilderOptions> Load(ConfigReader& reader);
   static Result<OctomapBuilderOptions> LoadFile(const std::string& path);
   std::string PoseChannel() const;
+  // repose.trajectory_channel, or TRAJECTORY_RBPF / TRAJECTORY_PG by pose_source.
+  std::string TrajectoryChannel() const;
 };
 
 struct FrameStats {
@@ -89,13 +93,17 @@ class OctomapBuilder {
   explicit OctomapBuilder(const OctomapBuilderOptions& options);
 
   // Eq. (6)-(8), filters, transform by `camera_in_map` (optical frame in the map frame), and
-  // insertion with the camera's position as the ray origin.
-  Result<FrameStats> InsertDepth(const DepthImage& image, const Eigen::Isometry3d& camera_in_map);
+  // insertion with the camera's position as the ray origin. With `kept`, the frame's points
+  // (camera frame, before any filter) are copied there.
+  Result<FrameStats> InsertDepth(const DepthImage& image, const Eigen::Isometry3d& camera_in_map,
+                                 ColoredPoints* kept = nullptr);
   // The same with each point's colour from `color` (registration: color_image.h). Needs the
   // colour option; the OcTree gets exactly what InsertDepth gives it. Fails as InsertDepth, or
-  // when the colour image cannot be registered (nothing is inserted then).
+  // when the colour image cannot be registered (nothing is inserted then). With `kept`, the
+  // points and their colours are copied there.
   Result<FrameStats> InsertDepthColor(const DepthImage& image, const ColorImage& color,
-                                      const Eigen::Isometry3d& camera_in_map);
+                                      const Eigen::Isometry3d& camera_in_map,
+                                      ColoredPoints* kept = nullptr);
   // Points already in the optical frame; `colors` (PackRgb or 0 per point) or null. With the
   // colour option the ColorOcTree gets the same occupancy update (and no colour when null).
   FrameStats InsertPoints(const std::vector<Eigen::Vector3f>& points_camera,
@@ -133,6 +141,9 @@ class OctomapBuilder {
 // has arrived (no nearer one can come) or the data time has passed its time + the pose
 // latency (poses.max_latency_s); then it is inserted with the best partner found, or
 // uncoloured (counted) without one.
+//
+// With the repose option, whole trajectories of the 2D SLAM come in too (AddTrajectory) and the
+// tree is rebuilt from keyframes at their corrected poses (repose.h).
 class OctomapPipeline {
  public:
   explicit OctomapPipeline(const OctomapBuilderOptions& options);
@@ -141,6 +152,15 @@ class OctomapPipeline {
   void AddDepth(DepthImage image);
   // Ignored (not counted as input) unless the colour option is on.
   void AddColor(ColorImage image);
+  // The 2D SLAM's whole trajectory as it stands (repose option; ignored without it). Rejected,
+  // counted and false when empty, not finite or not strictly increasing in time.
+  bool AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses);
+  // Time a rebuild may take per Process call (monotonic µs); < 0 (the default): to its end at
+  // once. The node sets repose.rebuild_budget_ms.
+  void set_rebuild_budget_us(int64_t us) { rebuild_budget_us_ = us; }
+  // Runs a started rebuild to its end, then one more if the newest trajectory still moves a
+  // keyframe by more than min_shift_m, whatever min_interval_s says (end of a log, exit).
+  void FinishRepose();
   // Poses and inserts what can be posed by `now_utime` (the newest data time seen when
   // replaying). Returns the number of frames inserted.
   int Process(int64_t now_utime);
@@ -169,11 +189,26 @@ class OctomapPipeline {
     int64_t frames_uncolored = 0;    // inserted without one (none within color_max_dt_us)
     int64_t color_invalid = 0;       // partner could not be registered (size, bytes): inserted
                                      // uncoloured, message in last_error()
+    // Repose option only:
+    int64_t trajectories_in = 0;
+    int64_t trajectories_invalid = 0;  // empty, not finite or not in time order: ignored
+    int64_t keyframes = 0;             // kept now
+    int64_t keyframe_points = 0;       // their points, after thinning
+    int64_t rebuilds_started = 0;
+    int64_t rebuilds_done = 0;          // complete rebuilds that replaced the tree
+    int64_t last_rebuild_us = 0;        // monotonic time the last complete one took
+    int64_t last_rebuild_shift_mm = 0;  // the largest keyframe shift that asked for it
+    int64_t keyframe_thinnings = 0;     // max_points reached: every other keyframe dropped
+    int64_t repose_stopped = 0;  // 1 once one keyframe alone passed max_points: no more rebuilds
   };
   const Counters& counters() const { return counters_; }
   const FramePoserCounters& poser_counters() const { return poser_.counters(); }
-  OctomapBuilder& builder() { return builder_; }
-  const OctomapBuilder& builder() const { return builder_; }
+  OctomapBuilder& builder() { return *builder_; }
+  const OctomapBuilder& builder() const { return *builder_; }
+  // Changes whenever the tree does: a frame inserted or a rebuild completed.
+  int64_t tree_version() const { return counters_.frames_inserted + counters_.rebuilds_done; }
+  const std::deque<Keyframe>& keyframes() const { return keyframes_; }
+  bool rebuilding() const { return shadow_ != nullptr; }
   int64_t newest_inserted_utime() const { return newest_inserted_utime_; }
   const std::string& last_error() const { return last_error_; }
 
@@ -186,7 +221,15 @@ class OctomapPipeline {
   // Index of the colour frame nearest to `utime` within color_max_dt_us, or -1.
   int NearestColor(int64_t utime) const;
 
-  OctomapBuilder builder_;
+  // Re-posing (repose.h).
+  bool IsKeyframe(const Posed& posed) const;
+  void KeepKeyframe(const Posed& posed, const ColoredPoints& points);
+  Pose2 TargetPose(const Keyframe& kf) const;  // on the newest trajectory, else its own pose
+  double MaxShift() const;                     // over the keyframes not yet rebuilt
+  void StepRepose();
+  void RunRebuild(int64_t budget_us);
+
+  std::unique_ptr<OctomapBuilder> builder_;
   FramePoser<DepthImage> poser_;
   std::deque<Posed> awaiting_color_;  // posed, waiting for their colour partner
   struct BufferedColor {
@@ -198,6 +241,15 @@ class OctomapPipeline {
   StampOrder color_order_;
   int64_t newest_inserted_utime_ = 0;
   std::string last_error_;
+  // Re-posing.
+  std::deque<Keyframe> keyframes_;
+  TrajectoryLookup trajectory_;
+  std::unique_ptr<OctomapBuilder> shadow_;  // the tree being rebuilt
+  std::vector<Pose2> rebuilt_poses_;        // keyframes_[i]'s pose in shadow_, i < size()
+  int64_t rebuild_us_ = 0;                  // time spent on the running rebuild
+  double wanted_shift_m_ = 0;               // > 0: a rebuild is asked for
+  int64_t last_rebuild_start_utime_ = INT64_MIN;
+  int64_t rebuild_budget_us_ = -1;
 };
 
 }  // namespace omni::octo

@@ -1,5 +1,6 @@
 // The octomap_builder node: bus I/O around OctomapPipeline. Subscribes to DEPTH and
-// POSE_<source> (and the colour channel, RGB, with color.enabled); publishes OCTOMAP and
+// POSE_<source> (and the colour channel, RGB, with color.enabled; with repose.enabled the
+// source's whole trajectory, TRAJECTORY_RBPF or TRAJECTORY_PG); publishes OCTOMAP and
 // GRID_OCTO on their intervals; saves map.bt/.ot (and map_color.ot) at an interval and on exit;
 // heartbeat with the frame counters.
 #pragma once
@@ -14,6 +15,7 @@
 #include "omni/depth_image_t.hpp"
 #include "omni/octomap_builder/octomap_builder.h"
 #include "omni/octomap_t.hpp"
+#include "omni/trajectory_t.hpp"
 
 namespace omni::octo {
 
@@ -21,6 +23,10 @@ namespace omni::octo {
 Result<DepthImage> FromDepthMessage(const omni::depth_image_t& msg);
 // Decodes a colour message (RGB8 and JPEG; see DecodeColorData); the size field must match.
 Result<ColorImage> FromColorMessage(const omni::color_image_t& msg);
+// The poses of a trajectory message (repose); an error when its frame is set and is not
+// `map_frame`, or its arrays disagree with num_poses.
+Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni::trajectory_t& msg,
+                                                                     const std::string& map_frame);
 // An OCTOMAP message holding the tree in binary (.bt) or full (.ot) form.
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source, bool binary);
@@ -49,6 +55,7 @@ class OctomapNode {
   // Depth frames missing from the sequence numbers received (lost on the bus or by the driver).
   int64_t depth_frames_lost() const { return depth_frames_lost_; }
   int64_t color_decode_errors() const { return color_decode_errors_; }
+  int64_t trajectories_rejected() const { return trajectories_rejected_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
  private:
@@ -60,6 +67,7 @@ class OctomapNode {
   int64_t depth_decode_errors_ = 0;
   int64_t depth_frames_lost_ = 0, last_depth_seq_ = -1;
   int64_t color_decode_errors_ = 0;
+  int64_t trajectories_rejected_ = 0;
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
 };

@@ -1,0 +1,91 @@
+// Re-posing the OctoMap when the 2D SLAM corrects its trajectory (a loop closes, the RBPF's
+// reported particle changes lineage): the frames were inserted at the poses published when they
+// came, and an occupancy tree cannot move what it has integrated, so the tree is built again.
+//
+// Keyframes: a frame is kept when the robot has moved keyframe_distance_m or turned
+// keyframe_angle_rad since the last keyframe, or keyframe_interval_s has passed; its points (in
+// the camera frame, thinned to one per point_spacing_m cube: the centroid, with the first colour
+// seen in it) and the pose it went in at. When the kept points would pass max_points, every
+// other keyframe (not the first nor the newest) is dropped, halving the density over the run.
+//
+// Rebuild: every keyframe, in time order, goes into a new tree at its pose on the newest
+// trajectory (interpolated between the trajectory's poses around its time; a keyframe outside
+// the trajectory, or in a gap wider than the poser's max_pose_gap_s, keeps its pose), and the
+// new tree replaces the old when it is complete. Frames that are not keyframes are not in it:
+// a rebuilt tree holds the keyframes, and the frames inserted after it replaced the old one.
+//
+// When: a trajectory that moves some keyframe's points by more than min_shift_m (a bound: the
+// position change plus the chord the heading change sweeps at the keyframe's farthest point,
+// within the range limit) asks for a rebuild; rebuilds start at least min_interval_s of data
+// time apart. In the process a rebuild runs in slices of rebuild_budget_ms per tick, so the bus
+// keeps being drained; offline (`omni octomap build`) it runs to the end at once, so the result
+// does not depend on the machine's speed.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omni/common/geometry.h"
+#include "omni/octomap_builder/frame_poser.h"
+
+namespace omni::octo {
+
+struct ReposeOptions {
+  bool enabled = false;
+  std::string trajectory_channel;  // node: "" = TRAJECTORY_RBPF or TRAJECTORY_PG by pose_source
+  double keyframe_distance_m = 0.1;
+  double keyframe_angle_rad = 0.1;
+  double keyframe_interval_s = 2.0;
+  double point_spacing_m = 0;  // 0: the tree's resolution
+  double min_shift_m = 0;      // 0: twice the tree's resolution
+  double min_interval_s = 10.0;
+  double rebuild_budget_ms = 20;  // node: time spent on a rebuild per tick
+  // Kept keyframe points (12 bytes each). Reaching it drops every other keyframe (counted); when
+  // that cannot make room (one keyframe is larger), re-posing stops.
+  int64_t max_points = 30000000;
+};
+
+struct Keyframe {
+  int64_t utime = 0;
+  Pose2 pose;                           // the robot pose its points are in the tree at
+  double radius_m = 0;                  // farthest point from the robot's origin (xy), capped
+  std::vector<Eigen::Vector3f> points;  // camera optical frame
+  std::vector<uint32_t> colors;         // one per point (PackRgb or 0), or empty
+};
+
+// One point per `leaf_m` cube at the centroid of the points in it, in order of first appearance;
+// with `colors` (one per point) the cube keeps the first non-zero colour in it (`colors_out`).
+void ThinPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<uint32_t>* colors,
+                double leaf_m, std::vector<Eigen::Vector3f>* points_out,
+                std::vector<uint32_t>* colors_out);
+
+// Farthest horizontal distance of `points_camera` from the robot's origin, in the base frame,
+// capped at `max_range_m` from the camera when that is > 0 (a longer ray changes nothing beyond).
+double KeyframeRadius(const std::vector<Eigen::Vector3f>& points_camera, const CameraMount& mount,
+                      double max_range_m);
+
+// How far any point within `radius_m` of the robot moves when the robot's pose changes from `a`
+// to `b` (exact for the farthest point at the worst bearing): |t_b - t_a| + 2 sin(|dθ|/2) r.
+double PoseShift(const Pose2& a, const Pose2& b, double radius_m);
+
+// A trajectory's poses in strictly increasing time, and the pose at a time between two of them.
+class TrajectoryLookup {
+ public:
+  TrajectoryLookup() = default;
+  explicit TrajectoryLookup(std::vector<std::pair<int64_t, Pose2>> poses)
+      : poses_(std::move(poses)) {}
+  // Interpolated between the poses around `utime` when they are at most `max_gap_us` apart (a
+  // pose at exactly `utime` is taken as is); false outside the trajectory or in a wider gap.
+  bool At(int64_t utime, int64_t max_gap_us, Pose2* out) const;
+  bool empty() const { return poses_.empty(); }
+  size_t size() const { return poses_.size(); }
+
+ private:
+  std::vector<std::pair<int64_t, Pose2>> poses_;
+};
+
+}  // namespace omni::octo

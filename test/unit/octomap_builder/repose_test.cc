@@ -1,0 +1,297 @@
+// Re-posing the OctoMap after the 2D SLAM corrects its trajectory (repose.h): the helpers, and
+// the pipeline rebuilding its tree from keyframes at the corrected poses.
+#include <cmath>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omni/octomap_builder/octomap_builder.h"
+#include "omni/octomap_builder/tree_compare.h"
+
+namespace omni::octo {
+namespace {
+
+TEST(ReposeThinPoints, OneCentroidPerCubeWithTheFirstColourInIt) {
+  const std::vector<Eigen::Vector3f> pts = {
+      {0.01f, 0.01f, 1.01f},
+      {0.03f, 0.01f, 1.01f},  // one 5 cm cube: centroid x 0.02
+      {0.30f, 0.0f, 1.0f},    // another
+      {NAN, 0.0f, 1.0f}};     // dropped
+  const std::vector<uint32_t> colors = {0, PackRgb(1, 2, 3), PackRgb(9, 9, 9), 5};
+  std::vector<Eigen::Vector3f> out;
+  std::vector<uint32_t> out_colors;
+  ThinPoints(pts, &colors, 0.05, &out, &out_colors);
+  ASSERT_EQ(out.size(), 2u);
+  ASSERT_EQ(out_colors.size(), 2u);
+  EXPECT_NEAR(out[0].x(), 0.02f, 1e-6);
+  EXPECT_EQ(out_colors[0], PackRgb(1, 2, 3));  // the first non-zero colour of the cube
+  EXPECT_NEAR(out[1].x(), 0.30f, 1e-6);
+  EXPECT_EQ(out_colors[1], PackRgb(9, 9, 9));
+  ThinPoints(pts, nullptr, 0.05, &out, &out_colors);
+  EXPECT_EQ(out.size(), 2u);
+  EXPECT_TRUE(out_colors.empty());
+}
+
+TEST(ReposePoseShift, TranslationPlusTheChordOfTheFarthestPoint) {
+  EXPECT_NEAR(PoseShift({0, 0, 0}, {0.3, 0.4, 0}, 5.0), 0.5, 1e-12);
+  // A point 4 m out, turned by 0.1 rad about the robot: it moves along the chord.
+  const double chord = 2 * std::sin(0.05) * 4.0;
+  EXPECT_NEAR(PoseShift({1, 1, 3.1}, {1, 1, 3.1 + 0.1}, 4.0), chord, 1e-12);
+  // Across ±π: the short way round.
+  EXPECT_NEAR(PoseShift({0, 0, M_PI - 0.05}, {0, 0, -M_PI + 0.05}, 4.0), chord, 1e-9);
+  // The exact displacement of that point is the chord.
+  const Pose2 a(0, 0, 0.2), b(0, 0, 0.3);
+  const Eigen::Vector2d p(4.0, 0.0);
+  EXPECT_NEAR((b.Transform(p) - a.Transform(p)).norm(), chord, 1e-12);
+}
+
+TEST(ReposeKeyframeRadius, FarthestPointFromTheRobotCappedByTheRange) {
+  CameraMount mount;
+  mount.x_m = 0.1;
+  mount.height_m = 0.45;
+  // Optical z forward: a point 2 m ahead of the camera is 2.1 m ahead of the robot.
+  const std::vector<Eigen::Vector3f> pts = {{0, 0, 1.0f}, {0, 0, 2.0f}};
+  EXPECT_NEAR(KeyframeRadius(pts, mount, -1), 2.1, 1e-6);
+  EXPECT_NEAR(KeyframeRadius(pts, mount, 1.5), 1.6, 1e-6);  // the ray stops at 1.5 m
+}
+
+TEST(ReposeTrajectoryLookup, InterpolatesInsideAndRefusesOutsideOrAcrossAGap) {
+  TrajectoryLookup t({{100, Pose2(0, 0, 0)}, {200, Pose2(1, 2, 0.2)}, {5000, Pose2(5, 5, 0)}});
+  Pose2 p;
+  ASSERT_TRUE(t.At(150, 1000, &p));
+  EXPECT_NEAR(p.x, 0.5, 1e-12);
+  EXPECT_NEAR(p.y, 1.0, 1e-12);
+  EXPECT_NEAR(p.theta, 0.1, 1e-12);
+  ASSERT_TRUE(t.At(200, 1000, &p));  // exactly on a pose: that pose, whatever the gap after it
+  EXPECT_EQ(p.x, 1);
+  EXPECT_FALSE(t.At(99, 1000, &p));
+  EXPECT_FALSE(t.At(5001, 1000, &p));
+  EXPECT_FALSE(t.At(300, 1000, &p));  // 200 -> 5000 is wider than the gap
+  EXPECT_TRUE(t.At(300, 10000, &p));
+}
+
+// A flat wall 3 m ahead of the camera (the shipped mount: 0.1 m ahead of the robot's origin).
+DepthImage WallDepth(int64_t utime, double distance_m) {
+  DepthImage im;
+  im.utime = utime;
+  im.width = 40;
+  im.height = 30;
+  im.intrinsics = {30.0, 30.0, 19.5, 14.5, 1000.0};
+  im.data.assign(static_cast<size_t>(im.width) * im.height,
+                 static_cast<uint16_t>(std::lround(distance_m * 1000)));
+  return im;
+}
+
+OctomapBuilderOptions ReposeOptionsForTest() {
+  OctomapBuilderOptions o;
+  o.resolution_m = 0.05;
+  o.max_range_m = 5.0;
+  o.depth.min_depth_m = 0.4;
+  o.depth.max_depth_m = 6.0;
+  o.mount.x_m = 0.1;
+  o.mount.height_m = 0.45;
+  o.threads = 1;
+  o.repose.enabled = true;
+  o.repose.keyframe_distance_m = 0.15;  // every frame (0.2 m apart)
+  o.repose.min_interval_s = 0;
+  return o;
+}
+
+constexpr int64_t kT0 = 1700000000000000;
+
+// The robot drives along +x towards a wall; poses at 10 Hz put it at x = 0.1 i, frames at 5 Hz
+// between them see the wall at x = 3.0 in those poses.
+void FeedDrive(OctomapPipeline* p, int n_poses) {
+  for (int i = 0; i < n_poses; ++i) {
+    const int64_t t = kT0 + i * 100000;
+    p->AddPose(t, Pose2(0.1 * i, 0, 0));
+    if (i % 2 == 1) {
+      // Frame halfway between poses i-1 and i: robot at 0.1 i - 0.05, wall 3.0 - that - 0.1 away.
+      const double x = 0.1 * i - 0.05;
+      p->AddDepth(WallDepth(t - 50000, 3.0 - x - 0.1));
+    }
+    p->Process(p->newest_utime());
+  }
+}
+
+// The trajectory the SLAM corrected: every pose 0.5 m further along x.
+std::vector<std::pair<int64_t, Pose2>> Shifted(int n_poses, double dx) {
+  std::vector<std::pair<int64_t, Pose2>> t;
+  for (int i = 0; i < n_poses; ++i) t.emplace_back(kT0 + i * 100000, Pose2(0.1 * i + dx, 0, 0));
+  return t;
+}
+
+bool Occupied(const octomap::OcTree& t, double x) {
+  const octomap::OcTreeNode* n = t.search(x, 0.0, 0.45);
+  return n && t.isNodeOccupied(n);
+}
+
+TEST(ReposePipeline, ACorrectedTrajectoryRebuildsTheTreeAtTheCorrectedPoses) {
+  const OctomapBuilderOptions o = ReposeOptionsForTest();
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);  // 10 frames over 2 m, each a keyframe
+  ASSERT_EQ(p.counters().frames_inserted, 10);
+  EXPECT_EQ(p.counters().keyframes, 10);
+  EXPECT_GT(p.counters().keyframe_points, 100);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.01));
+  EXPECT_FALSE(Occupied(p.builder().tree(), 3.51));
+  const int64_t version = p.tree_version();
+
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_started, 1);
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  EXPECT_EQ(p.counters().last_rebuild_shift_mm, 500);
+  EXPECT_EQ(p.tree_version(), version + 1);
+  EXPECT_FALSE(p.rebuilding());
+  // The wall moved with the poses; where it was is free space now.
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+  EXPECT_FALSE(Occupied(p.builder().tree(), 3.01));
+  for (const Keyframe& kf : p.keyframes()) {
+    const double live_x = static_cast<double>(kf.utime - kT0) / 1e6;  // 1 m/s from x = 0
+    EXPECT_NEAR(kf.pose.x, live_x + 0.5, 1e-9);
+  }
+  // The rebuilt tree is exactly the keyframes inserted at those poses, in time order.
+  OctomapBuilder reference(o);
+  for (const Keyframe& kf : p.keyframes())
+    reference.InsertPoints(kf.points, CameraInMap(kf.pose, o.mount));
+  EXPECT_TRUE(SameLeaves(reference.tree(), p.builder().tree()));
+
+  // The same trajectory again: nothing moves, no rebuild.
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_started, 1);
+}
+
+TEST(ReposePipeline, ShiftsBelowTheThresholdLeaveTheTreeAlone) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  o.repose.min_shift_m = 0.1;
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);
+  const int64_t version = p.tree_version();
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.09)));  // every point moves 9 cm
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_started, 0);
+  EXPECT_EQ(p.tree_version(), version);
+  // A turn of 0.02 rad moves the far end of a keyframe (about 3 m out) by 6 cm, 0.04 rad by 12.
+  std::vector<std::pair<int64_t, Pose2>> turned = Shifted(21, 0);
+  for (auto& [t, pose] : turned) pose.theta = 0.02;
+  ASSERT_TRUE(p.AddTrajectory(turned));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_started, 0);
+  for (auto& [t, pose] : turned) pose.theta = 0.04;
+  ASSERT_TRUE(p.AddTrajectory(turned));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+}
+
+TEST(ReposePipeline, ARebuildInSlicesSwapsTheTreeOnlyWhenComplete) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);
+  p.set_rebuild_budget_us(0);  // one keyframe per Process call
+  const int64_t version = p.tree_version();
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  int calls = 0;
+  do {
+    p.Process(p.newest_utime());
+    ++calls;
+    if (p.rebuilding()) {
+      // Meanwhile the old tree is the map: the wall still where it was.
+      EXPECT_EQ(p.tree_version(), version);
+      EXPECT_TRUE(Occupied(p.builder().tree(), 3.01));
+    }
+  } while (p.rebuilding() && calls < 100);
+  EXPECT_EQ(calls, 10);  // ten keyframes
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+}
+
+TEST(ReposePipeline, RebuildsKeepTheirIntervalUntilTheEnd) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  o.repose.min_interval_s = 10;
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 1.0)));  // within 10 s of data time: waits
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_started, 1);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+  p.FinishRepose();  // the end of the input: the newest trajectory goes in
+  EXPECT_EQ(p.counters().rebuilds_done, 2);
+  EXPECT_EQ(p.counters().last_rebuild_shift_mm, 500);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 4.01));
+  EXPECT_FALSE(Occupied(p.builder().tree(), 3.51));
+}
+
+TEST(ReposePipeline, BadTrajectoriesAreCountedAndChangeNothing) {
+  OctomapPipeline p(ReposeOptionsForTest());
+  FeedDrive(&p, 21);
+  auto nan = Shifted(21, 0.5);
+  nan[3].second.y = NAN;
+  EXPECT_FALSE(p.AddTrajectory(nan));
+  auto backwards = Shifted(21, 0.5);
+  std::swap(backwards[4], backwards[5]);
+  EXPECT_FALSE(p.AddTrajectory(backwards));
+  EXPECT_FALSE(p.AddTrajectory({}));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().trajectories_in, 3);
+  EXPECT_EQ(p.counters().trajectories_invalid, 3);
+  EXPECT_EQ(p.counters().rebuilds_started, 0);
+  EXPECT_NE(p.last_error().find("not in time order"), std::string::npos) << p.last_error();
+  // Without the option, trajectories are not even taken.
+  OctomapBuilderOptions off = ReposeOptionsForTest();
+  off.repose.enabled = false;
+  OctomapPipeline q(off);
+  FeedDrive(&q, 5);
+  EXPECT_FALSE(q.AddTrajectory(Shifted(5, 0.5)));
+  EXPECT_EQ(q.counters().trajectories_in, 0);
+  EXPECT_EQ(q.counters().keyframes, 0);
+}
+
+TEST(ReposePipeline, ThePointBudgetHalvesTheKeyframesOverTheWholeRun) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  OctomapPipeline probe(o);
+  FeedDrive(&probe, 3);  // one keyframe
+  ASSERT_EQ(probe.counters().keyframes, 1);
+  const int64_t per_frame = probe.counters().keyframe_points;
+  o.repose.max_points = per_frame * 4 + per_frame / 2;  // room for four
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);  // ten frames, each a keyframe
+  EXPECT_EQ(p.counters().frames_inserted, 10);
+  EXPECT_GE(p.counters().keyframe_thinnings, 1);
+  EXPECT_EQ(p.counters().repose_stopped, 0);
+  EXPECT_LE(p.counters().keyframe_points, o.repose.max_points);
+  ASSERT_GE(p.keyframes().size(), 2u);
+  // The first and the newest stay: what is left still spans the whole run.
+  EXPECT_EQ(p.keyframes().back().utime, kT0 + 19 * 100000 - 50000);
+  EXPECT_EQ(p.keyframes().front().utime, kT0 + 100000 - 50000);
+  // Re-posing goes on with the keyframes left.
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+}
+
+TEST(ReposePipeline, AKeyframeLargerThanTheBudgetStopsReposing) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  OctomapPipeline probe(o);
+  FeedDrive(&probe, 3);
+  o.repose.max_points = probe.counters().keyframe_points - 1;
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);
+  EXPECT_EQ(p.counters().repose_stopped, 1);
+  EXPECT_EQ(p.counters().keyframes, 0);
+  EXPECT_TRUE(p.keyframes().empty());
+  EXPECT_EQ(p.counters().frames_inserted, 10);  // the map goes on at the published poses
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  p.FinishRepose();
+  EXPECT_EQ(p.counters().rebuilds_started, 0);
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.01));
+}
+
+}  // namespace
+}  // namespace omni::octo
