@@ -80,7 +80,16 @@ int main(int argc, char** argv) {
                                    : std::string());
   int64_t last_msg_us = 0;
   while (!g_stop) {
-    const int r = (*bus_or)->HandleTimeout(50);
+    int r = (*bus_or)->HandleTimeout(50);
+    // Take what else is waiting (one message per call) before the tick inserts frames or runs a
+    // rebuild slice, so a slice follows every burst rather than every message.
+    for (int i = 0; r > 0 && i < 20; ++i) {
+      const int more = (*bus_or)->HandleTimeout(0);
+      if (more <= 0) {
+        if (more < 0) r = more;
+        break;
+      }
+    }
     if (r < 0 && !g_stop) {
       LOG_WARN << "bus ended or failed; writing the map";
       break;
