@@ -307,22 +307,9 @@ void PoseGraphNode::PublishGrid() {
 void PoseGraphNode::PublishTrajectory() {
   const std::vector<ScanPose> traj = slam_.Trajectory();
   if (traj.empty()) return;
-  omni::trajectory_t m;
-  m.utime = traj.back().utime;
-  m.frame = o_.map_frame;
-  m.source = "posegraph";
-  m.num_poses = static_cast<int32_t>(traj.size());
-  m.pose_utime.reserve(traj.size());
-  m.x_m.reserve(traj.size());
-  m.y_m.reserve(traj.size());
-  m.yaw_rad.reserve(traj.size());
-  for (const auto& e : traj) {
-    m.pose_utime.push_back(e.utime);
-    m.x_m.push_back(e.pose.x);
-    m.y_m.push_back(e.pose.y);
-    m.yaw_rad.push_back(e.pose.theta);
-  }
-  if (bus_->Publish(o_.trajectory_channel, m)) ++trajectories_published_;
+  if (bus_->Publish(o_.trajectory_channel,
+                    bus::ToTrajectoryMessage(traj, o_.map_frame, "posegraph")))
+    ++trajectories_published_;
 }
 
 void PoseGraphNode::Tick() {

@@ -14,7 +14,6 @@
 #include "omni/laser_scan_t.hpp"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
-#include "omni/trajectory_t.hpp"
 
 namespace omni::rbpf {
 
@@ -263,22 +262,8 @@ void RbpfNode::PublishGrid() {
 void RbpfNode::PublishTrajectory() {
   const std::vector<EstimatedPose> traj = slam_.ReportedTrajectory();
   if (traj.empty()) return;
-  omni::trajectory_t m;
-  m.utime = traj.back().utime;
-  m.frame = "map";
-  m.source = "rbpf";
-  m.num_poses = static_cast<int32_t>(traj.size());
-  m.pose_utime.reserve(traj.size());
-  m.x_m.reserve(traj.size());
-  m.y_m.reserve(traj.size());
-  m.yaw_rad.reserve(traj.size());
-  for (const auto& e : traj) {
-    m.pose_utime.push_back(e.utime);
-    m.x_m.push_back(e.pose.x);
-    m.y_m.push_back(e.pose.y);
-    m.yaw_rad.push_back(e.pose.theta);
-  }
-  if (bus_->Publish(opt_.trajectory_channel, m)) ++trajectories_published_;
+  if (bus_->Publish(opt_.trajectory_channel, bus::ToTrajectoryMessage(traj, "map", "rbpf")))
+    ++trajectories_published_;
 }
 
 void RbpfNode::Tick() {

@@ -1,11 +1,15 @@
 // Conversions between file-format records / library types and bus messages.
 #pragma once
 
+#include <string>
+#include <vector>
+
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/occupancy_grid_t.hpp"
 #include "omni/odometry_t.hpp"
+#include "omni/trajectory_t.hpp"
 
 namespace omni::bus {
 
@@ -20,6 +24,29 @@ omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
 // origin is not finite; a grid turned in its frame (origin_yaw_rad) is resampled onto the
 // frame's axes (io::AxisAligned).
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
+
+// A whole trajectory as a message: `poses` in time order, each with `utime` (µs) and `pose`
+// (a Pose2 in `frame`); the message's utime is the newest pose's. Empty `poses`: no poses, utime 0.
+template <class Stamped>
+omni::trajectory_t ToTrajectoryMessage(const std::vector<Stamped>& poses, const std::string& frame,
+                                       const std::string& source) {
+  omni::trajectory_t m;
+  m.utime = poses.empty() ? 0 : poses.back().utime;
+  m.frame = frame;
+  m.source = source;
+  m.num_poses = static_cast<int32_t>(poses.size());
+  m.pose_utime.reserve(poses.size());
+  m.x_m.reserve(poses.size());
+  m.y_m.reserve(poses.size());
+  m.yaw_rad.reserve(poses.size());
+  for (const auto& e : poses) {
+    m.pose_utime.push_back(e.utime);
+    m.x_m.push_back(e.pose.x);
+    m.y_m.push_back(e.pose.y);
+    m.yaw_rad.push_back(e.pose.theta);
+  }
+  return m;
+}
 
 // A laser_scan_t's sweep time as the mappers use it: the message's scan_time_s when it is a
 // plausible revolution (finite, in (0, 1] s), else 0 (the scan is taken as one instant). A
