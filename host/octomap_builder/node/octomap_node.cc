@@ -204,7 +204,9 @@ void OctomapNode::Tick(int64_t mono_us) {
     if (pc.frames_dropped_no_pose > pc.frames_posed)
       heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, "most frames have no pose");
     else
-      heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+      heartbeat_.SetState(
+          omni::heartbeat_t::STATE_OK,
+          pipeline_.rebuilding() ? "mapping; rebuilding at corrected poses" : "mapping");
   }
   heartbeat_.Tick();
 }
