@@ -502,11 +502,12 @@ double OctomapPipeline::MaxShift() const {
 }
 
 void OctomapPipeline::StepRepose() {
-  const ReposeOptions& r = builder_->options().repose;
+  const ReposeOptions r = builder_->options().repose;  // a copy: RunRebuild replaces builder_
   if (!r.enabled || counters_.repose_stopped) return;
   if (!shadow_ && wanted_shift_m_ > 0 && !keyframes_.empty()) {
     const int64_t now = newest_utime();
-    if (last_rebuild_start_utime_ == INT64_MIN ||
+    // A clock set back (now before the last start) does not hold rebuilds off until it catches up.
+    if (last_rebuild_start_utime_ == INT64_MIN || now < last_rebuild_start_utime_ ||
         static_cast<double>(now - last_rebuild_start_utime_) >= r.min_interval_s * 1e6) {
       shadow_ = std::make_unique<OctomapBuilder>(builder_->options());
       rebuilt_poses_.clear();
@@ -521,13 +522,15 @@ void OctomapPipeline::StepRepose() {
 }
 
 void OctomapPipeline::RunRebuild(int64_t budget_us) {
-  const OctomapBuilderOptions& o = builder_->options();
+  // Copies: builder_ (which owns the options) is replaced below.
+  const CameraMount mount = builder_->options().mount;
+  const bool color = builder_->options().color;
   const int64_t t0 = ParallelKeySetInserter::NowMicros();
   while (rebuilt_poses_.size() < keyframes_.size()) {
     const Keyframe& kf = keyframes_[rebuilt_poses_.size()];
     const Pose2 pose = TargetPose(kf);
-    shadow_->InsertPoints(kf.points, CameraInMap(pose, o.mount),
-                          o.color && !kf.colors.empty() ? &kf.colors : nullptr);
+    shadow_->InsertPoints(kf.points, CameraInMap(pose, mount),
+                          color && !kf.colors.empty() ? &kf.colors : nullptr);
     rebuilt_poses_.push_back(pose);
     if (budget_us >= 0 && ParallelKeySetInserter::NowMicros() - t0 >= budget_us) break;
   }
