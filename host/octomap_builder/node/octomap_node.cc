@@ -169,6 +169,8 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
     heartbeat_.AddCounter("rebuilds_done", [&c] { return c.rebuilds_done; });
     heartbeat_.AddCounter("last_rebuild_ms", [&c] { return c.last_rebuild_us / 1000; });
     heartbeat_.AddCounter("last_rebuild_shift_mm", [&c] { return c.last_rebuild_shift_mm; });
+    heartbeat_.AddCounter("keyframe_thinnings", [&c] { return c.keyframe_thinnings; });
+    heartbeat_.AddCounter("trajectories_truncated", [&c] { return c.trajectories_truncated; });
     heartbeat_.AddCounter("repose_stopped", [&c] { return c.repose_stopped; });
   }
   heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "waiting for depth and poses");

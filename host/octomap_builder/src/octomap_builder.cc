@@ -438,7 +438,8 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
     if (shadow_) {
       shadow_.reset();
       rebuilt_poses_.clear();
-      wanted_shift_m_ = std::max(wanted_shift_m_, MaxShift());
+      wanted_shift_m_ = MaxShift();
+      last_rebuild_start_utime_ = INT64_MIN;  // not a new request: start again at once
     }
     LOG_INFO << "octomap repose: repose.max_points " << o.repose.max_points
              << " reached; every other keyframe dropped (" << keyframes_.size() << " kept, "
@@ -468,21 +469,29 @@ bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses
   if (!o.repose.enabled) return false;
   ++counters_.trajectories_in;
   bool ok = !poses.empty();
+  size_t first = 0;  // the poses after the last step back in time
   for (size_t i = 0; ok && i < poses.size(); ++i) {
     const Pose2& p = poses[i].second;
-    ok = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta) &&
-         (i == 0 || poses[i - 1].first < poses[i].first);
+    ok = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta) && poses[i].first > 0;
+    if (i > 0 && poses[i].first <= poses[i - 1].first) first = i;
   }
   if (!ok) {
     ++counters_.trajectories_invalid;
     last_error_ = "trajectory of " + std::to_string(poses.size()) +
-                  " poses: empty, not finite or not in time order; ignored";
+                  " poses: empty, not finite or a stamp not after 1970; ignored";
     return false;
   }
+  if (first > 0) {
+    // The mapper followed a clock set back: its path holds the old clock's poses before the new
+    // ones. Only the newest run in time order is comparable with the frames' stamps now.
+    ++counters_.trajectories_truncated;
+    poses.erase(poses.begin(), poses.begin() + static_cast<std::ptrdiff_t>(first));
+  }
   trajectory_ = TrajectoryLookup(std::move(poses));
-  // While a rebuild runs, the keyframes it has not reached take the newest poses; whether the
-  // ones it has passed need another is decided when it completes.
-  if (!shadow_) wanted_shift_m_ = std::max(wanted_shift_m_, MaxShift());
+  // The newest trajectory is the whole path: what it asks for replaces any earlier request. While
+  // a rebuild runs, the keyframes it has not reached take the newest poses; whether the ones it
+  // has passed need another is decided when it completes.
+  if (!shadow_) wanted_shift_m_ = MaxShift();
   return true;
 }
 
@@ -512,7 +521,7 @@ void OctomapPipeline::StepRepose() {
       shadow_ = std::make_unique<OctomapBuilder>(builder_->options());
       rebuilt_poses_.clear();
       rebuild_us_ = 0;
-      counters_.last_rebuild_shift_mm = std::llround(wanted_shift_m_ * 1000);
+      running_shift_m_ = wanted_shift_m_;
       wanted_shift_m_ = 0;
       last_rebuild_start_utime_ = now;
       ++counters_.rebuilds_started;
@@ -541,6 +550,7 @@ void OctomapPipeline::RunRebuild(int64_t budget_us) {
   rebuilt_poses_.clear();
   ++counters_.rebuilds_done;
   counters_.last_rebuild_us = rebuild_us_;
+  counters_.last_rebuild_shift_mm = std::llround(running_shift_m_ * 1000);
   // The trajectory may have moved on while this ran.
   wanted_shift_m_ = MaxShift();
 }
@@ -548,6 +558,8 @@ void OctomapPipeline::RunRebuild(int64_t budget_us) {
 void OctomapPipeline::FinishRepose() {
   if (!builder_->options().repose.enabled) return;
   if (shadow_) RunRebuild(-1);
+  // Keyframes kept since the newest trajectory came are checked against it too.
+  if (!counters_.repose_stopped) wanted_shift_m_ = MaxShift();
   if (wanted_shift_m_ > 0 && !counters_.repose_stopped) {
     last_rebuild_start_utime_ = INT64_MIN;  // now, whatever the interval
     const int64_t budget = rebuild_budget_us_;

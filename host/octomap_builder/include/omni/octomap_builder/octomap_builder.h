@@ -153,7 +153,8 @@ class OctomapPipeline {
   // Ignored (not counted as input) unless the colour option is on.
   void AddColor(ColorImage image);
   // The 2D SLAM's whole trajectory as it stands (repose option; ignored without it). Rejected,
-  // counted and false when empty, not finite or not strictly increasing in time.
+  // counted and false when empty, not finite or stamped <= 0; after a step back in time only the
+  // poses after it are taken (counted).
   bool AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses);
   // Time a rebuild may take per Process call (monotonic µs); < 0 (the default): to its end at
   // once. The node sets repose.rebuild_budget_ms.
@@ -191,15 +192,16 @@ class OctomapPipeline {
                                      // uncoloured, message in last_error()
     // Repose option only:
     int64_t trajectories_in = 0;
-    int64_t trajectories_invalid = 0;  // empty, not finite or not in time order: ignored
-    int64_t keyframes = 0;             // kept now
-    int64_t keyframe_points = 0;       // their points, after thinning
+    int64_t trajectories_invalid = 0;    // empty, not finite or a stamp <= 0: ignored
+    int64_t trajectories_truncated = 0;  // a step back in time: only the poses after it taken
+    int64_t keyframes = 0;               // kept now
+    int64_t keyframe_points = 0;         // their points, after thinning
     int64_t rebuilds_started = 0;
     int64_t rebuilds_done = 0;          // complete rebuilds that replaced the tree
     int64_t last_rebuild_us = 0;        // monotonic time the last complete one took
     int64_t last_rebuild_shift_mm = 0;  // the largest keyframe shift that asked for it
     int64_t keyframe_thinnings = 0;     // max_points reached: every other keyframe dropped
-    int64_t repose_stopped = 0;  // 1 once one keyframe alone passed max_points: no more rebuilds
+    int64_t repose_stopped = 0;  // 1 once a keyframe did not fit even after halving: no rebuilds
   };
   const Counters& counters() const { return counters_; }
   const FramePoserCounters& poser_counters() const { return poser_.counters(); }
@@ -225,7 +227,7 @@ class OctomapPipeline {
   bool IsKeyframe(const Posed& posed) const;
   void KeepKeyframe(const Posed& posed, const ColoredPoints& points);
   Pose2 TargetPose(const Keyframe& kf) const;  // on the newest trajectory, else its own pose
-  double MaxShift() const;                     // over the keyframes not yet rebuilt
+  double MaxShift() const;                     // over all keyframes, 0 when none passes min_shift_m
   void StepRepose();
   void RunRebuild(int64_t budget_us);
 
@@ -248,6 +250,7 @@ class OctomapPipeline {
   std::vector<Pose2> rebuilt_poses_;        // keyframes_[i]'s pose in shadow_, i < size()
   int64_t rebuild_us_ = 0;                  // time spent on the running rebuild
   double wanted_shift_m_ = 0;               // > 0: a rebuild is asked for
+  double running_shift_m_ = 0;              // the shift that started the running rebuild
   int64_t last_rebuild_start_utime_ = INT64_MIN;
   int64_t rebuild_budget_us_ = -1;
 };

@@ -4,9 +4,10 @@
 //
 // Keyframes: a frame is kept when the robot has moved keyframe_distance_m or turned
 // keyframe_angle_rad since the last keyframe, or keyframe_interval_s has passed; its points (in
-// the camera frame, thinned to one per point_spacing_m cube: the centroid, with the first colour
-// seen in it) and the pose it went in at. When the kept points would pass max_points, every
-// other keyframe (not the first nor the newest) is dropped, halving the density over the run.
+// the camera frame, thinned to one per point_spacing_m cube: the centroid, with the first
+// non-zero colour seen in it) and the pose it went in at. When the kept points would pass
+// max_points, every other keyframe (not the first nor the newest) is dropped, halving the density
+// over the run.
 //
 // Rebuild: every keyframe, in time order, goes into a new tree at its pose on the newest
 // trajectory (interpolated between the trajectory's poses around its time; a keyframe outside
@@ -45,7 +46,7 @@ struct ReposeOptions {
   double min_interval_s = 10.0;
   double rebuild_budget_ms = 20;  // node: time spent on a rebuild per tick
   // Kept keyframe points (12 bytes each). Reaching it drops every other keyframe (counted); when
-  // that cannot make room (one keyframe is larger), re-posing stops.
+  // even that leaves no room for the new keyframe, re-posing stops.
   int64_t max_points = 30000000;
 };
 
