@@ -39,6 +39,8 @@ void GetVariances(ConfigReader* r, const std::string& key, std::array<double, 3>
   if (v.size() == 3) std::copy(v.begin(), v.end(), out->begin());
 }
 
+constexpr const char* kOutputNames = "time, accel, gyro, angle, mag, quaternion";
+
 std::string Seconds(double s) {
   std::ostringstream o;
   o << s << " s";
@@ -66,11 +68,45 @@ Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n)
   r.Get("frame", &n->frame, Optional(), NonEmpty());
   r.Get("bus_url", &n->bus_url, Optional());
   r.Get("mag_tesla_per_lsb", &n->mag_tesla_per_lsb, Optional(), NonNegative<double>());
+  ConfigReader cfg = r.Section("configure");
+  ConfigureOptions& c = d->configure;
+  cfg.Get("enabled", &c.enabled, Optional());
+  cfg.Get("baud", &c.baud, Optional(), Rule<int>([](const int& v) -> std::string {
+            return v == 0 || BaudCode(v) ? "" : "must be 0 (leave it) or 4800 ... 921600";
+          }));
+  std::vector<std::string> outputs;
+  cfg.Get("outputs", &outputs, Optional(),
+          Rule<std::vector<std::string>>([](const std::vector<std::string>& v) -> std::string {
+            for (const std::string& o : v)
+              if (!OutputType(o)) return "unknown output '" + o + "' (" + kOutputNames + ")";
+            return "";
+          }));
+  c.outputs.clear();
+  for (const std::string& o : outputs) c.outputs.push_back(OutputType(o));
+  std::sort(c.outputs.begin(), c.outputs.end());
+  c.outputs.erase(std::unique(c.outputs.begin(), c.outputs.end()), c.outputs.end());
+  if (!c.outputs.empty() && !(std::count(c.outputs.begin(), c.outputs.end(), kTypeAccel) &&
+                              std::count(c.outputs.begin(), c.outputs.end(), kTypeGyro))) {
+    cfg.AddError("outputs", "must include accel and gyro (each sample needs both)");
+  }
+  cfg.Get("save", &c.save, Optional());
+  cfg.Get("command_gap_ms", &c.command_gap_ms, Optional(), InRange(0, 1000));
+  cfg.Get("max_attempts", &c.max_attempts, Optional(), InRange(1, 100));
+  if (c.enabled && !RateCode(d->rate_hz)) {
+    r.AddError("rate_hz",
+               "must be a WT901 output rate (0.2, 0.5, 1, 2, 5, 10, 20, 50, 100 or 200) when "
+               "configure.enabled is true (it is written into the device)");
+  }
   ConfigReader cov = r.Section("covariance");
   GetVariances(&cov, "orientation", &n->orientation_var);
   GetVariances(&cov, "angular_velocity", &n->angular_velocity_var);
   GetVariances(&cov, "linear_acceleration", &n->linear_acceleration_var);
   return r.Finish();
+}
+
+uint8_t OutputType(const std::string& name) {
+  if (name == "time") return kTypeTime;
+  return TriggerType(name);
 }
 
 uint8_t TriggerType(const std::string& name) {
@@ -131,13 +167,23 @@ Utime SampleStamper::Stamp(Utime read_utime, size_t i, size_t n) {
 
 // ---------------------------------------------------------------------------------------------
 ImuDriver::ImuDriver(DriverOptions options, const Clock* clock)
-    : options_(std::move(options)), clock_(clock), stamper_(options_.rate_hz) {}
+    : options_(std::move(options)),
+      clock_(clock),
+      stamper_(options_.rate_hz),
+      config_pending_(options_.configure.enabled) {}
 
 ImuDriver::~ImuDriver() { Shutdown(); }
 
 std::vector<int> ImuDriver::Bauds() const {
-  if (options_.baud > 0) return {options_.baud};
-  return {9600, 115200};
+  std::vector<int> b =
+      options_.baud > 0 ? std::vector<int>{options_.baud} : std::vector<int>{9600, 115200};
+  const int target = options_.configure.enabled ? options_.configure.baud : 0;
+  if (target > 0) {
+    // Try the rate the device is being set to first: after a configuration it is there.
+    b.erase(std::remove(b.begin(), b.end(), target), b.end());
+    b.insert(b.begin(), target);
+  }
+  return b;
 }
 
 FrameCounters ImuDriver::frame_counters() const {
@@ -165,12 +211,7 @@ Status ImuDriver::Open() {
   port_ = std::move(*port);
   // A fresh parser, cycle and assembler per connection: the device may have been reset or
   // replaced by one set up differently.
-  past_ = frame_counters();
-  parser_ = FrameParser();
-  cycle_.Reset();
-  if (assembler_) past_incomplete_ += assembler_->incomplete();
-  assembler_.reset();
-  trigger_ = 0;
+  ResetStream();
   state_ = DriverState::kOpening;
   status_ =
       "waiting for frames on " + options_.port + " at " + std::to_string(port_->baud()) + " baud";
@@ -179,8 +220,27 @@ Status ImuDriver::Open() {
   return Status::Ok();
 }
 
+void ImuDriver::ResetStream() {
+  past_ = frame_counters();
+  parser_ = FrameParser();
+  cycle_.Reset();
+  if (assembler_) past_incomplete_ += assembler_->incomplete();
+  assembler_.reset();
+  trigger_ = 0;
+}
+
 void ImuDriver::FailOpening(const std::string& why) {
   LOG_DEBUG << "IMU on " << options_.port << ": " << why;
+  if (config_verifying_) {
+    // The device was written to and sends nothing readable at the new settings.
+    config_verifying_ = false;
+    ++counters_.config_failures;
+    config_pending_ = config_attempts_ < options_.configure.max_attempts;
+    LOG_WARN << "IMU on " << options_.port << ": no frames after writing its settings (" << why
+             << ")"
+             << (config_pending_ ? "; trying the other baud rates and writing them again"
+                                 : "; giving up on writing settings");
+  }
   port_.reset();
   ++counters_.connect_failures;
   state_ = DriverState::kDisconnected;
@@ -193,17 +253,24 @@ void ImuDriver::Lose(const std::string& why) {
   LOG_WARN << "IMU on " << options_.port << ": " << why << "; reconnecting every "
            << options_.reconnect_interval_s << " s";
   port_.reset();
+  // A device that comes back may have lost unsaved settings (power cycle) or be another one.
+  config_pending_ = options_.configure.enabled;
+  config_verifying_ = false;
+  save_after_baud_ = false;
+  config_attempts_ = 0;
   state_ = DriverState::kDisconnected;
   status_ = why;
   next_attempt_us_ = MonotonicMicros() + SecondsToUtime(options_.reconnect_interval_s);
 }
 
 Status ImuDriver::Connect() {
-  const size_t n = Bauds().size();
+  // Each baud rate once, and again after each configuration that did not take.
+  const size_t n =
+      Bauds().size() * (options_.configure.enabled ? 1 + options_.configure.max_attempts : 1);
   std::string why;
   int64_t bytes = 0;
+  baud_index_ = 0;
   for (size_t k = 0; k < n; ++k) {
-    baud_index_ = k;
     Status st = Open();
     if (!st.ok()) return st;
     std::vector<StampedSample> first;
@@ -225,11 +292,18 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
   if (frames_.empty()) return;
   last_data_us_ = MonotonicMicros();
   if (state_ == DriverState::kOpening) {
-    if (ever_connected_) ++counters_.reconnects;
+    if (ever_connected_ && !reopened_by_config_) ++counters_.reconnects;
+    reopened_by_config_ = false;
     ever_connected_ = true;
     state_ = DriverState::kStreaming;
     status_ = "streaming on " + options_.port + " at " + std::to_string(port_->baud()) + " baud";
     LOG_INFO << "IMU " << status_;
+    rate_window_start_us_ = 0;
+    rate_checked_ = false;
+    if (config_pending_) {
+      Configure();
+      return;
+    }
   }
   const Utime read_utime = clock_->NowUtime();
   const uint8_t fixed = TriggerType(options_.trigger);
@@ -237,6 +311,7 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
   for (const Frame& f : frames_) {
     counters_.dropped_frames += cycle_.Add(f.type);
     if (!cycle_.learned()) continue;  // one period at most, after each (re)connection
+    if (config_verifying_ && !VerifyConfiguration()) return;  // written again
     const uint8_t want = fixed ? fixed : cycle_.last_type();
     if (want != trigger_) {
       // First period learned, or a type beyond the old last one showed up (its frame was lost
@@ -257,6 +332,116 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
   for (size_t i = 0; i < done.size(); ++i) {
     out->push_back({stamper_.Stamp(read_utime, i, done.size()), done[i]});
     ++counters_.samples;
+  }
+  MeasureRate(done.size());
+}
+
+bool ImuDriver::Write(uint8_t reg, uint16_t value) {
+  const auto bytes = EncodeWrite(reg, value);
+  const Status st = port_->Write(bytes.data(), bytes.size(), 500);
+  if (!st.ok()) {
+    Lose("writing its settings: " + st.message());
+    return false;
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(options_.configure.command_gap_ms));
+  return true;
+}
+
+void ImuDriver::Configure() {
+  const ConfigureOptions& c = options_.configure;
+  config_pending_ = false;
+  ++config_attempts_;
+  uint16_t bits = 0;
+  for (uint8_t t : c.outputs) bits = static_cast<uint16_t>(bits | OutputBit(t));
+  const bool new_baud = c.baud > 0 && c.baud != port_->baud();
+  std::ostringstream what;
+  what << "rate " << options_.rate_hz << " Hz";
+  if (bits) what << ", outputs 0x" << std::hex << bits << std::dec;
+  if (new_baud) what << ", baud " << port_->baud() << " -> " << c.baud;
+  if (c.save) what << ", saved";
+  LOG_INFO << "IMU on " << options_.port << ": writing " << what.str() << " (attempt "
+           << config_attempts_ << " of " << c.max_attempts << ")";
+  // The baud rate last: the device switches at once and understands nothing more at the old
+  // rate, so a save with a new baud rate is written after the stream comes back at it.
+  if (!Write(kRegKey, kUnlockKey)) return;
+  if (bits && !Write(kRegOutputs, bits)) return;
+  if (!Write(kRegRate, RateCode(options_.rate_hz))) return;
+  if (c.save && !new_baud && !Write(kRegSave, 0)) return;
+  if (new_baud) {
+    if (!Write(kRegBaud, BaudCode(c.baud))) return;
+    const Status st = port_->SetBaud(c.baud);
+    if (!st.ok()) {
+      Lose(st.message());
+      return;
+    }
+    baud_index_ = 0;  // Bauds() puts the configured rate first
+  }
+  save_after_baud_ = c.save && new_baud;
+  port_->FlushInput();
+  ResetStream();
+  state_ = DriverState::kOpening;
+  opened_us_ = MonotonicMicros();
+  bytes_since_open_ = 0;
+  reopened_by_config_ = true;
+  config_verifying_ = true;
+  status_ = "wrote the IMU's settings (" + what.str() + "); waiting for frames at " +
+            std::to_string(port_->baud()) + " baud";
+}
+
+bool ImuDriver::VerifyConfiguration() {
+  config_verifying_ = false;
+  const std::vector<uint8_t>& want = options_.configure.outputs;
+  if (!want.empty() && cycle_.types() != want) {
+    auto names = [](const std::vector<uint8_t>& v) {
+      std::ostringstream o;
+      for (size_t i = 0; i < v.size(); ++i) o << (i ? " " : "") << "0x" << std::hex << int{v[i]};
+      return o.str();
+    };
+    ++counters_.config_failures;
+    const bool again = config_attempts_ < options_.configure.max_attempts;
+    LOG_WARN << "IMU on " << options_.port << ": asked for frames " << names(want)
+             << ", the device sends " << names(cycle_.types())
+             << (again ? "; writing the settings again" : "; giving up, streaming as it is set");
+    if (again) {
+      Configure();
+      return false;
+    }
+    return true;
+  }
+  if (save_after_baud_) {
+    save_after_baud_ = false;
+    if (!Write(kRegKey, kUnlockKey) || !Write(kRegSave, 0)) return false;
+  }
+  config_attempts_ = 0;
+  ++counters_.configurations;
+  LOG_INFO << "IMU on " << options_.port << ": settings confirmed by the stream at "
+           << port_->baud() << " baud";
+  return true;
+}
+
+void ImuDriver::MeasureRate(size_t samples) {
+  if (state_ != DriverState::kStreaming) return;
+  const int64_t now = MonotonicMicros();
+  if (rate_window_start_us_ == 0) {
+    // Count from the next read on: the samples of this one arrived before the window.
+    rate_window_start_us_ = now;
+    rate_window_samples_ = 0;
+    return;
+  }
+  rate_window_samples_ += static_cast<int64_t>(samples);
+  const int64_t span = now - rate_window_start_us_;
+  if (span < 2'000'000) return;
+  measured_rate_hz_ = static_cast<double>(rate_window_samples_) * 1e6 / static_cast<double>(span);
+  rate_window_start_us_ = now;
+  rate_window_samples_ = 0;
+  if (rate_checked_) return;
+  rate_checked_ = true;
+  if (std::abs(measured_rate_hz_ - options_.rate_hz) > 0.2 * options_.rate_hz) {
+    ++counters_.rate_mismatches;
+    LOG_WARN << "IMU on " << options_.port << " sends " << measured_rate_hz_
+             << " samples/s but rate_hz is " << options_.rate_hz
+             << ": the stamps are spaced by rate_hz; set it to the device's rate (or set "
+                "configure.enabled to write it into the device)";
   }
 }
 

@@ -6,6 +6,7 @@
 #include <random>
 
 #include "omni/imu/witmotion.h"
+#include "omni/serial/serial_port.h"
 
 namespace omni::imu {
 namespace {
@@ -53,13 +54,26 @@ MotionState SimulatedMotion(const EmulatorOptions& o, double t_s) {
 std::vector<uint8_t> EncodePeriod(const EmulatorOptions& o, const MotionState& m) {
   const int16_t temp = Raw(o.temperature_c * 100.0);
   std::vector<std::array<uint8_t, kFrameSize>> frames;
-  frames.push_back(
-      EncodeFrame(kTypeAccel, {Ms2ToAccel(m.accel_m_s2[0]), Ms2ToAccel(m.accel_m_s2[1]),
-                               Ms2ToAccel(m.accel_m_s2[2]), temp}));
-  frames.push_back(EncodeFrame(kTypeGyro, {RadSToGyro(m.gyro_rad_s[0]), RadSToGyro(m.gyro_rad_s[1]),
-                                           RadSToGyro(m.gyro_rad_s[2]), temp}));
-  frames.push_back(EncodeFrame(kTypeAngle, {RadToAngle(m.euler_rad[0]), RadToAngle(m.euler_rad[1]),
-                                            RadToAngle(m.euler_rad[2]), temp}));
+  if (o.send_time) {
+    // 26-12-05 00:00:00.000 (year, month, day, hour, minute, second, ms low, ms high bytes).
+    frames.push_back(EncodeFrame(
+        kTypeTime, {static_cast<int16_t>(26 | 12 << 8), static_cast<int16_t>(5), 0, 0}));
+  }
+  if (o.send_accel) {
+    frames.push_back(
+        EncodeFrame(kTypeAccel, {Ms2ToAccel(m.accel_m_s2[0]), Ms2ToAccel(m.accel_m_s2[1]),
+                                 Ms2ToAccel(m.accel_m_s2[2]), temp}));
+  }
+  if (o.send_gyro) {
+    frames.push_back(
+        EncodeFrame(kTypeGyro, {RadSToGyro(m.gyro_rad_s[0]), RadSToGyro(m.gyro_rad_s[1]),
+                                RadSToGyro(m.gyro_rad_s[2]), temp}));
+  }
+  if (o.send_angle) {
+    frames.push_back(
+        EncodeFrame(kTypeAngle, {RadToAngle(m.euler_rad[0]), RadToAngle(m.euler_rad[1]),
+                                 RadToAngle(m.euler_rad[2]), temp}));
+  }
   if (o.send_mag) {
     frames.push_back(
         EncodeFrame(kTypeMag, {Raw(m.mag_raw[0]), Raw(m.mag_raw[1]), Raw(m.mag_raw[2]), temp}));
@@ -80,7 +94,12 @@ Result<std::unique_ptr<ImuEmulator>> ImuEmulator::Create(EmulatorOptions options
   if (!(options.rate_hz > 0 && options.rate_hz <= 1000)) {
     return MakeError(ErrorCode::kInvalidArgument, "IMU emulator: rate_hz must be in (0, 1000]");
   }
+  if (options.baud != 0 && !BaudCode(options.baud)) {
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "IMU emulator: baud must be 0 (any) or a WitMotion rate 4800 ... 921600");
+  }
   std::unique_ptr<ImuEmulator> e(new ImuEmulator(std::move(options)));
+  e->saved_ = e->options_;
   Status st = e->Restore();
   if (!st.ok()) return st.error();
   return e;
@@ -89,6 +108,15 @@ Result<std::unique_ptr<ImuEmulator>> ImuEmulator::Create(EmulatorOptions options
 void ImuEmulator::Vanish() { pty_.reset(); }
 
 Status ImuEmulator::Restore() {
+  if (pty_ == nullptr && started_) {
+    // Plugged back in after an unplug: powered up with the saved settings.
+    RestartPeriods();
+    const std::string link = options_.link_path;
+    options_ = saved_;
+    options_.link_path = link;
+    unlocked_ = false;
+    writes_ = WriteParser();
+  }
   auto pty = serial::Pty::Create(options_.link_path);
   if (!pty.ok()) return pty.error();
   pty_ = std::move(*pty);
@@ -108,12 +136,77 @@ void ImuEmulator::Send(const uint8_t* data, size_t size) {
   counters_.bytes_dropped += static_cast<int64_t>(size - done);
 }
 
-void ImuEmulator::DrainInput() {
-  // The WT901 accepts configuration writes (0xFF 0xAA ...); this one ignores them.
+bool ImuEmulator::LineMatches() const {
+  return options_.baud == 0 || (pty_ && serial::LineBaud(pty_->master_fd()) == options_.baud);
+}
+
+void ImuEmulator::RestartPeriods() {
+  // Keep the motion continuous: the next period's time becomes the new origin.
+  if (started_) {
+    t0_s_ += static_cast<double>(next_period_) / options_.rate_hz;
+    restart_pending_ = true;
+  }
+  next_period_ = 0;
+}
+
+void ImuEmulator::DrainInput(int64_t now_us) {
   if (!pty_) return;
   uint8_t buf[256];
-  while (::read(pty_->master_fd(), buf, sizeof(buf)) > 0) {
+  ssize_t n;
+  std::vector<RegisterWrite> writes;
+  while ((n = ::read(pty_->master_fd(), buf, sizeof(buf))) > 0) {
+    if (!LineMatches()) {
+      counters_.bytes_garbled += n;  // framing errors: nothing of it is understood
+      continue;
+    }
+    writes_.Feed(buf, static_cast<size_t>(n), &writes);
   }
+  for (const RegisterWrite& w : writes) Apply(w, now_us);
+}
+
+void ImuEmulator::Apply(const RegisterWrite& w, int64_t now_us) {
+  if (unlocked_ && now_us > unlocked_until_us_) unlocked_ = false;
+  auto ignore = [this] { ++counters_.writes_ignored; };
+  if (!options_.accept_writes) return ignore();
+  if (w.reg == kRegKey) {
+    if (w.value != kUnlockKey) return ignore();
+    unlocked_ = true;
+    unlocked_until_us_ = now_us + 10'000'000;  // the key holds for a while, as on the device
+    ++counters_.writes;
+    return;
+  }
+  if (!unlocked_) return ignore();
+  switch (w.reg) {
+    case kRegSave:
+      if (w.value != 0) return ignore();
+      saved_ = options_;
+      ++counters_.saves;
+      break;
+    case kRegOutputs:
+      options_.send_time = (w.value & OutputBit(kTypeTime)) != 0;
+      options_.send_accel = (w.value & OutputBit(kTypeAccel)) != 0;
+      options_.send_gyro = (w.value & OutputBit(kTypeGyro)) != 0;
+      options_.send_angle = (w.value & OutputBit(kTypeAngle)) != 0;
+      options_.send_mag = (w.value & OutputBit(kTypeMag)) != 0;
+      options_.send_quaternion = (w.value & OutputBit(kTypeQuaternion)) != 0;
+      break;
+    case kRegRate: {
+      const double hz = RateOfCode(static_cast<uint8_t>(w.value));
+      if (hz <= 0) return ignore();
+      RestartPeriods();
+      options_.rate_hz = hz;
+      break;
+    }
+    case kRegBaud: {
+      const int baud = BaudOfCode(static_cast<uint8_t>(w.value));
+      if (baud == 0) return ignore();
+      options_.baud = baud;  // at once: the next bytes go out at the new rate
+      break;
+    }
+    default:
+      return ignore();
+  }
+  ++counters_.writes;
 }
 
 void ImuEmulator::InjectGarbage(size_t bytes, uint32_t seed) {
@@ -133,7 +226,11 @@ void ImuEmulator::Step(int64_t now_us) {
     started_ = true;
     start_us_ = now_us;
   }
-  DrainInput();
+  DrainInput(now_us);
+  if (restart_pending_) {
+    restart_pending_ = false;
+    start_us_ = now_us;
+  }
   const double elapsed_s = static_cast<double>(now_us - start_us_) * 1e-6;
   const int64_t due = static_cast<int64_t>(std::floor(elapsed_s * options_.rate_hz)) + 1;
   if (!pty_ || !streaming_) {
@@ -142,7 +239,7 @@ void ImuEmulator::Step(int64_t now_us) {
   }
   std::vector<uint8_t> out;
   for (; next_period_ < due; ++next_period_) {
-    const double t = static_cast<double>(next_period_) / options_.rate_hz;
+    const double t = t0_s_ + static_cast<double>(next_period_) / options_.rate_hz;
     std::vector<uint8_t> period = EncodePeriod(options_, SimulatedMotion(options_, t));
     const size_t nframes = period.size() / kFrameSize;
     if (!garbage_.empty()) {
@@ -161,6 +258,12 @@ void ImuEmulator::Step(int64_t now_us) {
     out.insert(out.end(), period.begin(), period.end());
     ++counters_.periods;
     counters_.frames += static_cast<int64_t>(nframes);
+  }
+  if (!out.empty() && !LineMatches()) {
+    // The reader's UART samples at another rate: framing errors and stray bits. Mangle every
+    // byte so that no 0x55 header survives (a real mismatch may decode a few by chance).
+    for (uint8_t& b : out) b = static_cast<uint8_t>((b & 0x0F) | 0x80);
+    counters_.bytes_garbled += static_cast<int64_t>(out.size());
   }
   if (!out.empty()) Send(out.data(), out.size());
 }

@@ -1,7 +1,10 @@
 // omni-imu-emulator: a software WitMotion WT901 on a pseudo-terminal, for tests and drills.
 //
 //   omni-imu-emulator --link PATH [--rate-hz HZ] [--yaw-rate-deg-s D] [--roll-deg D]
-//                     [--pitch-deg D] [--no-mag] [--no-quaternion] [--duration-s S]
+//                     [--pitch-deg D] [--no-mag] [--no-quaternion] [--baud B]
+//                     [--ignore-writes] [--duration-s S]
+// Configuration writes from the driver (rate, frames, baud, save) are applied and logged; with
+// --baud the line must be opened at the device's rate, else both directions are garbled.
 // Commands on stdin (one per line), answered "ok CMD" on stdout:
 //   garbage N      splice N random bytes into the next frame (that frame is lost)
 //   vanish MS      unplug for MS milliseconds (pty closed, link removed), then plug back in
@@ -31,10 +34,14 @@ int Usage(int code) {
   std::fprintf(code == 0 ? stdout : stderr,
                "usage: omni-imu-emulator --link PATH [--rate-hz HZ] [--yaw-rate-deg-s D]\n"
                "                         [--roll-deg D] [--pitch-deg D] [--no-mag]\n"
-               "                         [--no-quaternion] [--duration-s S]\n"
+               "                         [--no-quaternion] [--baud B] [--ignore-writes]\n"
+               "                         [--duration-s S]\n"
                "A software WitMotion WT901 on a pty; drivers open PATH (a symlink to the pty).\n"
                "Streams 0x51 accel, 0x52 gyro, 0x53 angles, 0x54 mag, 0x59 quaternion frames\n"
                "at HZ (default 100) of a slow yaw rotation (default 11.5 deg/s), gravity on z.\n"
+               "--baud B: the device's serial rate (4800 ... 921600); a reader at another rate\n"
+               "gets garbage. Register writes (0xFF 0xAA: rate, frames, baud, save) are applied\n"
+               "after the unlock key, unless --ignore-writes. An unplug restores saved settings.\n"
                "stdin commands: garbage N | vanish MS | silence MS | quit\n");
   return code;
 }
@@ -82,6 +89,10 @@ int main(int argc, char** argv) {
       opt.send_mag = false;
     } else if (a == "--no-quaternion") {
       opt.send_quaternion = false;
+    } else if (a == "--baud") {
+      opt.baud = static_cast<int>(number());
+    } else if (a == "--ignore-writes") {
+      opt.accept_writes = false;
     } else if (a == "--duration-s") {
       duration_s = number();
     } else {
@@ -110,6 +121,7 @@ int main(int argc, char** argv) {
   const int64_t start = omni::MonotonicMicros();
   int64_t restore_at = -1, resume_at = -1;
   bool stdin_open = true;
+  int64_t writes_seen = 0, saves_seen = 0;
   while (!g_stop) {
     const int64_t now = omni::MonotonicMicros();
     if (duration_s > 0 && now - start > omni::SecondsToUtime(duration_s)) break;
@@ -125,6 +137,16 @@ int main(int argc, char** argv) {
       resume_at = -1;
     }
     (*emu)->Step(now);
+    if ((*emu)->counters().writes != writes_seen || (*emu)->counters().saves != saves_seen) {
+      writes_seen = (*emu)->counters().writes;
+      saves_seen = (*emu)->counters().saves;
+      const auto& o = (*emu)->options();
+      LOG_INFO << "settings now: " << o.rate_hz << " Hz, baud " << o.baud << ", frames"
+               << (o.send_time ? " time" : "") << (o.send_accel ? " accel" : "")
+               << (o.send_gyro ? " gyro" : "") << (o.send_angle ? " angle" : "")
+               << (o.send_mag ? " mag" : "") << (o.send_quaternion ? " quaternion" : "") << " ("
+               << saves_seen << " saves)";
+    }
     pollfd p[2] = {{(*emu)->fd(), POLLIN, 0}, {stdin_open ? 0 : -1, POLLIN, 0}};
     ::poll(p, 2, 2);
     char buf[256];
@@ -162,6 +184,8 @@ int main(int argc, char** argv) {
   }
   const auto& c = (*emu)->counters();
   LOG_INFO << "sent " << c.periods << " periods, " << c.frames << " frames (" << c.frames_corrupted
-           << " corrupted), " << c.bytes_dropped << " bytes dropped";
+           << " corrupted), " << c.bytes_dropped << " bytes dropped, " << c.bytes_garbled
+           << " bytes garbled by a baud mismatch; " << c.writes << " register writes applied, "
+           << c.writes_ignored << " ignored";
   return 0;
 }

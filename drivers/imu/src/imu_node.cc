@@ -56,6 +56,11 @@ ImuNode::ImuNode(bus::Bus* bus, ImuDriver* driver, NodeOptions options, const Cl
   heartbeat_.AddCounter("timeouts", [d] { return d->counters().timeouts; });
   heartbeat_.AddCounter("dropped_frames", [d] { return d->counters().dropped_frames; });
   heartbeat_.AddCounter("incomplete_samples", [d] { return d->counters().incomplete_samples; });
+  heartbeat_.AddCounter("configurations", [d] { return d->counters().configurations; });
+  heartbeat_.AddCounter("config_failures", [d] { return d->counters().config_failures; });
+  heartbeat_.AddCounter("rate_mismatches", [d] { return d->counters().rate_mismatches; });
+  heartbeat_.AddCounter("measured_rate_hz",
+                        [d] { return static_cast<int64_t>(std::lround(d->measured_rate_hz())); });
 }
 
 void ImuNode::RunOnce(int timeout_ms) {

@@ -21,6 +21,63 @@ std::array<uint8_t, kFrameSize> EncodeFrame(uint8_t type, const std::array<int16
 
 bool IsKnownType(uint8_t type) { return type >= 0x50 && type <= 0x5A; }
 
+std::array<uint8_t, kWriteSize> EncodeWrite(uint8_t reg, uint16_t value) {
+  return {0xFF, 0xAA, reg, static_cast<uint8_t>(value & 0xFF), static_cast<uint8_t>(value >> 8)};
+}
+
+namespace {
+// RRATE codes 0x01..0x0B (0x0A, 125 Hz, exists on the WT931 only and is left out).
+constexpr struct {
+  uint8_t code;
+  double hz;
+} kRates[] = {{0x01, 0.2}, {0x02, 0.5}, {0x03, 1},  {0x04, 2},   {0x05, 5},
+              {0x06, 10},  {0x07, 20},  {0x08, 50}, {0x09, 100}, {0x0B, 200}};
+// BAUD codes 1..9.
+constexpr int kBaudOfCode[] = {0, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600};
+}  // namespace
+
+uint8_t RateCode(double hz) {
+  for (const auto& r : kRates)
+    if (std::abs(hz - r.hz) < 1e-9) return r.code;
+  return 0;
+}
+
+double RateOfCode(uint8_t code) {
+  for (const auto& r : kRates)
+    if (r.code == code) return r.hz;
+  return 0;
+}
+
+uint8_t BaudCode(int baud) {
+  for (uint8_t c = 1; c < sizeof(kBaudOfCode) / sizeof(kBaudOfCode[0]); ++c)
+    if (kBaudOfCode[c] == baud) return c;
+  return 0;
+}
+
+int BaudOfCode(uint8_t code) {
+  return code >= 1 && code < sizeof(kBaudOfCode) / sizeof(kBaudOfCode[0]) ? kBaudOfCode[code] : 0;
+}
+
+uint16_t OutputBit(uint8_t type) {
+  return IsKnownType(type) ? static_cast<uint16_t>(1u << (type - 0x50)) : 0;
+}
+
+void WriteParser::Feed(const uint8_t* data, size_t size, std::vector<RegisterWrite>* out) {
+  buf_.insert(buf_.end(), data, data + size);
+  size_t at = 0;
+  while (buf_.size() - at >= 2) {
+    if (buf_[at] != 0xFF || buf_[at + 1] != 0xAA) {
+      ++at;
+      ++bytes_skipped_;
+      continue;
+    }
+    if (buf_.size() - at < kWriteSize) break;
+    out->push_back({buf_[at + 2], static_cast<uint16_t>(buf_[at + 3] | (buf_[at + 4] << 8))});
+    at += kWriteSize;
+  }
+  buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(at));
+}
+
 void FrameParser::Reset() {
   buf_.clear();
   pos_ = 0;

@@ -12,6 +12,12 @@
 
 namespace omni::serial {
 
+int LineBaud(int fd) {
+  struct termios2 tio;
+  if (ioctl(fd, TCGETS2, &tio) != 0) return 0;
+  return static_cast<int>(tio.c_ospeed);
+}
+
 Status ConfigureRaw(int fd, int baud, const std::string& name) {
   if (baud <= 0) {
     return MakeError(ErrorCode::kInvalidArgument,

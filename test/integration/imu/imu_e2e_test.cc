@@ -1,6 +1,7 @@
 // The IMU driver against its WT901 emulator on a real pseudo-terminal: streaming values that
 // match the simulated motion, garbage spliced into frames, device removed and restored, a
-// silent device, and (as processes) an absent device and a driver + emulator run with faults.
+// silent device, and (as processes) an absent device, a driver + emulator run with faults, and
+// a driver writing its settings into a factory-set device.
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -395,6 +396,66 @@ TEST(ImuProcess, DriverAndEmulatorProcessesSurviveGarbageAndUnplug) {
   EXPECT_EQ(Counter(last_hb, "dropped_frames"), 1);
   EXPECT_GE(Counter(last_hb, "resyncs"), 1);
   EXPECT_GT(Counter(last_hb, "connect_failures"), 0);
+}
+
+TEST(ImuProcess, DriverSetsAFactoryDeviceToItsConfiguredRateAndBaud) {
+  const std::string dir = ::omni::testing::TempDir();
+  const std::string link = dir + "/imu_factory";
+  const std::string log = dir + "/imu_factory.lcmlog";
+  const std::string config = dir + "/imu_configure.yaml";
+  {
+    std::ofstream c(config);
+    c << "port: /dev/imu\nbaud: 9600\nrate_hz: 100\ndata_timeout_s: 0.3\n"
+         "reconnect_interval_s: 0.1\nconfigure:\n  enabled: true\n  baud: 115200\n"
+         "  outputs: [accel, gyro, angle, quaternion]\n  command_gap_ms: 20\n";
+  }
+  const pid_t emu = fork();
+  ASSERT_GE(emu, 0);
+  if (emu == 0) {
+    const int null = open("/dev/null", O_RDWR);
+    dup2(null, 0);
+    dup2(null, 1);
+    execl(::omni::testing::Bin("omni-imu-emulator").c_str(), "omni-imu-emulator", "--link",
+          link.c_str(), "--baud", "9600", "--rate-hz", "10", "--duration-s", "8",
+          static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  for (int i = 0; i < 300 && access(link.c_str(), F_OK) != 0; ++i) usleep(10000);
+  const auto r = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                      config + " --port " + link +
+                                      " --duration-s 3 --lcm-url 'file://" + log + "?mode=w'");
+  kill(emu, SIGTERM);
+  int status = 0;
+  waitpid(emu, &status, 0);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto reader = io::LcmLogReader::Open(log);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+  io::LcmLogEvent ev;
+  int imu = 0;
+  omni::heartbeat_t last_hb;
+  while (true) {
+    auto more = reader->Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    if (ev.channel == "IMU") {
+      omni::imu_t m;
+      ASSERT_GT(m.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+      ASSERT_NEAR(m.linear_acceleration_m_s2[2], kGravity, 0.01);
+      ASSERT_GE(m.orientation_covariance[0], 0.0);  // quaternion frames came
+      ++imu;
+    } else if (ev.channel == "HEARTBEAT") {
+      ASSERT_GT(last_hb.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+    }
+  }
+  // The driver's 3 s at 100 Hz (10 Hz would give 30), less the connection and the writes.
+  EXPECT_GE(imu, 180) << r.output;
+  EXPECT_LE(imu, 320);
+  EXPECT_EQ(Counter(last_hb, "configurations"), 1) << r.output;
+  EXPECT_EQ(Counter(last_hb, "config_failures"), 0);
+  EXPECT_EQ(Counter(last_hb, "reconnects"), 0);
+  EXPECT_NEAR(static_cast<double>(Counter(last_hb, "measured_rate_hz")), 100.0, 15.0);
+  EXPECT_EQ(Counter(last_hb, "rate_mismatches"), 0);
+  EXPECT_NE(r.output.find("settings confirmed"), std::string::npos) << r.output;
 }
 
 }  // namespace

@@ -1,7 +1,9 @@
 // The IMU driver's own logic: frame-cycle learning and drop counting, sample stamps, the config
-// file, the message, the emulator's motion, and the driver on a bare pty.
+// file, the message, the emulator's motion, the driver on a bare pty, and the driver writing
+// its settings into the emulated device.
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -267,6 +269,239 @@ TEST(ImuDriverStart, MissingPortIsAnErrorNamingIt) {
   ASSERT_FALSE(st.ok());
   EXPECT_EQ(st.error().code, ErrorCode::kNotFound);
   EXPECT_NE(st.message().find(o.port), std::string::npos) << st.message();
+}
+
+TEST(WitMotionWrites, EncodeTheDocumentedBytes) {
+  using B = std::array<uint8_t, kWriteSize>;
+  // WitMotion's register map: KEY 0x69 = 0xB588 (unlock), RSW 0x02, RRATE 0x03, BAUD 0x04,
+  // SAVE 0x00 = 0; value low byte first.
+  EXPECT_EQ(EncodeWrite(kRegKey, kUnlockKey), (B{0xFF, 0xAA, 0x69, 0x88, 0xB5}));
+  EXPECT_EQ(EncodeWrite(kRegRate, RateCode(100)), (B{0xFF, 0xAA, 0x03, 0x09, 0x00}));
+  EXPECT_EQ(EncodeWrite(kRegRate, RateCode(200)), (B{0xFF, 0xAA, 0x03, 0x0B, 0x00}));
+  EXPECT_EQ(EncodeWrite(kRegRate, RateCode(10)), (B{0xFF, 0xAA, 0x03, 0x06, 0x00}));
+  EXPECT_EQ(EncodeWrite(kRegBaud, BaudCode(115200)), (B{0xFF, 0xAA, 0x04, 0x06, 0x00}));
+  EXPECT_EQ(EncodeWrite(kRegBaud, BaudCode(9600)), (B{0xFF, 0xAA, 0x04, 0x02, 0x00}));
+  EXPECT_EQ(EncodeWrite(kRegSave, 0), (B{0xFF, 0xAA, 0x00, 0x00, 0x00}));
+  const uint16_t imu = static_cast<uint16_t>(OutputBit(kTypeAccel) | OutputBit(kTypeGyro) |
+                                             OutputBit(kTypeAngle) | OutputBit(kTypeQuaternion));
+  EXPECT_EQ(EncodeWrite(kRegOutputs, imu), (B{0xFF, 0xAA, 0x02, 0x0E, 0x02}));
+  EXPECT_EQ(RateCode(125), 0);  // the WT931's rate, not the WT901's
+  EXPECT_EQ(RateCode(30), 0);
+  EXPECT_EQ(BaudCode(2400), 0);
+  for (double hz : {0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0})
+    EXPECT_DOUBLE_EQ(RateOfCode(RateCode(hz)), hz);
+  for (int b : {4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600})
+    EXPECT_EQ(BaudOfCode(BaudCode(b)), b);
+  EXPECT_EQ(OutputBit(0x42), 0);
+}
+
+TEST(WitMotionWrites, DeviceSideParserSkipsNoiseAndWaitsForWholeWrites) {
+  WriteParser p;
+  std::vector<RegisterWrite> w;
+  const std::vector<uint8_t> bytes = {0x12, 0xFF, 0x00, 0xFF, 0xAA, 0x03, 0x09,
+                                      0x00, 0xAA, 0xFF, 0xAA, 0x69, 0x88};
+  p.Feed(bytes.data(), bytes.size(), &w);
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0].reg, kRegRate);
+  EXPECT_EQ(w[0].value, 0x0009);
+  EXPECT_EQ(p.bytes_skipped(), 4);  // 0x12, 0xFF 0x00, 0xAA
+  const uint8_t rest = 0xB5;
+  p.Feed(&rest, 1, &w);
+  ASSERT_EQ(w.size(), 2u);
+  EXPECT_EQ(w[1].reg, kRegKey);
+  EXPECT_EQ(w[1].value, kUnlockKey);
+}
+
+TEST(ImuConfig, ConfigureSectionIsCheckedAndRead) {
+  const std::string path = ::omni::testing::TempDir() + "/imu_configure.yaml";
+  std::ofstream(path) << "port: /dev/x\nrate_hz: 100\nconfigure:\n  enabled: true\n"
+                         "  baud: 115200\n  outputs: [quaternion, gyro, accel, angle, gyro]\n"
+                         "  save: true\n";
+  DriverOptions d;
+  NodeOptions n;
+  const Status ok = LoadImuOptions(path, &d, &n);
+  ASSERT_TRUE(ok.ok()) << ok.message();
+  EXPECT_TRUE(d.configure.enabled);
+  EXPECT_EQ(d.configure.baud, 115200);
+  EXPECT_TRUE(d.configure.save);
+  EXPECT_EQ(d.configure.outputs, (std::vector<uint8_t>{0x51, 0x52, 0x53, 0x59}));
+  Status st =
+      LoadText("port: /dev/x\nrate_hz: 30\ndata_timeout_s: 1\nconfigure:\n  enabled: true\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("rate_hz"), std::string::npos) << st.message();
+  EXPECT_TRUE(LoadText("port: /dev/x\nrate_hz: 30\ndata_timeout_s: 1\n").ok());  // not written
+  st = LoadText("port: /dev/x\nconfigure:\n  outputs: [accel, angle]\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("configure.outputs"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\nconfigure:\n  outputs: [accel, gyro, euler]\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("euler"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\nconfigure:\n  baud: 2400\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("configure.baud"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\nconfigure:\n  enable: true\n");  // misspelled
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("configure.enable"), std::string::npos) << st.message();
+}
+
+// The emulator on its own thread, stepping every millisecond; stopped before the test reads or
+// changes its state.
+class EmulatedImu {
+ public:
+  explicit EmulatedImu(EmulatorOptions o) {
+    auto e = ImuEmulator::Create(std::move(o));
+    EXPECT_TRUE(e.ok()) << e.error().message;
+    if (e.ok()) emu_ = std::move(*e);
+  }
+  ~EmulatedImu() { Stop(); }
+  void Start() {
+    run_ = true;
+    thread_ = std::thread([this] {
+      while (run_) {
+        emu_->Step(MonotonicMicros());
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+    });
+  }
+  void Stop() {
+    run_ = false;
+    if (thread_.joinable()) thread_.join();
+  }
+  ImuEmulator* operator->() { return emu_.get(); }
+
+ private:
+  std::unique_ptr<ImuEmulator> emu_;
+  std::atomic<bool> run_{false};
+  std::thread thread_;
+};
+
+// Steps the driver for `seconds` (or until `done` holds), collecting samples.
+template <typename Done>
+std::vector<StampedSample> PumpFor(ImuDriver* d, double seconds, Done done) {
+  std::vector<StampedSample> out;
+  const int64_t end = MonotonicMicros() + SecondsToUtime(seconds);
+  while (MonotonicMicros() < end && !done()) d->Step(10, &out);
+  return out;
+}
+
+DriverOptions ConfiguringDriver(const std::string& port) {
+  DriverOptions o;
+  o.port = port;
+  o.baud = 9600;  // where the factory left it
+  o.rate_hz = 100;
+  o.data_timeout_s = 0.4;
+  o.reconnect_interval_s = 0.05;
+  o.configure.enabled = true;
+  o.configure.baud = 115200;
+  o.configure.outputs = {kTypeAccel, kTypeGyro, kTypeAngle, kTypeQuaternion};
+  o.configure.command_gap_ms = 10;
+  return o;
+}
+
+EmulatorOptions FactoryImu(const std::string& link) {
+  EmulatorOptions e;
+  e.link_path = link;
+  e.rate_hz = 10;
+  e.baud = 9600;  // a reader at another rate gets garbage
+  return e;
+}
+
+TEST(ImuConfigure, SetsRateFramesAndBaudAndWritesThemAgainAfterAnUnplug) {
+  const std::string link = ::omni::testing::TempDir() + "/imu_cfg_a";
+  EmulatedImu imu(FactoryImu(link));
+  imu.Start();
+  SystemClock clock;
+  ImuDriver d(ConfiguringDriver(link), &clock);
+  // The driver tries 115200 first (nothing readable), then 9600, writes the settings there,
+  // and follows the device to 115200.
+  ASSERT_TRUE(d.Connect().ok()) << d.status_text();
+  EXPECT_EQ(d.baud(), 115200);
+  auto samples = PumpFor(&d, 1.0, [] { return false; });
+  EXPECT_EQ(d.cycle().types(), (std::vector<uint8_t>{0x51, 0x52, 0x53, 0x59}));
+  EXPECT_GT(samples.size(), 60u);  // 100 Hz now, not 10
+  EXPECT_LT(samples.size(), 140u);
+  EXPECT_EQ(d.counters().configurations, 1);
+  EXPECT_EQ(d.counters().config_failures, 0);
+  EXPECT_EQ(d.counters().reconnects, 0);
+  imu.Stop();
+  EXPECT_DOUBLE_EQ(imu->options().rate_hz, 100.0);
+  EXPECT_EQ(imu->options().baud, 115200);
+  EXPECT_FALSE(imu->options().send_mag);
+  EXPECT_EQ(imu->saved().baud, 9600);  // not saved
+  EXPECT_EQ(imu->counters().saves, 0);
+
+  // Unplugged and back: the device is at its saved 9600 baud and 10 Hz again; the driver finds
+  // it and writes the settings again without a restart.
+  imu->Vanish();
+  imu.Start();
+  PumpFor(&d, 0.3, [&] { return d.state() == DriverState::kDisconnected; });
+  EXPECT_NE(d.state(), DriverState::kStreaming);
+  imu.Stop();
+  ASSERT_TRUE(imu->Restore().ok());
+  EXPECT_EQ(imu->options().baud, 9600);
+  imu.Start();
+  PumpFor(&d, 5.0, [&] { return d.counters().configurations == 2; });
+  EXPECT_EQ(d.counters().configurations, 2) << d.status_text();
+  EXPECT_EQ(d.counters().reconnects, 1);
+  EXPECT_EQ(d.state(), DriverState::kStreaming);
+  EXPECT_EQ(d.baud(), 115200);
+  samples = PumpFor(&d, 0.5, [] { return false; });
+  EXPECT_GT(samples.size(), 30u);
+  imu.Stop();
+  EXPECT_DOUBLE_EQ(imu->options().rate_hz, 100.0);
+  EXPECT_GT(imu->counters().bytes_garbled, 0);  // the tries at the wrong rate
+}
+
+TEST(ImuConfigure, SavedSettingsAreWrittenAtTheNewBaudAndSurviveAnUnplug) {
+  const std::string link = ::omni::testing::TempDir() + "/imu_cfg_b";
+  EmulatedImu imu(FactoryImu(link));
+  imu.Start();
+  SystemClock clock;
+  DriverOptions o = ConfiguringDriver(link);
+  o.configure.save = true;
+  ImuDriver d(o, &clock);
+  ASSERT_TRUE(d.Connect().ok()) << d.status_text();
+  PumpFor(&d, 2.0, [&] { return d.counters().configurations == 1; });
+  ASSERT_EQ(d.counters().configurations, 1);
+  imu.Stop();
+  EXPECT_EQ(imu->counters().saves, 1);  // after the switch, at 115200
+  EXPECT_EQ(imu->saved().baud, 115200);
+  EXPECT_DOUBLE_EQ(imu->saved().rate_hz, 100.0);
+  imu->Vanish();
+  ASSERT_TRUE(imu->Restore().ok());
+  EXPECT_EQ(imu->options().baud, 115200);  // powered up with the saved settings
+  imu.Start();
+  PumpFor(&d, 5.0, [&] { return d.counters().configurations == 2; });
+  EXPECT_EQ(d.counters().configurations, 2) << d.status_text();
+  EXPECT_EQ(d.counters().config_failures, 0);
+  EXPECT_EQ(d.baud(), 115200);
+}
+
+TEST(ImuConfigure, DeviceIgnoringWritesIsReportedAndStreamsAsItIsSet) {
+  const std::string link = ::omni::testing::TempDir() + "/imu_cfg_c";
+  EmulatorOptions e;
+  e.link_path = link;
+  e.rate_hz = 50;
+  e.accept_writes = false;
+  EmulatedImu imu(e);
+  imu.Start();
+  SystemClock clock;
+  DriverOptions o = ConfiguringDriver(link);
+  o.rate_hz = 10;
+  o.configure.baud = 0;  // stay at 9600
+  o.configure.max_attempts = 2;
+  ImuDriver d(o, &clock);
+  ASSERT_TRUE(d.Connect().ok()) << d.status_text();
+  const auto samples = PumpFor(&d, 2.8, [] { return false; });
+  EXPECT_EQ(d.counters().configurations, 0);
+  EXPECT_EQ(d.counters().config_failures, 2);  // mag frames still sent, twice, then given up
+  EXPECT_EQ(d.state(), DriverState::kStreaming);
+  EXPECT_GT(samples.size(), 80u);
+  // The stream's rate is measured: 50 samples/s against the configured 10.
+  EXPECT_NEAR(d.measured_rate_hz(), 50.0, 10.0);
+  EXPECT_EQ(d.counters().rate_mismatches, 1);
+  imu.Stop();
+  EXPECT_GT(imu->counters().writes_ignored, 0);
 }
 
 }  // namespace

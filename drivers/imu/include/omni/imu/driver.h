@@ -18,6 +18,17 @@
 
 namespace omni::imu {
 
+// Settings written into the device at each connection (WitMotion register writes), so a
+// factory-set WT901 (9600 baud, 10 Hz) needs no vendor tool.
+struct ConfigureOptions {
+  bool enabled = false;          // write rate_hz (and what is set below) at each connection
+  int baud = 0;                  // switch the device and the port to this rate; 0: leave it
+  std::vector<uint8_t> outputs;  // frame types the device sends (0x51 ...); empty: leave them
+  bool save = false;             // also store the settings in the device's flash
+  int command_gap_ms = 50;       // pause after each write (the device applies them in turn)
+  int max_attempts = 3;          // consecutive tries before streaming as the device is set
+};
+
 struct DriverOptions {
   std::string port = "/dev/imu";
   int baud = 9600;               // 0: try 9600, then 115200 (the two usual WitMotion settings)
@@ -26,6 +37,7 @@ struct DriverOptions {
   double rate_hz = 10.0;         // the device's output rate (factory 10 Hz; spaces the stamps)
   double data_timeout_s = 1.0;   // no frame for this long while streaming -> reconnect
   double reconnect_interval_s = 1.0;
+  ConfigureOptions configure;
 };
 
 // Bus-side options, read from the same file (config/imu_driver.yaml).
@@ -44,6 +56,8 @@ Status LoadImuOptions(const std::string& path, DriverOptions* driver, NodeOption
 
 // The frame type named in the config ("accel" -> 0x51, ...); 0 for "auto" or an unknown name.
 uint8_t TriggerType(const std::string& name);
+// As TriggerType, plus "time" (0x50), for configure.outputs.
+uint8_t OutputType(const std::string& name);
 
 // The WT901 sends its output registers in ascending type order every period (0x50 time, 0x51,
 // 0x52, 0x53, 0x54, ..., 0x59 quaternion; which ones is configurable on the device). This learns
@@ -93,6 +107,9 @@ struct DriverCounters {
   int64_t timeouts = 0;            // data timeouts while streaming
   int64_t dropped_frames = 0;      // frames missing from the device's cycle (noise, overflow)
   int64_t incomplete_samples = 0;  // periods closed without acceleration or angular rate
+  int64_t configurations = 0;      // settings written and confirmed by the device's stream
+  int64_t config_failures = 0;     // written, but no frames or other frame types came back
+  int64_t rate_mismatches = 0;     // connections whose measured rate is > 20 % off rate_hz
 };
 
 enum class DriverState { kDisconnected, kOpening, kStreaming };
@@ -118,6 +135,8 @@ class ImuDriver {
   const DriverOptions& options() const { return options_; }
   const FrameCycle& cycle() const { return cycle_; }
   int baud() const { return port_ ? port_->baud() : 0; }
+  // Samples per second over the last whole 2 s window while streaming; 0 before the first.
+  double measured_rate_hz() const { return measured_rate_hz_; }
 
  private:
   Status Open();
@@ -125,6 +144,14 @@ class ImuDriver {
   void FailOpening(const std::string& why);
   void Feed(const uint8_t* data, size_t size, std::vector<StampedSample>* out);
   std::vector<int> Bauds() const;
+  // Writes the configured settings, switches the port's baud and waits for frames again.
+  void Configure();
+  // Checks the learned cycle against the configured outputs once after a configuration;
+  // false when it wrote the settings again (the frames of this read are then stale).
+  bool VerifyConfiguration();
+  bool Write(uint8_t reg, uint16_t value);  // one register write and the gap after it
+  void ResetStream();
+  void MeasureRate(size_t samples);
 
   DriverOptions options_;
   const Clock* clock_;
@@ -146,6 +173,17 @@ class ImuDriver {
   int64_t next_attempt_us_ = 0;  // monotonic
   int64_t bytes_since_open_ = 0;
   bool ever_connected_ = false;
+  // Configuration state: pending at the first connection and after each loss of the device.
+  bool config_pending_ = false;
+  bool config_verifying_ = false;    // written; waiting for the new stream to confirm it
+  int config_attempts_ = 0;          // consecutive unconfirmed attempts
+  bool reopened_by_config_ = false;  // the next streaming start is not a reconnection
+  bool save_after_baud_ = false;     // SAVE once the stream is back at the new baud rate
+  // Rate measurement.
+  int64_t rate_window_start_us_ = 0;  // monotonic; 0: restart at the next sample
+  int64_t rate_window_samples_ = 0;
+  bool rate_checked_ = false;  // the first window of this connection was compared
+  double measured_rate_hz_ = 0;
   std::vector<Frame> frames_;
   std::vector<StampedSample> pending_;  // completed while Connect() waited for the first frame
 };

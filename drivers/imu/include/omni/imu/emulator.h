@@ -3,6 +3,10 @@
 // device's ascending order, of a simulated motion: a constant tilt and a slow yaw rotation,
 // gravity on the tilted z axis. Faults for tests: garbage spliced into a frame, vanish/restore
 // (USB unplugged), silence with the port open.
+// Configuration: register writes (0xFF 0xAA ...) after the unlock key set the output rate, the
+// frames sent and the baud rate; SAVE keeps them over an unplug (a power cycle), which otherwise
+// restores the saved ones. With a baud rate set, the line must be at it: at any other speed the
+// bytes each way are garbled (no frame can be read, no write understood), as on a real UART.
 // Single-threaded: the owner calls Step() in its loop (its own thread or process).
 #pragma once
 
@@ -13,6 +17,7 @@
 #include <vector>
 
 #include "omni/common/result.h"
+#include "omni/imu/witmotion.h"
 #include "omni/serial/pty.h"
 
 namespace omni::imu {
@@ -25,8 +30,14 @@ struct EmulatorOptions {
   double roll_rad = 0.0;        // constant tilt
   double pitch_rad = 0.0;
   double temperature_c = 25.0;
+  bool send_time = false;       // 0x50 frames
+  bool send_accel = true;       // 0x51 frames
+  bool send_gyro = true;        // 0x52 frames
+  bool send_angle = true;       // 0x53 frames
   bool send_mag = true;         // 0x54 frames
   bool send_quaternion = true;  // 0x59 frames
+  int baud = 0;                 // the device's serial rate; 0: any line speed is understood
+  bool accept_writes = true;    // false: a device that ignores configuration writes
 };
 
 // The simulated truth at `t_s` seconds after the stream started.
@@ -47,7 +58,11 @@ struct EmulatorCounters {
   int64_t frames = 0;            // frames sent (corrupted ones included)
   int64_t frames_corrupted = 0;  // frames cut by spliced garbage
   int64_t bytes_streamed = 0;
-  int64_t bytes_dropped = 0;  // nobody reading: the pty buffer was full
+  int64_t bytes_dropped = 0;   // nobody reading: the pty buffer was full
+  int64_t writes = 0;          // configuration writes applied
+  int64_t writes_ignored = 0;  // locked, unknown register or value, or writes not accepted
+  int64_t saves = 0;
+  int64_t bytes_garbled = 0;  // sent or received at a line speed that is not the device's
 };
 
 class ImuEmulator {
@@ -72,18 +87,30 @@ class ImuEmulator {
   void SetStreaming(bool on) { streaming_ = on; }
   bool streaming() const { return streaming_; }
   const EmulatorCounters& counters() const { return counters_; }
+  // options() holds the settings in effect (rate, frames sent, baud); saved() those kept over
+  // an unplug.
+  const EmulatorOptions& saved() const { return saved_; }
 
  private:
   explicit ImuEmulator(EmulatorOptions o) : options_(std::move(o)) {}
   void Send(const uint8_t* data, size_t size);
-  void DrainInput();
+  void DrainInput(int64_t now_us);
+  void RestartPeriods();
+  void Apply(const RegisterWrite& w, int64_t now_us);
+  bool LineMatches() const;  // the line is at the device's baud rate (or any is accepted)
 
   EmulatorOptions options_;
+  EmulatorOptions saved_;  // restored when plugged back in
+  bool unlocked_ = false;
+  int64_t unlocked_until_us_ = 0;
+  WriteParser writes_;
   std::unique_ptr<serial::Pty> pty_;
   bool streaming_ = true;
   bool started_ = false;
   int64_t start_us_ = 0;
   int64_t next_period_ = 0;
+  bool restart_pending_ = false;  // start_us_ moves to the next Step's time
+  double t0_s_ = 0;  // motion time at start_us_ (the period count restarts when the rate changes)
   std::vector<uint8_t> garbage_;  // to splice into the next frame
   uint32_t garbage_seed_ = 0;
   EmulatorCounters counters_;

@@ -1,6 +1,7 @@
 // Bus side of the IMU driver: publishes each sample as omni.imu_t (channel IMU by default) and a
 // heartbeat with the driver's counters (messages, frames, checksum errors, resyncs, bytes
-// skipped, reconnects, connect failures, timeouts, dropped frames, incomplete samples).
+// skipped, reconnects, connect failures, timeouts, dropped frames, incomplete samples, settings
+// written and confirmed / failed, rate mismatches, the measured rate rounded to 1 Hz).
 #pragma once
 
 #include <atomic>

@@ -3,6 +3,9 @@
 // Types: 0x50 time, 0x51 acceleration (±16 g), 0x52 angular rate (±2000 deg/s),
 // 0x53 angles (roll, pitch, yaw, ±180 deg), 0x54 magnetometer (raw LSB), 0x59 quaternion.
 // The 4th value of 0x51..0x54 is the temperature in 1/100 degrees Celsius.
+// Configuration (host to device) is a register write of 5 bytes: 0xFF 0xAA, register, value
+// low byte, value high byte; writes take effect after the unlock key (register 0x69 = 0xB588)
+// and are kept over a power cycle only after a SAVE (register 0x00 = 0).
 #pragma once
 
 #include <array>
@@ -21,6 +24,43 @@ inline constexpr uint8_t kTypeAngle = 0x53;
 inline constexpr uint8_t kTypeMag = 0x54;
 inline constexpr uint8_t kTypeQuaternion = 0x59;
 inline constexpr double kGravity = 9.80665;
+
+// Registers written by the driver (WitMotion's register map).
+inline constexpr uint8_t kRegSave = 0x00;     // 0: store the settings in flash
+inline constexpr uint8_t kRegOutputs = 0x02;  // RSW: bit (type - 0x50) sends that frame type
+inline constexpr uint8_t kRegRate = 0x03;     // RRATE: output rate code (RateCode)
+inline constexpr uint8_t kRegBaud = 0x04;     // BAUD: serial rate code (BaudCode)
+inline constexpr uint8_t kRegKey = 0x69;      // KEY: kUnlockKey enables writes
+inline constexpr uint16_t kUnlockKey = 0xB588;
+inline constexpr size_t kWriteSize = 5;
+
+std::array<uint8_t, kWriteSize> EncodeWrite(uint8_t reg, uint16_t value);
+// The RRATE code of an output rate (0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200 Hz); 0 for any other.
+uint8_t RateCode(double hz);
+// The rate of a RRATE code; 0 for codes that are not a periodic rate.
+double RateOfCode(uint8_t code);
+// The BAUD code of a serial rate (4800 ... 921600); 0 for any other.
+uint8_t BaudCode(int baud);
+int BaudOfCode(uint8_t code);
+// The RSW bit of a frame type (0x50 ... 0x5A), 0 for others.
+uint16_t OutputBit(uint8_t type);
+
+struct RegisterWrite {
+  uint8_t reg = 0;
+  uint16_t value = 0;
+};
+
+// Device side of the configuration writes (for the emulator): finds 0xFF 0xAA + 3 bytes in a
+// byte stream; anything else is skipped and counted.
+class WriteParser {
+ public:
+  void Feed(const uint8_t* data, size_t size, std::vector<RegisterWrite>* out);
+  int64_t bytes_skipped() const { return bytes_skipped_; }
+
+ private:
+  std::vector<uint8_t> buf_;
+  int64_t bytes_skipped_ = 0;
+};
 
 struct Frame {
   uint8_t type = 0;

@@ -46,6 +46,10 @@ class SerialPort {
   int baud_;
 };
 
+// The output baud rate a tty is set to (for a pty master: the rate its slave was opened at); 0
+// when `fd` is not a terminal.
+int LineBaud(int fd);
+
 // Applies raw 8N1 settings and `baud` (standard or custom) to an open tty fd.
 Status ConfigureRaw(int fd, int baud, const std::string& name);
 
