@@ -12,12 +12,17 @@
 
 #include "omni/io/lcm_log.h"
 
+#include "../common/test_paths.h"
+#include "omni/bus/convert.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/map_save.h"
 #include "omni/bus/slam_log.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/laser_scan_t.hpp"
+#include "omni/io/carmen.h"
+#include "omni/io/grid.h"
 #include "omni/map_save_reply_t.hpp"
+#include "omni/occupancy_grid_t.hpp"
 #include "omni/map_save_request_t.hpp"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
@@ -281,6 +286,103 @@ TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {
   EXPECT_EQ(xs, (std::vector<double>{0.0, 2.0})) << "the corrupt event is lost, the next is read";
   EXPECT_EQ(r->skipped_bytes, event_bytes);
   EXPECT_TRUE(r->stopped_early.empty());
+}
+
+// A real map: the ACES building from its corrected log, 5 cm cells.
+io::GridMap AcesMap() {
+  const std::string path = ::omni::testing::Dataset("carmen-corrected/aces-corrected.log.gz");
+  if (path.empty()) return {};
+  auto log = io::ReadCarmenLog(path);
+  EXPECT_TRUE(log.ok()) << log.error().message;
+  if (!log.ok()) return {};
+  io::LogOddsGrid grid;
+  for (const auto& r : log->records) {
+    if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+    grid.IntegrateScan(r.laser.laser_pose, r.laser.ranges_m, r.laser.angle_min_rad,
+                       r.laser.angle_increment_rad, r.laser.max_range_m);
+  }
+  return grid.ToGridMap();
+}
+
+TEST(GridMessage, ARealMapGoesCompressedOverTheBusAndComesBackCellForCell) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/aces-corrected.log.gz");
+  const io::GridMap map = AcesMap();
+  ASSERT_GT(map.cells.size(), 500000u);
+  const omni::occupancy_grid_t z = bus::ToGridMessage(map, 42, "rbpf");
+  EXPECT_EQ(z.encoding, omni::occupancy_grid_t::ENCODING_ZLIB);
+  EXPECT_EQ(z.num_cells, static_cast<int32_t>(map.cells.size()));
+  EXPECT_EQ(z.num_bytes, static_cast<int32_t>(z.data.size()));
+  std::printf("ACES map %d x %d: %zu cells -> %zu bytes of zlib\n", map.width, map.height,
+              map.cells.size(), z.data.size());
+  EXPECT_LT(z.data.size() * 10, map.cells.size()) << z.data.size();
+  auto b = bus::Bus::Create("memq://");
+  ASSERT_TRUE(b.ok());
+  std::vector<omni::occupancy_grid_t> got;
+  (*b)->Subscribe<omni::occupancy_grid_t>(
+      "GRID_RBPF", [&](const omni::occupancy_grid_t& g, int64_t) { got.push_back(g); });
+  ASSERT_TRUE((*b)->Publish("GRID_RBPF", z));
+  while ((*b)->HandleTimeout(0) > 0) {
+  }
+  ASSERT_EQ(got.size(), 1u);
+  auto back = bus::FromGridMessage(got[0]);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->cells, map.cells);
+  EXPECT_EQ(back->width, map.width);
+  EXPECT_DOUBLE_EQ(back->origin_x_m, map.origin_x_m);
+  const omni::occupancy_grid_t raw = bus::ToGridMessage(map, 42, "rbpf", /*raw=*/true);
+  EXPECT_EQ(raw.encoding, omni::occupancy_grid_t::ENCODING_RAW);
+  ASSERT_EQ(raw.data.size(), map.cells.size());
+  auto back_raw = bus::FromGridMessage(raw);
+  ASSERT_TRUE(back_raw.ok()) << back_raw.error().message;
+  EXPECT_EQ(back_raw->cells, map.cells);
+}
+
+TEST(GridMessage, CorruptOrInconsistentCellsAreErrorsNotMaps) {
+  io::GridMap map;
+  map.width = 300;
+  map.height = 200;
+  map.cells.assign(60000, -1);
+  for (int c = 40; c < 260; ++c) map.at(c, 100) = 100;  // a wall
+  for (int r = 50; r < 150; ++r) map.at(150, r) = 0;
+  const omni::occupancy_grid_t good = bus::ToGridMessage(map, 1, "posegraph");
+  ASSERT_EQ(good.encoding, omni::occupancy_grid_t::ENCODING_ZLIB);
+  ASSERT_TRUE(bus::FromGridMessage(good).ok());
+  auto expect_error = [](const omni::occupancy_grid_t& g, const std::string& says) {
+    auto r = bus::FromGridMessage(g);
+    ASSERT_FALSE(r.ok()) << says;
+    EXPECT_NE(r.error().message.find(says), std::string::npos) << r.error().message;
+    EXPECT_NE(r.error().message.find("posegraph"), std::string::npos) << r.error().message;
+  };
+  auto flipped = good;
+  flipped.data[flipped.data.size() / 2] ^= 0x5A;
+  expect_error(flipped, "zlib");
+  auto cut = good;
+  cut.data.resize(cut.data.size() - 4);  // the Adler-32 lost
+  cut.num_bytes = static_cast<int32_t>(cut.data.size());
+  expect_error(cut, "zlib");
+  auto fewer = good;  // inflates to one byte more than the header says
+  fewer.width = 299;
+  fewer.num_cells = 299 * 200;
+  expect_error(fewer, "zlib");
+  auto more = good;  // inflates to fewer bytes than the header says
+  more.width = 301;
+  more.num_cells = 301 * 200;
+  expect_error(more, "inflates to 60000 bytes, not 60200");
+  auto unknown = good;
+  unknown.encoding = 7;
+  expect_error(unknown, "unknown encoding 7");
+  auto short_raw = bus::ToGridMessage(map, 1, "posegraph", true);
+  short_raw.data.pop_back();
+  short_raw.num_bytes -= 1;
+  expect_error(short_raw, "59999 raw bytes for 60000 cells");
+  auto count = good;
+  count.num_bytes += 1;  // disagrees with the array
+  expect_error(count, "inconsistent size");
+  auto huge = good;  // refused before anything is allocated
+  huge.width = 1 << 15;
+  huge.height = 1 << 15;
+  huge.num_cells = 1 << 30;
+  expect_error(huge, "2^28");
 }
 
 }  // namespace

@@ -427,7 +427,6 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   b.PublishRaw("GRID_RBPF", "junk", 4);
   auto inconsistent = GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "rbpf");
   inconsistent.num_cells -= 1;
-  inconsistent.cells.pop_back();
   b.Publish("GRID_RBPF", inconsistent);
   auto rotated = GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "rbpf");
   rotated.origin_yaw_rad = std::nan("");

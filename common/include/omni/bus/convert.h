@@ -18,11 +18,13 @@ namespace omni::bus {
 omni::laser_scan_t ToLaserScan(const io::CarmenLaser& laser, int64_t seq);
 // A CARMEN ODOM line as odometry in the "odom" frame (velocities from tv/rv).
 omni::odometry_t ToOdometry(const io::CarmenOdom& odom, int64_t seq);
+// The grid as a message, its cells zlib-compressed (level 1) unless `raw`.
 omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
-                                     const std::string& source);
-// Rejects messages whose sizes disagree, whose resolution is not positive and finite or whose
-// origin is not finite; a grid turned in its frame (origin_yaw_rad) is resampled onto the
-// frame's axes (io::AxisAligned).
+                                     const std::string& source, bool raw = false);
+// Rejects messages whose sizes disagree (also once inflated), whose encoding is unknown, whose
+// zlib stream is corrupt, whose resolution is not positive and finite or whose origin is not
+// finite, and grids over 2^28 cells (a 6.5 km square at 0.4 m); a grid turned in its frame
+// (origin_yaw_rad) is resampled onto the frame's axes (io::AxisAligned).
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
 
 // A whole trajectory as a message: `poses` in time order, each with `utime` (µs) and `pose`
