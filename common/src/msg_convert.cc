@@ -96,9 +96,9 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': inconsistent size or resolution");
   if (g.num_cells > (1 << 28))
-    return MakeError(ErrorCode::kInvalidArgument,
-                     "occupancy grid from '" + g.source + "': " + std::to_string(g.num_cells) +
-                         " cells is more than any map here (2^28)");
+    return MakeError(ErrorCode::kInvalidArgument, "occupancy grid from '" + g.source +
+                                                      "': " + std::to_string(g.num_cells) +
+                                                      " cells is more than any map here (2^28)");
   // A map origin beyond 1000 km is no robot's map: refused like a non-finite one.
   if (!std::isfinite(g.origin_x_m) || !std::isfinite(g.origin_y_m) ||
       !std::isfinite(g.origin_yaw_rad) || std::abs(g.origin_x_m) > 1e6 ||
@@ -125,12 +125,12 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
                               static_cast<uLong>(g.data.size()));
     // Z_BUF_ERROR: more than num_cells bytes, or a stream cut short; Z_DATA_ERROR: corrupt.
     if (rc != Z_OK || len != n)
-      return MakeError(ErrorCode::kInvalidArgument,
-                       "occupancy grid from '" + g.source + "': the zlib data " +
-                           (rc == Z_OK ? "inflates to " + std::to_string(len) + " bytes, not " +
-                                             std::to_string(n)
-                                       : std::string("does not inflate (zlib error ") +
-                                             std::to_string(rc) + ")"));
+      return MakeError(
+          ErrorCode::kInvalidArgument,
+          "occupancy grid from '" + g.source + "': the zlib data " +
+              (rc == Z_OK
+                   ? "inflates to " + std::to_string(len) + " bytes, not " + std::to_string(n)
+                   : std::string("does not inflate (zlib error ") + std::to_string(rc) + ")"));
   } else {
     return MakeError(ErrorCode::kInvalidArgument, "occupancy grid from '" + g.source +
                                                       "': unknown encoding " +

@@ -458,5 +458,82 @@ TEST(ImuProcess, DriverSetsAFactoryDeviceToItsConfiguredRateAndBaud) {
   EXPECT_NE(r.output.find("settings confirmed"), std::string::npos) << r.output;
 }
 
+TEST(ImuProcess, SetupWritesAndSavesTheSettingsOnce) {
+  const std::string dir = ::omni::testing::TempDir();
+  const std::string link = dir + "/imu_setup";
+  const std::string log = dir + "/imu_setup.lcmlog";
+  const std::string setup_config = dir + "/imu_setup.yaml";
+  const std::string run_config = dir + "/imu_run.yaml";
+  {
+    std::ofstream c(setup_config);
+    c << "port: /dev/imu\nbaud: 9600\nrate_hz: 50\ndata_timeout_s: 0.3\n"
+         "reconnect_interval_s: 0.1\nconfigure:\n  baud: 115200\n  command_gap_ms: 20\n";
+    std::ofstream r(run_config);  // what --setup advises: the new baud, no configure
+    r << "port: /dev/imu\nbaud: 115200\nrate_hz: 50\ndata_timeout_s: 0.3\n"
+         "reconnect_interval_s: 0.1\n";
+  }
+  int to_emu[2];
+  ASSERT_EQ(pipe(to_emu), 0);
+  const pid_t emu = fork();
+  ASSERT_GE(emu, 0);
+  if (emu == 0) {
+    dup2(to_emu[0], 0);
+    close(to_emu[0]);
+    close(to_emu[1]);
+    const int null = open("/dev/null", O_WRONLY);
+    dup2(null, 1);
+    execl(::omni::testing::Bin("omni-imu-emulator").c_str(), "omni-imu-emulator", "--link",
+          link.c_str(), "--baud", "9600", "--rate-hz", "10", "--duration-s", "12",
+          static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  close(to_emu[0]);
+  for (int i = 0; i < 300 && access(link.c_str(), F_OK) != 0; ++i) usleep(10000);
+  const auto setup = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                          setup_config + " --port " + link + " --setup");
+  EXPECT_EQ(setup.exit_code, 0) << setup.output;
+  EXPECT_NE(setup.output.find("set and saved: 50 Hz at 115200 baud"), std::string::npos)
+      << setup.output;
+  // Unplugged and back: the device powers up with what was saved.
+  const std::string v = "vanish 300\n";
+  (void)!write(to_emu[1], v.data(), v.size());
+  usleep(600000);
+  const auto r = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                      run_config + " --port " + link +
+                                      " --duration-s 2.5 --lcm-url 'file://" + log + "?mode=w'");
+  const std::string quit = "quit\n";
+  (void)!write(to_emu[1], quit.data(), quit.size());
+  close(to_emu[1]);
+  int status = 0;
+  waitpid(emu, &status, 0);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto reader = io::LcmLogReader::Open(log);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+  io::LcmLogEvent ev;
+  omni::heartbeat_t last_hb;
+  int imu = 0;
+  while (true) {
+    auto more = reader->Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    if (ev.channel == "IMU") ++imu;
+    if (ev.channel == "HEARTBEAT") {
+      ASSERT_GT(last_hb.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
+    }
+  }
+  EXPECT_GE(imu, 100) << r.output;  // 50 Hz for 2.5 s (10 Hz unsaved would give 25)
+  EXPECT_EQ(Counter(last_hb, "configurations"), 0);
+  EXPECT_NEAR(static_cast<double>(Counter(last_hb, "measured_rate_hz")), 50.0, 8.0);
+  // A rate the device cannot be set to is refused before anything is written.
+  {
+    std::ofstream c(setup_config);
+    c << "port: /dev/imu\nrate_hz: 30\ndata_timeout_s: 1\n";
+  }
+  const auto bad = ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " +
+                                        setup_config + " --port " + link + " --setup");
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("rate_hz 30"), std::string::npos) << bad.output;
+}
+
 }  // namespace
 }  // namespace omni::imu
