@@ -90,7 +90,12 @@ Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n)
     cfg.AddError("outputs", "must include accel and gyro (each sample needs both)");
   }
   cfg.Get("save", &c.save, Optional());
-  cfg.Get("command_gap_ms", &c.command_gap_ms, Optional(), InRange(0, 1000));
+  cfg.Get("command_gap_ms", &c.command_gap_ms, Optional(), InRange(10, 1000));
+  if (!c.outputs.empty() && d->trigger != "auto" &&
+      !std::count(c.outputs.begin(), c.outputs.end(), TriggerType(d->trigger))) {
+    r.AddError("trigger",
+               "'" + d->trigger + "' is not among configure.outputs: no sample would ever close");
+  }
   cfg.Get("max_attempts", &c.max_attempts, Optional(), InRange(1, 100));
   if (c.enabled && !RateCode(d->rate_hz)) {
     r.AddError("rate_hz",
@@ -179,9 +184,11 @@ std::vector<int> ImuDriver::Bauds() const {
       options_.baud > 0 ? std::vector<int>{options_.baud} : std::vector<int>{9600, 115200};
   const int target = options_.configure.enabled ? options_.configure.baud : 0;
   if (target > 0) {
-    // Try the rate the device is being set to first: after a configuration it is there.
+    // Try the rate the device is being set to first: after a configuration it is there. And
+    // the factory rate too: a device that lost unsaved settings in a power cycle is there.
     b.erase(std::remove(b.begin(), b.end(), target), b.end());
     b.insert(b.begin(), target);
+    if (std::find(b.begin(), b.end(), 9600) == b.end()) b.push_back(9600);
   }
   return b;
 }
@@ -258,6 +265,8 @@ void ImuDriver::Lose(const std::string& why) {
   config_verifying_ = false;
   save_after_baud_ = false;
   config_attempts_ = 0;
+  reopened_by_config_ = false;
+  measured_rate_hz_ = 0;  // no stream, no rate
   state_ = DriverState::kDisconnected;
   status_ = why;
   next_attempt_us_ = MonotonicMicros() + SecondsToUtime(options_.reconnect_interval_s);
@@ -340,10 +349,23 @@ bool ImuDriver::Write(uint8_t reg, uint16_t value) {
   const auto bytes = EncodeWrite(reg, value);
   const Status st = port_->Write(bytes.data(), bytes.size(), 500);
   if (!st.ok()) {
-    Lose("writing its settings: " + st.message());
+    if (st.error().code == ErrorCode::kUnavailable) {
+      Lose("writing its settings: " + st.message());
+    } else {
+      // Reads work but writes do not (a receive-only cable?): stream as the device is set.
+      ++counters_.config_failures;
+      config_pending_ = false;
+      config_verifying_ = false;
+      save_after_baud_ = false;
+      LOG_WARN << "IMU on " << options_.port << ": cannot write its settings (" << st.message()
+               << "); streaming as it is set";
+    }
     return false;
   }
+  port_->Drain();  // on the wire before the gap (and before a baud change)
   std::this_thread::sleep_for(std::chrono::milliseconds(options_.configure.command_gap_ms));
+  // The device was busy with the writes, not silent: the data timeout starts again.
+  last_data_us_ = MonotonicMicros();
   return true;
 }
 
@@ -410,7 +432,7 @@ bool ImuDriver::VerifyConfiguration() {
   }
   if (save_after_baud_) {
     save_after_baud_ = false;
-    if (!Write(kRegKey, kUnlockKey) || !Write(kRegSave, 0)) return false;
+    if (!Write(kRegKey, kUnlockKey) || !Write(kRegSave, 0)) return port_ != nullptr;
   }
   config_attempts_ = 0;
   ++counters_.configurations;
@@ -466,7 +488,11 @@ void ImuDriver::Step(int timeout_ms, std::vector<StampedSample>* out) {
   uint8_t chunk[2048];
   auto n = port_->Read(chunk, sizeof(chunk), timeout_ms);
   if (!n.ok()) {
-    if (state_ == DriverState::kOpening) {
+    // Gone while its new settings were awaited (unplugged mid-configuration): a loss, so the
+    // device that comes back is configured afresh.
+    const bool gone_while_verifying =
+        config_verifying_ && n.error().code == ErrorCode::kUnavailable;
+    if (state_ == DriverState::kOpening && !gone_while_verifying) {
       FailOpening(n.error().message);
     } else {
       Lose(n.error().message);

@@ -242,7 +242,7 @@ void ImuEmulator::Step(int64_t now_us) {
     const double t = t0_s_ + static_cast<double>(next_period_) / options_.rate_hz;
     std::vector<uint8_t> period = EncodePeriod(options_, SimulatedMotion(options_, t));
     const size_t nframes = period.size() / kFrameSize;
-    if (!garbage_.empty()) {
+    if (!garbage_.empty() && nframes > 0) {
       // Cut one frame of this period after 1..10 bytes and put the garbage in the cut.
       std::mt19937 rng(garbage_seed_ ^ static_cast<uint32_t>(next_period_));
       const size_t frame = rng() % nframes;

@@ -114,4 +114,6 @@ Status SerialPort::SetBaud(int baud) {
 
 void SerialPort::FlushInput() { tcflush(fd_, TCIOFLUSH); }
 
+void SerialPort::Drain() { tcdrain(fd_); }
+
 }  // namespace omni::serial

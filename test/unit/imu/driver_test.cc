@@ -339,6 +339,12 @@ TEST(ImuConfig, ConfigureSectionIsCheckedAndRead) {
   st = LoadText("port: /dev/x\nconfigure:\n  baud: 2400\n");
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("configure.baud"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\ntrigger: mag\nconfigure:\n  outputs: [accel, gyro, angle]\n");
+  ASSERT_FALSE(st.ok());  // the driver would switch off the frame that closes each sample
+  EXPECT_NE(st.message().find("trigger"), std::string::npos) << st.message();
+  st = LoadText("port: /dev/x\nconfigure:\n  command_gap_ms: 0\n");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("configure.command_gap_ms"), std::string::npos) << st.message();
   st = LoadText("port: /dev/x\nconfigure:\n  enable: true\n");  // misspelled
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("configure.enable"), std::string::npos) << st.message();
@@ -365,7 +371,10 @@ class EmulatedImu {
   }
   void Stop() {
     run_ = false;
-    if (thread_.joinable()) thread_.join();
+    if (thread_.joinable()) {
+      thread_.join();
+      emu_->Step(MonotonicMicros());  // takes what the driver wrote since the last step
+    }
   }
   ImuEmulator* operator->() { return emu_.get(); }
 
@@ -394,7 +403,7 @@ DriverOptions ConfiguringDriver(const std::string& port) {
   o.configure.enabled = true;
   o.configure.baud = 115200;
   o.configure.outputs = {kTypeAccel, kTypeGyro, kTypeAngle, kTypeQuaternion};
-  o.configure.command_gap_ms = 10;
+  o.configure.command_gap_ms = 50;
   return o;
 }
 
@@ -454,15 +463,24 @@ TEST(ImuConfigure, SetsRateFramesAndBaudAndWritesThemAgainAfterAnUnplug) {
 
 TEST(ImuConfigure, SavedSettingsAreWrittenAtTheNewBaudAndSurviveAnUnplug) {
   const std::string link = ::omni::testing::TempDir() + "/imu_cfg_b";
-  EmulatedImu imu(FactoryImu(link));
+  EmulatorOptions e = FactoryImu(link);
+  e.rate_hz = 50;  // frames often enough for the short timeout below
+  EmulatedImu imu(e);
   imu.Start();
   SystemClock clock;
   DriverOptions o = ConfiguringDriver(link);
   o.configure.save = true;
+  // The KEY + SAVE written once the stream is back take 2 x 70 ms, longer than the data
+  // timeout: the writes must not count as the device falling silent.
+  o.data_timeout_s = 0.12;
+  o.configure.command_gap_ms = 70;
   ImuDriver d(o, &clock);
   ASSERT_TRUE(d.Connect().ok()) << d.status_text();
   PumpFor(&d, 2.0, [&] { return d.counters().configurations == 1; });
   ASSERT_EQ(d.counters().configurations, 1);
+  PumpFor(&d, 0.3, [] { return false; });
+  EXPECT_EQ(d.counters().timeouts, 0);
+  EXPECT_EQ(d.counters().reconnects, 0);
   imu.Stop();
   EXPECT_EQ(imu->counters().saves, 1);  // after the switch, at 115200
   EXPECT_EQ(imu->saved().baud, 115200);
@@ -475,6 +493,22 @@ TEST(ImuConfigure, SavedSettingsAreWrittenAtTheNewBaudAndSurviveAnUnplug) {
   EXPECT_EQ(d.counters().configurations, 2) << d.status_text();
   EXPECT_EQ(d.counters().config_failures, 0);
   EXPECT_EQ(d.baud(), 115200);
+}
+
+TEST(ImuConfigure, APowerCycledDeviceIsFoundAtTheFactoryRateWhenBaudIsTheTarget) {
+  // baud: 115200 and configure.baud: 115200 (the settings were never saved): the device came
+  // back at 9600 and is still found, and set again.
+  const std::string link = ::omni::testing::TempDir() + "/imu_cfg_d";
+  EmulatedImu imu(FactoryImu(link));
+  imu.Start();
+  SystemClock clock;
+  DriverOptions o = ConfiguringDriver(link);
+  o.baud = 115200;
+  ImuDriver d(o, &clock);
+  ASSERT_TRUE(d.Connect().ok()) << d.status_text();
+  EXPECT_EQ(d.baud(), 115200);
+  PumpFor(&d, 2.0, [&] { return d.counters().configurations == 1; });
+  EXPECT_EQ(d.counters().configurations, 1);
 }
 
 TEST(ImuConfigure, DeviceIgnoringWritesIsReportedAndStreamsAsItIsSet) {

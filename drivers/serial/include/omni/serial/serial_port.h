@@ -34,6 +34,9 @@ class SerialPort {
   Status SetBaud(int baud);
   // Discards unread input and unsent output.
   void FlushInput();
+  // Waits until the bytes written have left the UART (tcdrain), e.g. before a baud change,
+  // which takes effect at once.
+  void Drain();
 
   const std::string& path() const { return path_; }
   int baud() const { return baud_; }
