@@ -97,6 +97,10 @@ Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n)
                "'" + d->trigger + "' is not among configure.outputs: no sample would ever close");
   }
   cfg.Get("max_attempts", &c.max_attempts, Optional(), InRange(1, 100));
+  if (c.enabled) {
+    const std::string why = RateBeyondLine(*d);
+    if (!why.empty()) r.AddError("rate_hz", why);
+  }
   if (c.enabled && !RateCode(d->rate_hz)) {
     r.AddError("rate_hz",
                "must be a WT901 output rate (0.2, 0.5, 1, 2, 5, 10, 20, 50, 100 or 200) when "
@@ -107,6 +111,21 @@ Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n)
   GetVariances(&cov, "angular_velocity", &n->angular_velocity_var);
   GetVariances(&cov, "linear_acceleration", &n->linear_acceleration_var);
   return r.Finish();
+}
+
+std::string RateBeyondLine(const DriverOptions& d) {
+  const ConfigureOptions& c = d.configure;
+  const int line_baud = c.baud > 0 ? c.baud : d.baud;
+  if (line_baud <= 0) return "";
+  // 10 bits per byte on the line, 11 bytes per frame; without outputs the device sends at
+  // least acceleration, rate and angles.
+  const size_t frames = c.outputs.empty() ? 3 : c.outputs.size();
+  const double max_hz = line_baud / 10.0 / (11.0 * static_cast<double>(frames));
+  if (d.rate_hz <= max_hz) return "";
+  std::ostringstream why;
+  why << "is more than " << line_baud << " baud carries with " << frames << " frames per period ("
+      << static_cast<int>(max_hz) << " Hz): set configure.baud higher or send fewer frames";
+  return why.str();
 }
 
 uint8_t OutputType(const std::string& name) {

@@ -46,6 +46,10 @@ int Setup(omni::imu::DriverOptions o, const omni::Clock* clock) {
               << " is not a WT901 output rate (0.2, 0.5, 1, 2, 5, 10, 20, 50, 100 or 200)";
     return 1;
   }
+  if (const std::string why = omni::imu::RateBeyondLine(o); !why.empty()) {
+    LOG_ERROR << "--setup: rate_hz " << o.rate_hz << " " << why;
+    return 1;
+  }
   omni::imu::ImuDriver driver(o, clock);
   omni::Status st = driver.Connect();
   if (!st.ok()) {

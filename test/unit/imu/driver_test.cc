@@ -342,6 +342,16 @@ TEST(ImuConfig, ConfigureSectionIsCheckedAndRead) {
   st = LoadText("port: /dev/x\ntrigger: mag\nconfigure:\n  outputs: [accel, gyro, angle]\n");
   ASSERT_FALSE(st.ok());  // the driver would switch off the frame that closes each sample
   EXPECT_NE(st.message().find("trigger"), std::string::npos) << st.message();
+  st = LoadText(
+      "port: /dev/x\nrate_hz: 100\ndata_timeout_s: 0.5\nconfigure:\n"
+      "  enabled: true\n");  // 100 Hz of three frames at the factory's 9600 baud
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("more than 9600 baud carries with 3 frames per period (29 Hz)"),
+            std::string::npos)
+      << st.message();
+  EXPECT_TRUE(LoadText("port: /dev/x\nrate_hz: 20\ndata_timeout_s: 0.5\nconfigure:\n"
+                       "  enabled: true\n")
+                  .ok());
   st = LoadText("port: /dev/x\nconfigure:\n  command_gap_ms: 0\n");
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("configure.command_gap_ms"), std::string::npos) << st.message();

@@ -56,6 +56,10 @@ Status LoadImuOptions(const std::string& path, DriverOptions* driver, NodeOption
 
 // The frame type named in the config ("accel" -> 0x51, ...); 0 for "auto" or an unknown name.
 uint8_t TriggerType(const std::string& name);
+// Why `rate_hz` cannot be carried by the line the device is set to (configure.baud, else baud)
+// with the frames it sends; "" when it can or the baud rate is unknown (baud 0).
+std::string RateBeyondLine(const DriverOptions& d);
+
 // As TriggerType, plus "time" (0x50), for configure.outputs.
 uint8_t OutputType(const std::string& name);
 
