@@ -340,7 +340,11 @@ TEST_F(BaseEndToEnd, SlipShowsAsOdometryTruthDiscrepancy) {
   const auto legs = Square(0.0);
   double worst = 0, mean_truth = 0;
   for (const auto& l : legs) {
-    EXPECT_NEAR(l.odom_len, 1.0, 0.02) << "odometry still sees the commanded wheel motion";
+    // As in ExpectWithinOnePercent: the commanded distance the firmware received is the
+    // reference (a stalled host process shortens or stretches a leg by a few cm).
+    EXPECT_NEAR(l.odom_len, l.cmd_len, 0.02 * l.cmd_len)
+        << "odometry still sees the commanded wheel motion";
+    EXPECT_NEAR(l.odom_len, 1.0, 0.03) << "odometry vs the intended 1 m";
     worst = std::max(worst, l.odom_odom_truth_gap);
     mean_truth += l.truth_len / legs.size();
   }
