@@ -119,6 +119,13 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
                            " raw bytes for " + std::to_string(n) + " cells");
     m.cells.assign(g.data.begin(), g.data.end());
   } else if (g.encoding == omni::occupancy_grid_t::ENCODING_ZLIB) {
+    // Deflate expands at most 1032:1 (zlib FAQ), so a few bytes claiming a huge grid are
+    // refused before an n-byte buffer is allocated for them.
+    if (n / 1032 > g.data.size())
+      return MakeError(ErrorCode::kInvalidArgument,
+                       "occupancy grid from '" + g.source + "': " + std::to_string(g.data.size()) +
+                           " zlib bytes cannot inflate to " + std::to_string(n) +
+                           " cells (deflate's limit is 1032:1)");
     m.cells.resize(n);
     uLongf len = static_cast<uLongf>(n);
     const int rc = uncompress(reinterpret_cast<Bytef*>(m.cells.data()), &len, g.data.data(),

@@ -368,6 +368,11 @@ TEST(GridMessage, CorruptOrInconsistentCellsAreErrorsNotMaps) {
   more.width = 301;
   more.num_cells = 301 * 200;
   expect_error(more, "inflates to 60000 bytes, not 60200");
+  auto bomb = good;  // a few bytes claiming 2^28 cells: refused before 256 MB is allocated
+  bomb.width = 1 << 14;
+  bomb.height = 1 << 14;
+  bomb.num_cells = 1 << 28;
+  expect_error(bomb, "cannot inflate to 268435456 cells");
   auto unknown = good;
   unknown.encoding = 7;
   expect_error(unknown, "unknown encoding 7");
