@@ -282,7 +282,7 @@ void ImuDriver::Lose(const std::string& why) {
   // A device that comes back may have lost unsaved settings (power cycle) or be another one.
   config_pending_ = options_.configure.enabled;
   config_verifying_ = false;
-  save_after_baud_ = false;
+  save_after_verify_ = false;
   config_attempts_ = 0;
   reopened_by_config_ = false;
   measured_rate_hz_ = 0;  // no stream, no rate
@@ -375,7 +375,7 @@ bool ImuDriver::Write(uint8_t reg, uint16_t value) {
       ++counters_.config_failures;
       config_pending_ = false;
       config_verifying_ = false;
-      save_after_baud_ = false;
+      save_after_verify_ = false;
       LOG_WARN << "IMU on " << options_.port << ": cannot write its settings (" << st.message()
                << "); streaming as it is set";
     }
@@ -399,15 +399,16 @@ void ImuDriver::Configure() {
   what << "rate " << options_.rate_hz << " Hz";
   if (bits) what << ", outputs 0x" << std::hex << bits << std::dec;
   if (new_baud) what << ", baud " << port_->baud() << " -> " << c.baud;
-  if (c.save) what << ", saved";
+  const bool save = c.save && !saved_;
+  if (save) what << ", saved once confirmed";
   LOG_INFO << "IMU on " << options_.port << ": writing " << what.str() << " (attempt "
            << config_attempts_ << " of " << c.max_attempts << ")";
   // The baud rate last: the device switches at once and understands nothing more at the old
-  // rate, so a save with a new baud rate is written after the stream comes back at it.
+  // rate. The save comes only after the stream has confirmed the settings, and once per
+  // process: each SAVE is a flash write, and a loose cable must not wear the flash out.
   if (!Write(kRegKey, kUnlockKey)) return;
   if (bits && !Write(kRegOutputs, bits)) return;
   if (!Write(kRegRate, RateCode(options_.rate_hz))) return;
-  if (c.save && !new_baud && !Write(kRegSave, 0)) return;
   if (new_baud) {
     if (!Write(kRegBaud, BaudCode(c.baud))) return;
     const Status st = port_->SetBaud(c.baud);
@@ -417,7 +418,7 @@ void ImuDriver::Configure() {
     }
     baud_index_ = 0;  // Bauds() puts the configured rate first
   }
-  save_after_baud_ = c.save && new_baud;
+  save_after_verify_ = save;
   port_->FlushInput();
   ResetStream();
   state_ = DriverState::kOpening;
@@ -449,9 +450,10 @@ bool ImuDriver::VerifyConfiguration() {
     }
     return true;
   }
-  if (save_after_baud_) {
-    save_after_baud_ = false;
+  if (save_after_verify_) {
+    save_after_verify_ = false;
     if (!Write(kRegKey, kUnlockKey) || !Write(kRegSave, 0)) return port_ != nullptr;
+    saved_ = true;
   }
   config_attempts_ = 0;
   ++counters_.configurations;

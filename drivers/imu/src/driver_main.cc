@@ -7,6 +7,7 @@
 // flash, checks the stream confirms them and exits (0 when it does), without the bus.
 // Exits 1 with a message naming the port when the device is absent or sends no frame at start;
 // a device lost later is retried until it comes back.
+#include <algorithm>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -59,7 +60,9 @@ int Setup(omni::imu::DriverOptions o, const omni::Clock* clock) {
   // Connect() returns once frames flow at the new settings; the frame check and the save come
   // with the first whole cycle.
   std::vector<omni::imu::StampedSample> samples;
-  const int64_t end = omni::MonotonicMicros() + omni::SecondsToUtime(5.0);
+  // Three periods at the new rate (at 0.2 Hz a period is 5 s) and a data timeout.
+  const double wait_s = std::max(5.0, 3.0 / o.rate_hz + o.data_timeout_s);
+  const int64_t end = omni::MonotonicMicros() + omni::SecondsToUtime(wait_s);
   while (omni::MonotonicMicros() < end && driver.counters().configurations == 0 &&
          driver.counters().config_failures < o.configure.max_attempts)
     driver.Step(50, &samples);

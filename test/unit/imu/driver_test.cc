@@ -503,6 +503,8 @@ TEST(ImuConfigure, SavedSettingsAreWrittenAtTheNewBaudAndSurviveAnUnplug) {
   EXPECT_EQ(d.counters().configurations, 2) << d.status_text();
   EXPECT_EQ(d.counters().config_failures, 0);
   EXPECT_EQ(d.baud(), 115200);
+  imu.Stop();
+  EXPECT_EQ(imu->counters().saves, 1) << "the flash is written once per run, not per connection";
 }
 
 TEST(ImuConfigure, APowerCycledDeviceIsFoundAtTheFactoryRateWhenBaudIsTheTarget) {

@@ -182,7 +182,8 @@ class ImuDriver {
   bool config_verifying_ = false;    // written; waiting for the new stream to confirm it
   int config_attempts_ = 0;          // consecutive unconfirmed attempts
   bool reopened_by_config_ = false;  // the next streaming start is not a reconnection
-  bool save_after_baud_ = false;     // SAVE once the stream is back at the new baud rate
+  bool save_after_verify_ = false;   // SAVE once the stream has confirmed the settings
+  bool saved_ = false;               // saved in this process: not written to flash again
   // Rate measurement.
   int64_t rate_window_start_us_ = 0;  // monotonic; 0: restart at the next sample
   int64_t rate_window_samples_ = 0;
