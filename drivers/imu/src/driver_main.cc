@@ -57,6 +57,17 @@ int Setup(omni::imu::DriverOptions o, const omni::Clock* clock) {
     LOG_ERROR << st.error().ToString();
     return 1;
   }
+  // With no baud given (baud: 0 tries 9600 and 115200) the line's limit is known only now;
+  // the rate is already set (until a power cycle) but is not saved.
+  if (o.baud <= 0 && o.configure.baud <= 0) {
+    omni::imu::DriverOptions found = o;
+    found.baud = driver.baud();
+    if (const std::string why = omni::imu::RateBeyondLine(found); !why.empty()) {
+      LOG_ERROR << "--setup: rate_hz " << o.rate_hz << " " << why << " (the IMU on " << o.port
+                << " answered at " << driver.baud() << " baud); nothing saved";
+      return 1;
+    }
+  }
   // Connect() returns once frames flow at the new settings; the frame check and the save come
   // with the first whole cycle.
   std::vector<omni::imu::StampedSample> samples;

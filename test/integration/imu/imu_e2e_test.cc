@@ -545,6 +545,24 @@ TEST(ImuProcess, SetupWritesAndSavesTheSettingsOnce) {
                                         setup_config + " --port " + link + " --setup");
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("rate_hz 30"), std::string::npos) << bad.output;
+  // baud: 0 finds a factory device at 9600, which cannot carry 200 Hz of three frames: known
+  // only once connected, and refused before anything is saved.
+  const std::string factory = dir + "/imu_setup_factory";
+  const pid_t emu2 =
+      SpawnEmulator(factory, {"--baud", "9600", "--rate-hz", "10", "--duration-s", "12"}, nullptr);
+  ASSERT_GT(emu2, 0);
+  {
+    std::ofstream c(setup_config);
+    c << "port: /dev/imu\nbaud: 0\nrate_hz: 200\ndata_timeout_s: 1\n";
+  }
+  const auto unknown_baud =
+      ::omni::testing::Run(::omni::testing::Bin("omni-imu-driver") + " --config " + setup_config +
+                           " --port " + factory + " --setup");
+  kill(emu2, SIGTERM);
+  waitpid(emu2, &status, 0);
+  EXPECT_NE(unknown_baud.exit_code, 0);
+  EXPECT_NE(unknown_baud.output.find("answered at 9600 baud); nothing saved"), std::string::npos)
+      << unknown_baud.output;
 }
 
 }  // namespace
