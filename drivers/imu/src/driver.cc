@@ -392,6 +392,22 @@ void ImuDriver::Configure() {
   const ConfigureOptions& c = options_.configure;
   config_pending_ = false;
   ++config_attempts_;
+  // With no baud configured (baud: 0 tries 9600 and 115200) the line's limit is known only
+  // now, at the baud the device answered at: a rate beyond it is refused before any write.
+  if (c.baud <= 0 && options_.baud <= 0) {
+    DriverOptions found = options_;
+    found.baud = port_->baud();
+    if (const std::string why = RateBeyondLine(found); !why.empty()) {
+      ++counters_.config_failures;
+      std::ostringstream msg;
+      msg << "rate_hz " << options_.rate_hz << " " << why << " (the IMU on " << options_.port
+          << " answered at " << port_->baud() << " baud); nothing saved or written, streaming "
+          << "as it is set";
+      status_ = msg.str();
+      LOG_ERROR << status_;
+      return;
+    }
+  }
   uint16_t bits = 0;
   for (uint8_t t : c.outputs) bits = static_cast<uint16_t>(bits | OutputBit(t));
   const bool new_baud = c.baud > 0 && c.baud != port_->baud();

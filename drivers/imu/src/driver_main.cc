@@ -57,17 +57,6 @@ int Setup(omni::imu::DriverOptions o, const omni::Clock* clock) {
     LOG_ERROR << st.error().ToString();
     return 1;
   }
-  // With no baud given (baud: 0 tries 9600 and 115200) the line's limit is known only now;
-  // the rate is already set (until a power cycle) but is not saved.
-  if (o.baud <= 0 && o.configure.baud <= 0) {
-    omni::imu::DriverOptions found = o;
-    found.baud = driver.baud();
-    if (const std::string why = omni::imu::RateBeyondLine(found); !why.empty()) {
-      LOG_ERROR << "--setup: rate_hz " << o.rate_hz << " " << why << " (the IMU on " << o.port
-                << " answered at " << driver.baud() << " baud); nothing saved";
-      return 1;
-    }
-  }
   // Connect() returns once frames flow at the new settings; the frame check and the save come
   // with the first whole cycle.
   std::vector<omni::imu::StampedSample> samples;
@@ -75,7 +64,7 @@ int Setup(omni::imu::DriverOptions o, const omni::Clock* clock) {
   const double wait_s = std::max(5.0, 3.0 / o.rate_hz + o.data_timeout_s);
   const int64_t end = omni::MonotonicMicros() + omni::SecondsToUtime(wait_s);
   while (omni::MonotonicMicros() < end && driver.counters().configurations == 0 &&
-         driver.counters().config_failures < o.configure.max_attempts)
+         driver.configuring() && driver.counters().config_failures < o.configure.max_attempts)
     driver.Step(50, &samples);
   if (driver.counters().configurations == 0) {
     LOG_ERROR << "the IMU on " << o.port << " did not take the settings ("

@@ -139,6 +139,8 @@ class ImuDriver {
   const DriverOptions& options() const { return options_; }
   const FrameCycle& cycle() const { return cycle_; }
   int baud() const { return port_ ? port_->baud() : 0; }
+  // Settings still to be written, or written and not yet confirmed by the stream.
+  bool configuring() const { return config_pending_ || config_verifying_; }
   // Samples per second over the last whole 2 s window while streaming; 0 before the first.
   double measured_rate_hz() const { return measured_rate_hz_; }
 
