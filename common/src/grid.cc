@@ -227,7 +227,7 @@ Status WriteMapServer(const GridMap& map, const std::string& base_path) {
   return Status::Ok();
 }
 
-Result<GridMap> AxisAligned(const GridMap& g, double yaw) {
+Result<GridMap> AxisAligned(const GridMap& g, double yaw, int64_t max_cells) {
   if (!std::isfinite(yaw) || !std::isfinite(g.resolution_m) || !(g.resolution_m > 0))
     return MakeError(ErrorCode::kInvalidArgument, "grid turn or resolution is not finite");
   if (yaw == 0.0 || g.width == 0 || g.height == 0) return g;
@@ -247,11 +247,13 @@ Result<GridMap> AxisAligned(const GridMap& g, double yaw) {
   out.origin_y_m = y0;
   const double cols = std::ceil((x1 - x0) / res - 1e-9), rows = std::ceil((y1 - y0) / res - 1e-9);
   const double cells = static_cast<double>(g.width) * g.height;
-  if (!(cols * rows <= 4.0 * cells + 1e6))
+  if (!(cols * rows <= 4.0 * cells + 1e6) || !(cols * rows <= static_cast<double>(max_cells)))
     return MakeError(ErrorCode::kInvalidArgument,
                      "a " + std::to_string(g.width) + " x " + std::to_string(g.height) +
                          " grid turned by " + std::to_string(yaw) +
-                         " rad would need too large an axis-aligned grid");
+                         " rad would need too large an axis-aligned grid (" +
+                         std::to_string(static_cast<int64_t>(cols)) + " x " +
+                         std::to_string(static_cast<int64_t>(rows)) + ")");
   out.width = static_cast<int>(cols);
   out.height = static_cast<int>(rows);
   out.cells.assign(static_cast<size_t>(out.width) * out.height, -1);

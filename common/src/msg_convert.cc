@@ -1,5 +1,6 @@
 #include "omni/bus/convert.h"
 
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -7,6 +8,8 @@
 
 #include <zlib.h>
 
+#include "omni/bus/bus.h"
+#include "omni/common/log.h"
 #include "omni/common/time.h"
 
 namespace omni::bus {
@@ -58,8 +61,19 @@ omni::odometry_t ToOdometry(const io::CarmenOdom& o, int64_t seq) {
   return m;
 }
 
-omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
-                                     const std::string& source, bool raw) {
+Result<omni::occupancy_grid_t> ToGridMessage(const io::GridMap& map, int64_t utime,
+                                             const std::string& source, bool raw) {
+  const int64_t claimed = static_cast<int64_t>(map.width) * map.height;
+  if (claimed > io::kMaxGridCells)
+    return MakeError(ErrorCode::kOutOfRange,
+                     "grid from '" + source + "': " + std::to_string(map.width) + " x " +
+                         std::to_string(map.height) + " cells is more than a grid message " +
+                         "carries (io::kMaxGridCells, 2^28); not sent");
+  if (map.width < 0 || map.height < 0 || claimed != static_cast<int64_t>(map.cells.size()))
+    return MakeError(ErrorCode::kInvalidArgument, "grid from '" + source +
+                                                      "': " + std::to_string(map.cells.size()) +
+                                                      " cells for " + std::to_string(map.width) +
+                                                      " x " + std::to_string(map.height));
   omni::occupancy_grid_t g;
   g.utime = utime;
   g.frame = "map";
@@ -89,13 +103,29 @@ omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
   return g;
 }
 
+bool PublishGrid(Bus& bus, const std::string& channel, const io::GridMap& map, int64_t utime,
+                 const std::string& source, const std::string& frame) {
+  auto msg = ToGridMessage(map, utime, source);
+  if (!msg.ok()) {
+    static std::atomic<int64_t> refused{0};
+    const int64_t n = ++refused;
+    if (n % 100 == 1) {
+      LOG_WARN << msg.error().message << " (" << n << " grids refused so far)";
+    }
+    ++bus.counters().publish_errors;
+    return false;
+  }
+  msg->frame = frame;
+  return bus.Publish(channel, *msg);
+}
+
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
   if (!(g.resolution_m > 0) || !std::isfinite(g.resolution_m) || g.width < 0 || g.height < 0 ||
       static_cast<int64_t>(g.width) * g.height != g.num_cells ||
       g.num_bytes != static_cast<int32_t>(g.data.size()))
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': inconsistent size or resolution");
-  if (g.num_cells > (1 << 28))
+  if (g.num_cells > io::kMaxGridCells)
     return MakeError(ErrorCode::kInvalidArgument, "occupancy grid from '" + g.source +
                                                       "': " + std::to_string(g.num_cells) +
                                                       " cells is more than any map here (2^28)");
@@ -144,7 +174,11 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
                                                       std::to_string(int{g.encoding}));
   }
   // A grid turned in its frame (origin_yaw_rad) is resampled onto the frame's axes.
-  return io::AxisAligned(m, g.origin_yaw_rad);
+  auto aligned = io::AxisAligned(m, g.origin_yaw_rad, io::kMaxGridCells);
+  if (!aligned.ok())
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "occupancy grid from '" + g.source + "': " + aligned.error().message);
+  return aligned;
 }
 
 }  // namespace omni::bus

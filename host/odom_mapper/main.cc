@@ -148,8 +148,7 @@ int main(int argc, char** argv) {
         const int64_t now = omni::MonotonicMicros();
         if (now - last_grid_us > static_cast<int64_t>(opt.publish_interval_s * 1e6) &&
             c.scans_mapped > 0) {
-          bus.Publish(opt.grid_channel,
-                      omni::bus::ToGridMessage(mapper.Map(), clock.NowUtime(), "odom"));
+          omni::bus::PublishGrid(bus, opt.grid_channel, mapper.Map(), clock.NowUtime(), "odom");
           last_grid_us = now;
         }
       });
@@ -165,7 +164,7 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.scans_too_few_beams));
     return omni::bus::NothingToWriteExit(end, c.scans_in);
   }
-  bus.Publish(opt.grid_channel, omni::bus::ToGridMessage(map, clock.NowUtime(), "odom"));
+  omni::bus::PublishGrid(bus, opt.grid_channel, map, clock.NowUtime(), "odom");
   const omni::Status s = write_maps(map, out_dir);
   if (!s.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", s.message().c_str());

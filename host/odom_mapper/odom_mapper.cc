@@ -14,7 +14,7 @@ Result<OdomMapperOptions> OdomMapperOptions::Load(ConfigReader& r) {
   r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
   r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());
   r.Get("max_grid_cells", &o.max_grid_cells, Optional(),
-        InRange<int64_t>(int64_t{1} << 16, int64_t{1} << 34));
+        InRange<int64_t>(int64_t{1} << 16, io::kMaxGridCells));
   r.Get("scan_channel", &o.scan_channel, Optional(), NonEmpty());
   r.Get("odom_channel", &o.odom_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());

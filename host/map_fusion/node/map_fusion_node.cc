@@ -62,9 +62,8 @@ Result<FusionResult> MapFusionNode::FuseNow() {
   alignments_searched_ += static_cast<int64_t>(r->alignments_searched);
   for (const auto& s : r->sources)
     if (!s.used) ++sources_rejected_;
-  bus_->Publish(
-      o_.fused_channel,
-      bus::ToGridMessage(r->fused, newest_utime_ ? newest_utime_ : clock_->NowUtime(), "fused"));
+  bus::PublishGrid(*bus_, o_.fused_channel, r->fused,
+                   newest_utime_ ? newest_utime_ : clock_->NowUtime(), "fused");
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK,
                       "fused " + std::to_string(r->maps_used) + " maps onto " + r->base);
   last_ = *r;

@@ -223,9 +223,8 @@ bool OctomapNode::PublishOctomap() {
 bool OctomapNode::PublishGrid() {
   auto grid = ProjectToGrid(pipeline_.builder().tree(), options_.grid);
   if (!grid.ok() || grid->width == 0) return false;
-  auto msg = bus::ToGridMessage(*grid, pipeline_.newest_inserted_utime(), "octomap");
-  msg.frame = options_.map_frame;
-  return bus_->Publish(options_.grid_channel, msg);
+  return bus::PublishGrid(*bus_, options_.grid_channel, *grid, pipeline_.newest_inserted_utime(),
+                          "octomap", options_.map_frame);
 }
 
 Status OctomapNode::SaveOutputs(const std::string& dir) const {

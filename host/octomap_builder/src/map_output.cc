@@ -185,10 +185,16 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree, const GridProject
   if (min_x > max_x) return g;  // nothing known in the band: an empty grid
   g.origin_x_m = std::floor(min_x / res) * res;
   g.origin_y_m = std::floor(min_y / res) * res;
-  g.width = static_cast<int>(std::ceil((max_x - g.origin_x_m) / res - 1e-9));
-  g.height = static_cast<int>(std::ceil((max_y - g.origin_y_m) / res - 1e-9));
-  if (static_cast<double>(g.width) * g.height > 4e8)
-    return MakeError(ErrorCode::kOutOfRange, "grid projection: grid would exceed 4e8 cells");
+  const double cols = std::ceil((max_x - g.origin_x_m) / res - 1e-9);
+  const double rows = std::ceil((max_y - g.origin_y_m) / res - 1e-9);
+  // Checked before the casts to int: no receiver takes more than io::kMaxGridCells cells.
+  if (!(cols * rows <= static_cast<double>(io::kMaxGridCells)))
+    return MakeError(ErrorCode::kOutOfRange,
+                     "grid projection: a " + std::to_string(static_cast<int64_t>(cols)) + " x " +
+                         std::to_string(static_cast<int64_t>(rows)) +
+                         " grid is more than a grid message carries (2^28 cells)");
+  g.width = static_cast<int>(cols);
+  g.height = static_cast<int>(rows);
   g.cells.assign(static_cast<size_t>(g.width) * g.height, -1);
   // Pass 2: cells covered by each leaf's footprint (cell centres inside it).
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {

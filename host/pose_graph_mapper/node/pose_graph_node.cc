@@ -300,7 +300,7 @@ void PoseGraphNode::PublishGrid() {
   g.resolution_m = o_.grid_resolution_m;
   const io::GridMap map = slam_.RenderMap(g);
   if (map.width == 0) return;
-  if (bus_->Publish(o_.grid_channel, bus::ToGridMessage(map, clock_->NowUtime(), "posegraph")))
+  if (bus::PublishGrid(*bus_, o_.grid_channel, map, clock_->NowUtime(), "posegraph"))
     ++grids_published_;
 }
 

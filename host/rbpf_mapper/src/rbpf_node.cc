@@ -255,7 +255,7 @@ void RbpfNode::PublishGrid() {
   if (map.width == 0) return;
   const int factor = PublishFactor(map.resolution_m, opt_.grid_publish_resolution_m);
   const io::GridMap published = factor > 1 ? io::CoarsenGrid(map, factor) : map;
-  if (bus_->Publish(opt_.grid_channel, bus::ToGridMessage(published, clock_->NowUtime(), "rbpf")))
+  if (bus::PublishGrid(*bus_, opt_.grid_channel, published, clock_->NowUtime(), "rbpf"))
     ++grids_published_;
 }
 

@@ -308,7 +308,9 @@ TEST(GridMessage, ARealMapGoesCompressedOverTheBusAndComesBackCellForCell) {
   OMNI_REQUIRE_DATASET(path, "carmen-corrected/aces-corrected.log.gz");
   const io::GridMap map = AcesMap();
   ASSERT_GT(map.cells.size(), 500000u);
-  const omni::occupancy_grid_t z = bus::ToGridMessage(map, 42, "rbpf");
+  auto made = bus::ToGridMessage(map, 42, "rbpf");
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  const omni::occupancy_grid_t& z = *made;
   EXPECT_EQ(z.encoding, omni::occupancy_grid_t::ENCODING_ZLIB);
   EXPECT_EQ(z.num_cells, static_cast<int32_t>(map.cells.size()));
   EXPECT_EQ(z.num_bytes, static_cast<int32_t>(z.data.size()));
@@ -329,7 +331,7 @@ TEST(GridMessage, ARealMapGoesCompressedOverTheBusAndComesBackCellForCell) {
   EXPECT_EQ(back->cells, map.cells);
   EXPECT_EQ(back->width, map.width);
   EXPECT_DOUBLE_EQ(back->origin_x_m, map.origin_x_m);
-  const omni::occupancy_grid_t raw = bus::ToGridMessage(map, 42, "rbpf", /*raw=*/true);
+  const omni::occupancy_grid_t raw = *bus::ToGridMessage(map, 42, "rbpf", /*raw=*/true);
   EXPECT_EQ(raw.encoding, omni::occupancy_grid_t::ENCODING_RAW);
   ASSERT_EQ(raw.data.size(), map.cells.size());
   auto back_raw = bus::FromGridMessage(raw);
@@ -344,7 +346,7 @@ TEST(GridMessage, CorruptOrInconsistentCellsAreErrorsNotMaps) {
   map.cells.assign(60000, -1);
   for (int c = 40; c < 260; ++c) map.at(c, 100) = 100;  // a wall
   for (int r = 50; r < 150; ++r) map.at(150, r) = 0;
-  const omni::occupancy_grid_t good = bus::ToGridMessage(map, 1, "posegraph");
+  const omni::occupancy_grid_t good = *bus::ToGridMessage(map, 1, "posegraph");
   ASSERT_EQ(good.encoding, omni::occupancy_grid_t::ENCODING_ZLIB);
   ASSERT_TRUE(bus::FromGridMessage(good).ok());
   auto expect_error = [](const omni::occupancy_grid_t& g, const std::string& says) {
@@ -376,7 +378,7 @@ TEST(GridMessage, CorruptOrInconsistentCellsAreErrorsNotMaps) {
   auto unknown = good;
   unknown.encoding = 7;
   expect_error(unknown, "unknown encoding 7");
-  auto short_raw = bus::ToGridMessage(map, 1, "posegraph", true);
+  auto short_raw = *bus::ToGridMessage(map, 1, "posegraph", true);
   short_raw.data.pop_back();
   short_raw.num_bytes -= 1;
   expect_error(short_raw, "59999 raw bytes for 60000 cells");
@@ -388,6 +390,75 @@ TEST(GridMessage, CorruptOrInconsistentCellsAreErrorsNotMaps) {
   huge.height = 1 << 15;
   huge.num_cells = 1 << 30;
   expect_error(huge, "2^28");
+  auto negative = good;  // sizes that multiply out right but are negative
+  negative.width = -300;
+  negative.height = -200;
+  expect_error(negative, "inconsistent size");
+  auto one_negative = good;
+  one_negative.width = -300;
+  one_negative.num_cells = -60000;
+  expect_error(one_negative, "inconsistent size");
+  auto zero_wide = good;  // no cells, but 60000 bytes of data claimed to be them
+  zero_wide.width = 0;
+  zero_wide.num_cells = 0;
+  expect_error(zero_wide, "zlib");
+  // A grid turned in its frame is refused when its axis-aligned copy would outgrow the cap,
+  // though the message itself is within it (2^28 cells turned 45 degrees need twice as many).
+  EXPECT_FALSE(io::AxisAligned(map, M_PI / 4, 100000).ok());
+  EXPECT_TRUE(io::AxisAligned(map, M_PI / 4, 200000).ok());
+}
+
+TEST(GridMessage, AnEmptyGridIsAnEmptyMapNotAnError) {
+  io::GridMap empty;
+  auto g = bus::ToGridMessage(empty, 1, "octomap");
+  ASSERT_TRUE(g.ok()) << g.error().message;
+  EXPECT_EQ(g->num_cells, 0);
+  auto back = bus::FromGridMessage(*g);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->width, 0);
+  EXPECT_TRUE(back->cells.empty());
+}
+
+// The sender refuses what every receiver would: a grid over the cap, or one whose cells do not
+// match its size. PublishGrid sends nothing then and counts it as a publish error.
+TEST(GridMessage, TheSenderRefusesAGridNoReceiverWouldTake) {
+  io::GridMap over;
+  over.width = 1 << 15;  // 2^30 cells claimed; the cap is checked before the cells are
+  over.height = 1 << 15;
+  auto r = bus::ToGridMessage(over, 1, "fused");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("more than a grid message carries"), std::string::npos)
+      << r.error().message;
+  io::GridMap mismatched;
+  mismatched.width = 10;
+  mismatched.height = 10;
+  mismatched.cells.assign(99, -1);
+  r = bus::ToGridMessage(mismatched, 1, "fused");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("99 cells for 10 x 10"), std::string::npos) << r.error().message;
+  mismatched.width = -10;
+  mismatched.height = -10;
+  mismatched.cells.assign(100, -1);
+  EXPECT_FALSE(bus::ToGridMessage(mismatched, 1, "fused").ok());
+
+  auto b = bus::Bus::Create("memq://");
+  ASSERT_TRUE(b.ok());
+  std::vector<omni::occupancy_grid_t> got;
+  (*b)->Subscribe<omni::occupancy_grid_t>(
+      "GRID_FUSED", [&](const omni::occupancy_grid_t& g, int64_t) { got.push_back(g); });
+  EXPECT_FALSE(bus::PublishGrid(**b, "GRID_FUSED", over, 1, "fused"));
+  EXPECT_EQ((*b)->counters().publish_errors.load(), 1);
+  io::GridMap fine;
+  fine.width = 4;
+  fine.height = 3;
+  fine.cells.assign(12, 100);
+  EXPECT_TRUE(bus::PublishGrid(**b, "GRID_FUSED", fine, 7, "fused", "odom"));
+  while ((*b)->HandleTimeout(0) > 0) {
+  }
+  ASSERT_EQ(got.size(), 1u);  // only the good grid went out
+  EXPECT_EQ(got[0].frame, "odom");
+  EXPECT_EQ(got[0].num_cells, 12);
+  EXPECT_EQ((*b)->counters().publish_errors.load(), 1);
 }
 
 }  // namespace

@@ -360,7 +360,8 @@ TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
 
 omni::occupancy_grid_t GridMsg(const io::GridMap& m, int64_t utime, const std::string& source) {
   auto g = bus::ToGridMessage(m, utime, source);
-  return g;
+  EXPECT_TRUE(g.ok()) << g.error().message;
+  return g.ok() ? *g : omni::occupancy_grid_t{};
 }
 
 // A grid whose cells are turned in the map frame (occupancy_grid_t.origin_yaw_rad, a ROS map

@@ -100,6 +100,23 @@ TEST(MapOutput, ProjectsTheHeightBand) {
   EXPECT_FALSE(ProjectToGrid(t, o).ok());
 }
 
+// Two voxels 1.5 km apart project onto 30000 x 30000 cells at 5 cm: more than a grid message
+// carries (io::kMaxGridCells), so the projection refuses before allocating it.
+TEST(MapOutput, RefusesAProjectionNoGridMessageCouldCarry) {
+  octomap::OcTree t(0.1);
+  t.updateNode(0.05, 0.05, 0.5, true);
+  t.updateNode(1500.05, 1500.05, 0.5, true);
+  GridProjectionOptions o;
+  o.resolution_m = 0.05;
+  auto g = ProjectToGrid(t, o);
+  ASSERT_FALSE(g.ok());
+  EXPECT_NE(g.error().message.find("2^28"), std::string::npos) << g.error().message;
+  o.resolution_m = 0.2;  // 7500 x 7500: within the cap
+  g = ProjectToGrid(t, o);
+  ASSERT_TRUE(g.ok()) << g.error().message;
+  EXPECT_EQ(static_cast<int64_t>(g->width) * g->height, int64_t{7501} * 7501);
+}
+
 TEST(MapOutput, ProjectsAlongAnotherUpAxis) {
   // A camera-posed world with y down: an obstacle at height 0.5 m is at y = -0.5.
   octomap::OcTree t(0.1);

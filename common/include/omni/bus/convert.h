@@ -18,12 +18,20 @@ namespace omni::bus {
 omni::laser_scan_t ToLaserScan(const io::CarmenLaser& laser, int64_t seq);
 // A CARMEN ODOM line as odometry in the "odom" frame (velocities from tv/rv).
 omni::odometry_t ToOdometry(const io::CarmenOdom& odom, int64_t seq);
-// The grid as a message, its cells zlib-compressed (level 1) unless `raw`.
-omni::occupancy_grid_t ToGridMessage(const io::GridMap& map, int64_t utime,
-                                     const std::string& source, bool raw = false);
+// The grid as a message, its cells zlib-compressed (level 1) unless `raw`. An error, and no
+// message, for a grid whose cells do not match its width x height or that holds more than
+// io::kMaxGridCells cells, which no receiver would accept.
+Result<omni::occupancy_grid_t> ToGridMessage(const io::GridMap& map, int64_t utime,
+                                             const std::string& source, bool raw = false);
+class Bus;
+// Publishes `map` on `channel` as ToGridMessage's message in `frame`. A grid ToGridMessage refuses
+// is not sent: it counts as a publish error in the bus counters (and so in the heartbeat) and is
+// logged, the first time and every 100th. True when the message went out.
+bool PublishGrid(Bus& bus, const std::string& channel, const io::GridMap& map, int64_t utime,
+                 const std::string& source, const std::string& frame = "map");
 // Rejects messages whose sizes disagree (also once inflated), whose encoding is unknown, whose
 // zlib stream is corrupt, whose resolution is not positive and finite or whose origin is not
-// finite, and grids over 2^28 cells (a 6.5 km square at 0.4 m); a grid turned in its frame
+// finite, and grids over io::kMaxGridCells (2^28) cells, also once a grid turned in its frame
 // (origin_yaw_rad) is resampled onto the frame's axes (io::AxisAligned).
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
 
