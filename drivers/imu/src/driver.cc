@@ -381,7 +381,12 @@ bool ImuDriver::Write(uint8_t reg, uint16_t value) {
     }
     return false;
   }
-  port_->Drain();  // on the wire before the gap (and before a baud change)
+  // On the wire before the gap (and before a baud change). A port that cannot send them is
+  // treated as gone and reopened.
+  if (const Status drained = port_->Drain(); !drained.ok()) {
+    Lose("sending its settings: " + drained.message());
+    return false;
+  }
   std::this_thread::sleep_for(std::chrono::milliseconds(options_.configure.command_gap_ms));
   // The device was busy with the writes, not silent: the data timeout starts again.
   last_data_us_ = MonotonicMicros();

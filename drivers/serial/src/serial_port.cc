@@ -114,6 +114,40 @@ Status SerialPort::SetBaud(int baud) {
 
 void SerialPort::FlushInput() { tcflush(fd_, TCIOFLUSH); }
 
-void SerialPort::Drain() { tcdrain(fd_); }
+Status SerialPort::Drain(int timeout_ms) {
+  const std::string name = "serial port " + path_;
+  Status st = WaitForEmptyQueue(
+      [&]() -> Result<int> {
+        int n = 0;
+        if (ioctl(fd_, TIOCOUTQ, &n) == 0) return n;
+        if (IsGoneErrno(errno))
+          return MakeError(ErrorCode::kUnavailable,
+                           name + ": device disconnected (" + Errno() + ")");
+        return MakeError(ErrorCode::kIo, name + ": TIOCOUTQ: " + Errno());
+      },
+      timeout_ms, name);
+  if (!st.ok()) return st;
+  // The queue is empty: what is left is the UART's FIFO, a wait the kernel bounds.
+  if (tcdrain(fd_) != 0 && IsGoneErrno(errno))
+    return MakeError(ErrorCode::kUnavailable, name + ": device disconnected (" + Errno() + ")");
+  return Status::Ok();
+}
+
+Status WaitForEmptyQueue(const std::function<Result<int>()>& queued, int timeout_ms,
+                         const std::string& name) {
+  const int64_t deadline = MonotonicMicros() + int64_t{timeout_ms} * 1000;
+  int last = 0;
+  for (;;) {
+    Result<int> n = queued();
+    if (!n.ok()) return n.error();
+    if (*n <= 0) return Status::Ok();
+    last = *n;
+    if (MonotonicMicros() >= deadline) break;
+    ::usleep(1000);
+  }
+  return MakeError(ErrorCode::kUnavailable, name + ": " + std::to_string(last) +
+                                                " bytes still unsent after " +
+                                                std::to_string(timeout_ms) + " ms");
+}
 
 }  // namespace omni::serial

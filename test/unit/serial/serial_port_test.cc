@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "omni/common/time.h"
 #include "omni/serial/pty.h"
 #include "omni/serial/serial_port.h"
 
@@ -93,6 +94,64 @@ TEST(SerialPort, VanishedDeviceIsUnavailable) {
   auto again = SerialPort::Open(link, 115200);
   EXPECT_FALSE(again.ok());
   EXPECT_EQ(again.error().code, ErrorCode::kNotFound);
+}
+
+// Drain's wait: a queue that empties returns as soon as it does; one that never does (a wedged
+// USB adapter) is an error after the timeout, never a hang; the queue's own error is passed on.
+TEST(SerialPort, DrainWaitsForTheQueueButNotForever) {
+  int left = 5;
+  int polls = 0;
+  const Status emptied = WaitForEmptyQueue(
+      [&]() -> Result<int> {
+        ++polls;
+        return left > 0 ? left-- : 0;
+      },
+      1000, "serial port /dev/ttyTEST");
+  EXPECT_TRUE(emptied.ok()) << emptied.message();
+  EXPECT_EQ(polls, 6);
+
+  const int64_t t0 = MonotonicMicros();
+  const Status stuck =
+      WaitForEmptyQueue([]() -> Result<int> { return 37; }, 50, "serial port /dev/ttyTEST");
+  const int64_t waited_us = MonotonicMicros() - t0;
+  ASSERT_FALSE(stuck.ok());
+  EXPECT_EQ(stuck.error().code, ErrorCode::kUnavailable);
+  EXPECT_NE(stuck.message().find("/dev/ttyTEST: 37 bytes still unsent after 50 ms"),
+            std::string::npos)
+      << stuck.message();
+  EXPECT_GE(waited_us, 50000);
+  EXPECT_LT(waited_us, 5000000);
+
+  const Status gone = WaitForEmptyQueue(
+      []() -> Result<int> { return MakeError(ErrorCode::kUnavailable, "device disconnected"); },
+      1000, "serial port /dev/ttyTEST");
+  ASSERT_FALSE(gone.ok());
+  EXPECT_EQ(gone.error().code, ErrorCode::kUnavailable);
+}
+
+// On a pty the kernel keeps no output queue of its own: Drain returns at once even with the
+// written bytes still unread on the master side, and they all arrive.
+TEST(SerialPort, DrainOnAPtyReturnsAndTheBytesArrive) {
+  auto pty = Pty::Create();
+  ASSERT_TRUE(pty.ok());
+  auto port = SerialPort::Open((*pty)->path(), 9600);
+  ASSERT_TRUE(port.ok());
+  const uint8_t cmd[3] = {0xFF, 0xAA, 0x00};
+  ASSERT_TRUE((*port)->Write(cmd, sizeof(cmd)).ok());
+  const Status st = (*port)->Drain(200);
+  EXPECT_TRUE(st.ok()) << st.message();
+  uint8_t back[3] = {0, 0, 0};
+  ssize_t m = 0;
+  for (int tries = 0; tries < 100 && m < 3; ++tries) {
+    const ssize_t k = read((*pty)->master_fd(), back + m, 3 - static_cast<size_t>(m));
+    if (k > 0) {
+      m += k;
+    } else {
+      usleep(1000);
+    }
+  }
+  EXPECT_EQ(m, 3);
+  EXPECT_EQ(back[1], 0xAA);
 }
 
 }  // namespace

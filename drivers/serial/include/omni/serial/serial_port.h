@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -34,9 +35,12 @@ class SerialPort {
   Status SetBaud(int baud);
   // Discards unread input and unsent output.
   void FlushInput();
-  // Waits until the bytes written have left the UART (tcdrain), e.g. before a baud change,
-  // which takes effect at once.
-  void Drain();
+  // Waits until the bytes written have left the port, e.g. before a baud change, which takes
+  // effect at once: until the kernel's output queue (TIOCOUTQ) is empty, then for the UART's own
+  // FIFO (tcdrain, which the kernel bounds once the queue is empty). kUnavailable when the
+  // device is gone or its queue has not emptied within `timeout_ms` (a wedged USB adapter): the
+  // caller reopens the port instead of blocking on it.
+  Status Drain(int timeout_ms = 1000);
 
   const std::string& path() const { return path_; }
   int baud() const { return baud_; }
@@ -52,6 +56,12 @@ class SerialPort {
 // The output baud rate a tty is set to (for a pty master: the rate its slave was opened at); 0
 // when `fd` is not a terminal.
 int LineBaud(int fd);
+
+// Polls `queued` (bytes still waiting to go out, or an error) every millisecond until it reports
+// 0; kUnavailable naming `name` when it still reports bytes after `timeout_ms`. Drain's wait,
+// apart from the port, so that it can be tested with a queue that never empties.
+Status WaitForEmptyQueue(const std::function<Result<int>()>& queued, int timeout_ms,
+                         const std::string& name);
 
 // Applies raw 8N1 settings and `baud` (standard or custom) to an open tty fd.
 Status ConfigureRaw(int fd, int baud, const std::string& name);
