@@ -1,8 +1,11 @@
 #include "omni/eval/eval.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <thread>
 #include <unordered_map>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -202,14 +205,26 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   best.occupied = occ.size();
   if (occ.empty() || ref.width <= 0) return best;
   const auto mask = DilatedOccupied(ref, 1);
-  auto score = [&](double r, double dx, double dy) {
+  // The estimate's occupied cells turned by r about its centre, in reference-cell units from
+  // the reference origin: a shift (dx, dy) then only adds dx/res, dy/res to every point.
+  const double inv_res = 1.0 / ref.resolution_m;
+  auto turn = [&](double r, std::vector<double>* u, std::vector<double>* v) {
     const double c = std::cos(r), s = std::sin(r);
+    u->resize(occ.size());
+    v->resize(occ.size());
+    for (size_t i = 0; i < occ.size(); ++i) {
+      const double rx = occ[i].x - best.cx_m, ry = occ[i].y - best.cy_m;
+      (*u)[i] = (best.cx_m + c * rx - s * ry - ref.origin_x_m) * inv_res;
+      (*v)[i] = (best.cy_m + s * rx + c * ry - ref.origin_y_m) * inv_res;
+    }
+  };
+  auto count = [&](const std::vector<double>& u, const std::vector<double>& v, double dx,
+                   double dy) {
+    const double su = dx * inv_res, sv = dy * inv_res;
     size_t hits = 0;
-    for (const auto& cell : occ) {
-      const double rx = cell.x - best.cx_m, ry = cell.y - best.cy_m;
-      const double x = best.cx_m + c * rx - s * ry + dx, y = best.cy_m + s * rx + c * ry + dy;
-      const int col = static_cast<int>(std::floor((x - ref.origin_x_m) / ref.resolution_m));
-      const int row = static_cast<int>(std::floor((y - ref.origin_y_m) / ref.resolution_m));
+    for (size_t i = 0; i < u.size(); ++i) {
+      const int col = static_cast<int>(std::floor(u[i] + su));
+      const int row = static_cast<int>(std::floor(v[i] + sv));
       if (ref.Contains(col, row) && mask[static_cast<size_t>(row) * ref.width + col]) ++hits;
     }
     return hits;
@@ -217,7 +232,11 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   best.rotation_rad = rot;
   best.dx_m = dx;
   best.dy_m = dy;
-  best.overlap = score(rot, dx, dy);
+  {
+    std::vector<double> u, v;
+    turn(rot, &u, &v);
+    best.overlap = count(u, v, dx, dy);
+  }
   if (!opt.align) return best;
   // Coarse to fine: each level searches a window around the best so far with a finer step.
   double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
@@ -225,24 +244,48 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   double rot_step = std::max(opt.max_rotation_rad / coarse, 1e-3);
   double shift_step = std::max(opt.max_shift_m / coarse, ref.resolution_m);
   size_t best_score = best.overlap;
+  const int threads = opt.threads > 0
+                          ? opt.threads
+                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  struct Found {
+    size_t score = 0;
+    int ix = 0, iy = 0;
+    bool any = false;
+  };
   for (int level = 0; level < opt.levels; ++level) {
-    double br = rot, bx = dx, by = dy;
     // Counted steps, not accumulated ones: far from the origin (a grid placed at 1e18 m) a
     // floating `x += step` stops advancing and the search never ends.
     const int nr = static_cast<int>(std::ceil(rot_range / rot_step - 1e-9));
     const int ns = static_cast<int>(std::ceil(shift_range / shift_step - 1e-9));
-    for (int ir = -nr; ir <= nr; ++ir)
-      for (int ix = -ns; ix <= ns; ++ix)
-        for (int iy = -ns; iy <= ns; ++iy) {
-          const double r = rot + ir * rot_step, x = dx + ix * shift_step, y = dy + iy * shift_step;
-          const size_t sc = score(r, x, y);
-          if (sc > best_score) {
-            best_score = sc;
-            br = r;
-            bx = x;
-            by = y;
+    // Each rotation's shifts are scored by one thread; the rotations' bests are then taken in
+    // order, so the result is the one a single thread finds (the first of equal scores).
+    std::vector<Found> found(static_cast<size_t>(2 * nr + 1));
+    std::atomic<int> next{0};
+    auto work = [&] {
+      std::vector<double> u, v;
+      for (int k = next++; k < static_cast<int>(found.size()); k = next++) {
+        turn(rot + (k - nr) * rot_step, &u, &v);
+        Found& f = found[static_cast<size_t>(k)];
+        for (int ix = -ns; ix <= ns; ++ix)
+          for (int iy = -ns; iy <= ns; ++iy) {
+            const size_t sc = count(u, v, dx + ix * shift_step, dy + iy * shift_step);
+            if (!f.any || sc > f.score) f = {sc, ix, iy, true};
           }
-        }
+      }
+    };
+    const int n_threads = std::min(threads, static_cast<int>(found.size()));
+    std::vector<std::thread> pool;
+    for (int t = 1; t < n_threads; ++t) pool.emplace_back(work);
+    work();
+    for (auto& t : pool) t.join();
+    double br = rot, bx = dx, by = dy;
+    for (size_t k = 0; k < found.size(); ++k)
+      if (found[k].score > best_score) {
+        best_score = found[k].score;
+        br = rot + (static_cast<int>(k) - nr) * rot_step;
+        bx = dx + found[k].ix * shift_step;
+        by = dy + found[k].iy * shift_step;
+      }
     rot = br;
     dx = bx;
     dy = by;

@@ -321,9 +321,25 @@ TEST(MapFusion, AlignmentRecoversAKnownTransformOfARealMap) {
   const auto t1 = std::chrono::steady_clock::now();
   const eval::MapAlignment tracked = eval::AlignMap(m1, m2, near, &guess);
   const auto t2 = std::chrono::steady_clock::now();
+  // The rotations are shared out among threads; the answer must not depend on how many.
+  eval::MapCompareOptions one = o;
+  one.threads = 1;
+  const eval::MapAlignment single = eval::AlignMap(m1, m2, one);
+  const auto t3 = std::chrono::steady_clock::now();
+  eval::MapCompareOptions three = o;
+  three.threads = 3;
+  const eval::MapAlignment odd = eval::AlignMap(m1, m2, three);
+  for (const eval::MapAlignment* other : {&single, &odd}) {
+    EXPECT_EQ(other->rotation_rad, full.rotation_rad);
+    EXPECT_EQ(other->dx_m, full.dx_m);
+    EXPECT_EQ(other->dy_m, full.dy_m);
+    EXPECT_EQ(other->overlap, full.overlap);
+  }
   std::printf(
-      "AlignMap on the Intel lab (%zu occupied cells): full search %.0f ms, tracking %.0f ms\n",
+      "AlignMap on the Intel lab (%zu occupied cells): full search %.0f ms (%.0f ms on one "
+      "thread), tracking %.0f ms\n",
       full.occupied, std::chrono::duration<double, std::milli>(t1 - t0).count(),
+      std::chrono::duration<double, std::milli>(t3 - t2).count(),
       std::chrono::duration<double, std::milli>(t2 - t1).count());
   EXPECT_NEAR(tracked.rotation_rad, full.rotation_rad, 0.003);
   EXPECT_GE(tracked.overlap + tracked.occupied / 100, full.overlap);

@@ -57,6 +57,7 @@ struct MapCompareOptions {
   int coarse_steps = 8;
   int refine_divisions = 4;
   int levels = 6;
+  int threads = 0;  // threads scoring the rotations of a level; 0: one per core
 };
 
 struct MapCompareResult {
