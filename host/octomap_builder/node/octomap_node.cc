@@ -73,6 +73,21 @@ omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
   return msg;
 }
 
+omni::octomap_t ToOctomapMessage(const octomap::ColorOcTree& tree, int64_t utime,
+                                 const std::string& frame, const std::string& source) {
+  omni::octomap_t msg;
+  msg.utime = utime;
+  msg.frame = frame;
+  msg.source = source;
+  msg.tree_type = tree.getTreeType();
+  msg.resolution_m = tree.getResolution();
+  msg.binary = false;
+  const std::string bytes = SerializeColorTree(tree);
+  msg.data.assign(bytes.begin(), bytes.end());
+  msg.size = static_cast<int32_t>(msg.data.size());
+  return msg;
+}
+
 OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock)
     : bus_(bus),
       options_(options),
@@ -214,10 +229,16 @@ void OctomapNode::Tick(int64_t mono_us) {
 }
 
 bool OctomapNode::PublishOctomap() {
-  return bus_->Publish(
+  bool sent = bus_->Publish(
       options_.octomap_channel,
       ToOctomapMessage(pipeline_.builder().tree(), pipeline_.newest_inserted_utime(),
                        options_.map_frame, options_.pose_source, options_.octomap_binary));
+  if (const octomap::ColorOcTree* color = pipeline_.builder().color_tree())
+    sent = bus_->Publish(options_.color_octomap_channel,
+                         ToOctomapMessage(*color, pipeline_.newest_inserted_utime(),
+                                          options_.map_frame, options_.pose_source)) &&
+           sent;
+  return sent;
 }
 
 bool OctomapNode::PublishGrid() {

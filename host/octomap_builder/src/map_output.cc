@@ -124,14 +124,18 @@ Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& p
   if (!file) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
   std::stringstream buf;
   buf << file.rdbuf();
-  const std::string bytes = buf.str();
+  return ParseColorTree(buf.str(), path);
+}
+
+Result<std::unique_ptr<octomap::ColorOcTree>> ParseColorTree(const std::string& bytes,
+                                                             const std::string& what) {
   if (const std::string bad = ValidateTreeFile(bytes, false, "ColorOcTree", 7); !bad.empty())
-    return MakeError(ErrorCode::kParse, path + ": not a readable .ot ColorOcTree: " + bad);
+    return MakeError(ErrorCode::kParse, what + ": not a readable .ot ColorOcTree: " + bad);
   std::istringstream in(bytes, std::ios::binary);
   std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
   auto* color = dynamic_cast<octomap::ColorOcTree*>(any.get());
   if (!color || in.fail())
-    return MakeError(ErrorCode::kParse, path + ": not a readable .ot ColorOcTree");
+    return MakeError(ErrorCode::kParse, what + ": not a readable .ot ColorOcTree");
   any.release();
   return std::unique_ptr<octomap::ColorOcTree>(color);
 }

@@ -32,6 +32,7 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   r.Get("octomap_channel", &o.octomap_channel, Optional(), NonEmpty());
   r.Get("grid_channel", &o.grid_channel, Optional(), NonEmpty());
   r.Get("color_channel", &o.color_channel, Optional(), NonEmpty());
+  r.Get("color_octomap_channel", &o.color_octomap_channel, Optional(), NonEmpty());
   r.Get("map_frame", &o.map_frame, Optional(), NonEmpty());
 
   auto color = r.Section("color");

@@ -434,6 +434,9 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   std::vector<omni::heartbeat_t> beats;
   (*bus)->Subscribe<omni::octomap_t>("OCTOMAP",
                                      [&](const omni::octomap_t& m, int64_t) { maps.push_back(m); });
+  int color_maps = 0;  // colour is off: nothing on its channel
+  (*bus)->Subscribe<omni::octomap_t>("OCTOMAP_COLOR",
+                                     [&](const omni::octomap_t&, int64_t) { ++color_maps; });
   (*bus)->Subscribe<omni::occupancy_grid_t>(
       "GRID_OCTO", [&](const omni::occupancy_grid_t& m, int64_t) { grids.push_back(m); });
   (*bus)->Subscribe<omni::heartbeat_t>(
@@ -503,6 +506,8 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   ASSERT_TRUE(node.SaveOutputs().ok());
   EXPECT_TRUE(fs::exists(opt->out_dir + "/map.bt"));
   EXPECT_TRUE(fs::exists(opt->out_dir + "/grid.yaml"));
+  EXPECT_FALSE(maps.empty());
+  EXPECT_EQ(color_maps, 0);
 }
 
 // ---- Colour (ColorOcTree) ----
@@ -658,6 +663,11 @@ TEST(OctomapNode, ColoursTheMapFromRgbFramesOnMemq) {
   std::vector<omni::heartbeat_t> beats;
   (*bus)->Subscribe<omni::heartbeat_t>(
       "HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) { beats.push_back(m); });
+  std::vector<omni::octomap_t> plain, colored;
+  (*bus)->Subscribe<omni::octomap_t>(
+      "OCTOMAP", [&](const omni::octomap_t& m, int64_t) { plain.push_back(m); });
+  (*bus)->Subscribe<omni::octomap_t>(
+      "OCTOMAP_COLOR", [&](const omni::octomap_t& m, int64_t) { colored.push_back(m); });
   const int64_t t0 = 1700000000000000;
   int64_t mono = 0;
   auto pump = [&] {
@@ -728,6 +738,32 @@ TEST(OctomapNode, ColoursTheMapFromRgbFramesOnMemq) {
   }
   EXPECT_GT(wall, 200u);
   EXPECT_TRUE(fs::exists(opt->out_dir + "/view_color.png"));
+  // The colour map also goes out on the bus, beside the plain one, whenever the plain one does.
+  EXPECT_TRUE(node.PublishOctomap());
+  while ((*bus)->HandleTimeout(0) > 0) {
+  }
+  ASSERT_FALSE(colored.empty());
+  EXPECT_EQ(colored.size(), plain.size());
+  const omni::octomap_t& last = colored.back();
+  EXPECT_EQ(last.tree_type, "ColorOcTree");
+  EXPECT_FALSE(last.binary);
+  EXPECT_EQ(last.frame, "map");
+  EXPECT_EQ(last.size, static_cast<int32_t>(last.data.size()));
+  EXPECT_EQ(plain.back().tree_type, "OcTree");
+  auto sent = ParseColorTree(std::string(last.data.begin(), last.data.end()), "OCTOMAP_COLOR");
+  ASSERT_TRUE(sent.ok()) << sent.error().message;
+  size_t sent_wall = 0;
+  for (auto it = (*sent)->begin_leafs(); it != (*sent)->end_leafs(); ++it) {
+    if (!(*sent)->isNodeOccupied(*it)) continue;
+    ++sent_wall;
+    EXPECT_NEAR(it->getColor().g, 180, 4);
+  }
+  EXPECT_GT(sent_wall, 200u);
+  // Cut short, the message is an error naming the channel, not a crash.
+  auto cut = ParseColorTree(std::string(last.data.begin(), last.data.begin() + last.size / 2),
+                            "OCTOMAP_COLOR");
+  ASSERT_FALSE(cut.ok());
+  EXPECT_NE(cut.error().message.find("OCTOMAP_COLOR"), std::string::npos);
 }
 
 TEST(OctomapCli, ColorBuildFromAnLcmLogPairsRgbFrames) {

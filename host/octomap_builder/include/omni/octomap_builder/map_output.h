@@ -28,6 +28,10 @@ Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path);
 std::string SerializeColorTree(const octomap::ColorOcTree& tree);
 Status SaveColorTree(const octomap::ColorOcTree& tree, const std::string& path);
 Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& path);
+// The same check and read on bytes already in memory (an OCTOMAP_COLOR message's data); errors
+// name `what`.
+Result<std::unique_ptr<octomap::ColorOcTree>> ParseColorTree(const std::string& bytes,
+                                                             const std::string& what);
 
 // Which map axis is "up" (z for the robot's map frame; camera-posed datasets often have -y).
 // The grid's x, y are the remaining axes in right-handed order: up z -> (x, y), up y -> (z, x),

@@ -32,7 +32,8 @@ struct OctomapBuilderOptions {
   std::string depth_channel = "DEPTH";
   std::string octomap_channel = "OCTOMAP";
   std::string grid_channel = "GRID_OCTO";
-  std::string color_channel = "RGB";  // color_image_t, read when `color` is on
+  std::string color_channel = "RGB";                    // color_image_t, read when `color` is on
+  std::string color_octomap_channel = "OCTOMAP_COLOR";  // the ColorOcTree, when `color` is on
   std::string map_frame = "map";
 
   // Colour (ColorOcTree beside the OcTree).

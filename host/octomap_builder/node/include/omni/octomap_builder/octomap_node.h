@@ -30,6 +30,10 @@ Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni:
 // An OCTOMAP message holding the tree in binary (.bt) or full (.ot) form.
 omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source, bool binary);
+// The same for the ColorOcTree, always in the full form (.ot; OctoMap's binary form has no
+// colour): tree_type "ColorOcTree", read back with ParseColorTree.
+omni::octomap_t ToOctomapMessage(const octomap::ColorOcTree& tree, int64_t utime,
+                                 const std::string& frame, const std::string& source);
 
 class OctomapNode {
  public:
@@ -42,6 +46,8 @@ class OctomapNode {
   // Inserts posed frames; publishes, saves and beats when their periods have passed since
   // the last time (`mono_us`: a monotonic time in microseconds).
   void Tick(int64_t mono_us);
+  // The tree on octomap_channel and, with colour on, the ColorOcTree on color_octomap_channel;
+  // true when every message went out.
   bool PublishOctomap();
   bool PublishGrid();
   // Writes out_dir/map.{bt,ot}, out_dir/grid.{pgm,yaml,png}, out_dir/view.png, with the colour
