@@ -11,6 +11,7 @@
 // test reports the discrepancy.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -257,17 +258,33 @@ class BaseEndToEnd : public ::testing::Test {
     }
     return legs;
   }
-  // "Commanded distance" is checked twice: against the distance the firmware was commanded
-  // (the wheel targets it received, integrated in firmware time) within 1 %, and against the
-  // 1 m the test meant within 3 %. The two differ by host scheduling: a 25 ms stall of the
-  // test or bridge process at 0.8 m/s holds a command 2 cm too long, which a loaded 2-core
-  // CI machine does produce; on a quiet machine both agree within 0.5 %.
+  // The 1 m the test meant, against the odometry: the median leg within 3 cm (a bridge or
+  // firmware that scales speeds wrongly shifts every leg) and each leg within 15 cm. Host
+  // scheduling moves single legs: a 25 ms stall of the test or bridge process at 0.8 m/s holds
+  // a command 2 cm too long, and a longer one lets the watchdog stop the wheels (a CI run had
+  // one leg received as 0.949 m, its odometry 0.950 m); on a quiet machine every leg is within
+  // 0.5 %.
+  static void ExpectIntendedLength(const std::vector<LegResult>& legs) {
+    std::vector<double> lens;
+    for (size_t i = 0; i < legs.size(); ++i) {
+      EXPECT_NEAR(legs[i].odom_len, 1.0, 0.15) << "leg " << i << ": odometry vs the intended 1 m";
+      lens.push_back(legs[i].odom_len);
+    }
+    ASSERT_FALSE(lens.empty());
+    std::sort(lens.begin(), lens.end());
+    const size_t n = lens.size();
+    const double median = n % 2 ? lens[n / 2] : (lens[n / 2 - 1] + lens[n / 2]) / 2;
+    EXPECT_NEAR(median, 1.0, 0.03) << "median leg: odometry vs the intended 1 m";
+  }
+  // "Commanded distance" is checked against the distance the firmware was commanded (the wheel
+  // targets it received, integrated in firmware time) within 1 % per leg, and against the 1 m
+  // the test meant as ExpectIntendedLength does.
   void ExpectWithinOnePercent(const std::vector<LegResult>& legs, const double dirs_deg[4]) {
     double total = 0, total_cmd = 0;
+    ExpectIntendedLength(legs);
     for (size_t i = 0; i < legs.size(); ++i) {
       EXPECT_NEAR(legs[i].odom_len, legs[i].cmd_len, 0.01 * legs[i].cmd_len)
           << "leg " << i << ": odometry vs the distance the base was commanded";
-      EXPECT_NEAR(legs[i].odom_len, 1.0, 0.03) << "leg " << i << ": odometry vs the intended 1 m";
       double dir_err = std::remainder(legs[i].odom_dir - dirs_deg[i] * M_PI / 180, 2 * M_PI);
       EXPECT_LT(std::fabs(dir_err), 0.03) << "leg " << i << " direction, rad (open-loop heading)";
       EXPECT_LT(legs[i].odom_odom_truth_gap, 0.01) << "leg " << i << ": odometry vs plant truth";
@@ -344,10 +361,10 @@ TEST_F(BaseEndToEnd, SlipShowsAsOdometryTruthDiscrepancy) {
     // reference (a stalled host process shortens or stretches a leg by a few cm).
     EXPECT_NEAR(l.odom_len, l.cmd_len, 0.02 * l.cmd_len)
         << "odometry still sees the commanded wheel motion";
-    EXPECT_NEAR(l.odom_len, 1.0, 0.03) << "odometry vs the intended 1 m";
     worst = std::max(worst, l.odom_odom_truth_gap);
     mean_truth += l.truth_len / legs.size();
   }
+  ExpectIntendedLength(legs);
   std::printf(
       "slip 12/4/8 %%: true leg length %.3f m on average, worst odometry-truth gap %.3f m "
       "per 1 m leg\n",
