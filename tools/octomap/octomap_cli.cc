@@ -8,6 +8,9 @@
 // with --pcd). With --color (or color.enabled in the config) also DIR/map_color.ot, a
 // ColorOcTree coloured from color/N.png (registered to the depth image) or the log's RGB
 // frames, and DIR/view_color.png.
+//
+// `./omni octomap extract LOG --out DIR` takes the newest readable OCTOMAP and OCTOMAP_COLOR
+// messages out of a recorded LCM log (lcm-logger on the robot) and writes them as map files.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -27,8 +30,10 @@
 #include "omni/io/lcm_log.h"
 #include "omni/io/trajectory_io.h"
 #include "omni/octomap_builder/depth_io.h"
+#include "omni/octomap_builder/map_output.h"
 #include "omni/octomap_builder/octomap_builder.h"
 #include "omni/octomap_builder/octomap_node.h"
+#include "omni/octomap_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "omni/trajectory_t.hpp"
 
@@ -76,7 +81,124 @@ void Usage(std::FILE* f) {
       "  --pcd                also write the aggregate point cloud\n"
       "  --color              also build a ColorOcTree: DIR/map_color.ot, DIR/view_color.png;\n"
       "                       a folder needs color/N.png (same camera and size as depth/N),\n"
-      "                       a log the colour channel (RGB; color_image_t RGB8 or JPEG)\n");
+      "                       a log the colour channel (RGB; color_image_t RGB8 or JPEG)\n"
+      "\n"
+      "usage: omni-octomap extract LOG --out DIR [--channel CH]... [--up AXIS]\n"
+      "  The newest readable octomap_t of each tree type in a recorded LCM log (channels OCTOMAP\n"
+      "  and OCTOMAP_COLOR unless --channel is given): an OcTree to DIR/map.bt or DIR/map.ot (as\n"
+      "  it was sent) and DIR/view.png, a ColorOcTree to DIR/map_color.ot and\n"
+      "  DIR/view_color.png. Undecodable messages and trees whose bytes do not read are counted\n"
+      "  and skipped (an older readable one is used); no readable tree at all is an error.\n");
+}
+
+int Fail(const std::string& msg);
+
+// `omni-octomap extract LOG --out DIR [--channel CH]... [--up AXIS]`.
+int Extract(int argc, char** argv) {
+  const std::string log = argv[2];
+  std::string out;
+  std::vector<std::string> channels;
+  omni::octo::UpAxis up;
+  for (int i = 3; i < argc; ++i) {
+    const std::string s = argv[i];
+    if ((s == "--out" || s == "--channel" || s == "--up") && i + 1 < argc) {
+      const std::string v = argv[++i];
+      if (s == "--out") out = v;
+      if (s == "--channel") channels.push_back(v);
+      if (s == "--up" && !omni::octo::UpAxis::Parse(v, &up))
+        return Fail("--up must be one of x y z -x -y -z");
+    } else {
+      std::fprintf(stderr, "omni-octomap extract: unknown option or missing value '%s'\n",
+                   s.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+  if (out.empty()) return Fail("extract: --out DIR is required");
+  if (channels.empty()) channels = {"OCTOMAP", "OCTOMAP_COLOR"};
+  auto reader = omni::io::LcmLogReader::Open(log);
+  if (!reader.ok()) return Fail(reader.error().message);
+  // The newest readable message of each tree type; only its bytes' layout is checked here, the
+  // tree is built once at the end.
+  struct Newest {
+    omni::octomap_t msg;
+    std::string channel;
+    bool found = false;
+  };
+  Newest plain, color;
+  long long messages = 0, undecodable = 0, unreadable = 0;
+  omni::io::LcmLogEvent ev;
+  for (;;) {
+    auto more = reader->Next(&ev, /*resync=*/true);
+    if (!more.ok()) {
+      std::fprintf(stderr, "omni-octomap extract: %s (reading stops there)\n",
+                   more.error().message.c_str());
+      break;
+    }
+    if (!*more) break;
+    if (std::find(channels.begin(), channels.end(), ev.channel) == channels.end()) continue;
+    ++messages;
+    omni::octomap_t m;
+    const int size = static_cast<int>(ev.data.size());
+    if (m.decode(ev.data.data(), 0, size) != size) {
+      ++undecodable;
+      continue;
+    }
+    const std::string bytes(m.data.begin(), m.data.end());
+    if (const std::string bad = omni::octo::CheckTreeBytes(bytes, m.binary, m.tree_type);
+        !bad.empty() || m.size != static_cast<int32_t>(m.data.size())) {
+      ++unreadable;
+      std::fprintf(stderr, "omni-octomap extract: %s message at byte %llu: %s\n",
+                   ev.channel.c_str(), static_cast<unsigned long long>(ev.offset),
+                   bad.empty() ? "size field disagrees with the data" : bad.c_str());
+      continue;
+    }
+    Newest& n = m.tree_type == "ColorOcTree" ? color : plain;
+    n.msg = std::move(m);
+    n.channel = ev.channel;
+    n.found = true;
+  }
+  std::printf(
+      "omni-octomap extract: %lld messages on %zu channels, %lld undecodable, %lld "
+      "unreadable trees, %llu bytes skipped\n",
+      messages, channels.size(), undecodable, unreadable,
+      static_cast<unsigned long long>(reader->skipped_bytes()));
+  if (!plain.found && !color.found)
+    return Fail("extract: no readable octomap_t in " + log + " on the channels given");
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (ec) return Fail("cannot create " + out + ": " + ec.message());
+  if (plain.found) {
+    const std::string bytes(plain.msg.data.begin(), plain.msg.data.end());
+    auto tree = omni::octo::ParseTree(bytes, plain.msg.binary, plain.channel);
+    if (!tree.ok()) return Fail(tree.error().message);
+    const std::string file = out + (plain.msg.binary ? "/map.bt" : "/map.ot");
+    if (auto s = omni::octo::WriteFileAtomic(file, bytes); !s.ok()) return Fail(s.message());
+    if (auto s = omni::io::WritePng(out + "/view.png", omni::octo::RenderTopView(**tree, up));
+        !s.ok())
+      return Fail(s.message());
+    std::printf("%s: OcTree of %zu nodes at %g m (utime %lld, source %s) -> %s, %s/view.png\n",
+                plain.channel.c_str(), (*tree)->size(), (*tree)->getResolution(),
+                static_cast<long long>(plain.msg.utime), plain.msg.source.c_str(), file.c_str(),
+                out.c_str());
+  }
+  if (color.found) {
+    const std::string bytes(color.msg.data.begin(), color.msg.data.end());
+    auto tree = omni::octo::ParseColorTree(bytes, color.channel);
+    if (!tree.ok()) return Fail(tree.error().message);
+    if (auto s = omni::octo::WriteFileAtomic(out + "/map_color.ot", bytes); !s.ok())
+      return Fail(s.message());
+    if (auto s =
+            omni::io::WritePng(out + "/view_color.png", omni::octo::RenderTopViewColor(**tree, up));
+        !s.ok())
+      return Fail(s.message());
+    std::printf(
+        "%s: ColorOcTree of %zu nodes at %g m (utime %lld) -> %s/map_color.ot, "
+        "%s/view_color.png\n",
+        color.channel.c_str(), (*tree)->size(), (*tree)->getResolution(),
+        static_cast<long long>(color.msg.utime), out.c_str(), out.c_str());
+  }
+  return 0;
 }
 
 struct Args {
@@ -153,6 +275,7 @@ int main(int argc, char** argv) {
     Usage(stdout);
     return 0;
   }
+  if (argc >= 3 && std::string(argv[1]) == "extract") return Extract(argc, argv);
   if (argc < 3 || std::string(argv[1]) != "build") {
     Usage(stderr);
     return 2;

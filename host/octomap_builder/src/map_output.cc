@@ -90,21 +90,33 @@ Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
   if (!file) return MakeError(ErrorCode::kNotFound, "cannot open " + path);
   std::stringstream buf;
   buf << file.rdbuf();
-  const std::string bytes = buf.str();
   const bool binary = path.size() >= 3 && path.compare(path.size() - 3, 3, ".bt") == 0;
+  return ParseTree(buf.str(), binary, path);
+}
+
+std::string CheckTreeBytes(const std::string& bytes, bool binary, const std::string& tree_type) {
+  if (tree_type == "ColorOcTree")
+    return binary ? "a ColorOcTree has no binary form"
+                  : ValidateTreeFile(bytes, false, tree_type, 7);
+  if (tree_type != "OcTree") return "tree type '" + tree_type + "' is not OcTree or ColorOcTree";
+  return ValidateTreeFile(bytes, binary);
+}
+
+Result<std::unique_ptr<octomap::OcTree>> ParseTree(const std::string& bytes, bool binary,
+                                                   const std::string& what) {
   if (const std::string bad = ValidateTreeFile(bytes, binary); !bad.empty())
     return MakeError(ErrorCode::kParse,
-                     path + ": not a readable " + (binary ? ".bt" : ".ot") + " OcTree: " + bad);
+                     what + ": not a readable " + (binary ? ".bt" : ".ot") + " OcTree: " + bad);
   std::istringstream in(bytes, std::ios::binary);
   if (binary) {
     auto tree = std::make_unique<octomap::OcTree>(0.1);
     if (!tree->readBinary(in) || in.fail())
-      return MakeError(ErrorCode::kParse, path + ": not a readable .bt OcTree");
+      return MakeError(ErrorCode::kParse, what + ": not a readable .bt OcTree");
     return tree;
   }
   std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
   auto* oc = dynamic_cast<octomap::OcTree*>(any.get());
-  if (!oc || in.fail()) return MakeError(ErrorCode::kParse, path + ": not a readable .ot OcTree");
+  if (!oc || in.fail()) return MakeError(ErrorCode::kParse, what + ": not a readable .ot OcTree");
   any.release();
   return std::unique_ptr<octomap::OcTree>(oc);
 }

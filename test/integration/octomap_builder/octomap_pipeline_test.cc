@@ -510,6 +510,79 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   EXPECT_EQ(color_maps, 0);
 }
 
+// `omni-octomap extract`: the newest readable tree of each type out of a recorded log, with an
+// undecodable message, a truncated tree and an unrelated channel in it.
+TEST(OctomapCli, ExtractsTheNewestReadableMapsFromALog) {
+  const std::string dir = testing::TempDir() + "/octo_cli_extract";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string log = dir + "/robot.lcmlog";
+  octomap::OcTree older(0.05), newer(0.05);
+  older.updateNode(1.025, 0.025, 0.5, true);
+  for (double y = -0.5; y < 0.5; y += 0.05) newer.updateNode(3.025, y + 0.025, 0.5, true);
+  octomap::ColorOcTree colored(0.05);
+  colored.updateNode(2.025, 0.025, 0.5, true);
+  colored.setNodeColor(2.025, 0.025, 0.5, 40, 180, 90);
+  {
+    auto w = io::LcmLogWriter::Open(log);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const int64_t t0 = 1700000000000000;
+    auto put = [&](int64_t t, const std::string& ch, const std::vector<uint8_t>& b) {
+      ASSERT_TRUE(w->Write(t, ch, b.data(), b.size()).ok());
+    };
+    put(t0, "OCTOMAP", Encode(ToOctomapMessage(older, t0, "map", "rbpf", true)));
+    put(t0 + 1, "OCTOMAP_COLOR", Encode(ToOctomapMessage(colored, t0 + 1, "map", "rbpf")));
+    put(t0 + 2, "OCTOMAP", Encode(ToOctomapMessage(newer, t0 + 2, "map", "rbpf", true)));
+    put(t0 + 3, "POSE_RBPF", Encode(Pose(t0 + 3, 0.0, 1)));
+    auto garbage = Encode(ToOctomapMessage(newer, t0 + 4, "map", "rbpf", true));
+    garbage.resize(garbage.size() / 2);  // cut inside the message: undecodable
+    put(t0 + 4, "OCTOMAP", garbage);
+    // Decodes, but its tree is cut short: checked before octomap reads it, and skipped.
+    omni::octomap_t cut = ToOctomapMessage(newer, t0 + 5, "map", "rbpf", true);
+    cut.data.resize(cut.data.size() - 10);
+    cut.size = static_cast<int32_t>(cut.data.size());
+    put(t0 + 5, "OCTOMAP", Encode(cut));
+    ASSERT_TRUE(w->Close().ok());
+  }
+  const std::string out = dir + "/out";
+  auto r = RunCommand(Bin("omni-octomap") + " extract " + log + " --out " + out);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("5 messages on 2 channels, 1 undecodable, 1 unreadable trees"),
+            std::string::npos)
+      << r.output;
+  auto tree = LoadTree(out + "/map.bt");  // sent in binary form: written as it was sent
+  ASSERT_TRUE(tree.ok()) << tree.error().message;
+  EXPECT_EQ((*tree)->getNumLeafNodes(), newer.getNumLeafNodes());
+  const octomap::OcTreeNode* wall = (*tree)->search(3.025, 0.025, 0.5);
+  ASSERT_NE(wall, nullptr);
+  EXPECT_TRUE((*tree)->isNodeOccupied(wall));
+  EXPECT_EQ((*tree)->search(1.025, 0.025, 0.5), nullptr) << "the older map was extracted";
+  EXPECT_FALSE(fs::exists(out + "/map.ot"));
+  EXPECT_TRUE(fs::exists(out + "/view.png"));
+  auto col = LoadColorTree(out + "/map_color.ot");
+  ASSERT_TRUE(col.ok()) << col.error().message;
+  const octomap::ColorOcTreeNode* c = (*col)->search(2.025, 0.025, 0.5);
+  ASSERT_NE(c, nullptr);
+  EXPECT_EQ(c->getColor().g, 180);
+  EXPECT_TRUE(fs::exists(out + "/view_color.png"));
+
+  // Only the colour channel asked for; a log without any map; a missing --out.
+  const std::string out2 = dir + "/out2";
+  r = RunCommand(Bin("omni-octomap") + " extract " + log + " --out " + out2 +
+                 " --channel OCTOMAP_COLOR");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_FALSE(fs::exists(out2 + "/map.bt"));
+  EXPECT_TRUE(fs::exists(out2 + "/map_color.ot"));
+  r = RunCommand(Bin("omni-octomap") + " extract " + log + " --out " + out2 +
+                 " --channel POSE_RBPF");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("1 undecodable"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no readable octomap_t"), std::string::npos) << r.output;
+  r = RunCommand(Bin("omni-octomap") + " extract " + log);
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("--out DIR is required"), std::string::npos) << r.output;
+}
+
 // ---- Colour (ColorOcTree) ----
 
 using Rgb3 = std::array<double, 3>;

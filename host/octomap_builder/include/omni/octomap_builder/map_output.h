@@ -21,6 +21,13 @@ std::string SerializeTree(const octomap::OcTree& tree, bool binary);
 Status SaveTree(const octomap::OcTree& tree, const std::string& base);
 // Reads a .bt (binary) or .ot (full) file holding an OcTree.
 Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path);
+// The same on bytes in memory (an OCTOMAP message's data); errors name `what`.
+Result<std::unique_ptr<octomap::OcTree>> ParseTree(const std::string& bytes, bool binary,
+                                                   const std::string& what);
+// Only the check ParseTree and ParseColorTree make before octomap reads the bytes (header, then
+// the node layout walked within the buffer and the tree depth), for `tree_type` "OcTree" or
+// "ColorOcTree" (full form only): "" when readable, else why not. Cheap next to building the tree.
+std::string CheckTreeBytes(const std::string& bytes, bool binary, const std::string& tree_type);
 
 // A ColorOcTree in the full form (.ot: log-odds and R G B per node; OctoMap has no colour in
 // .bt), written through a temporary file and rename(); read back with octomap's
