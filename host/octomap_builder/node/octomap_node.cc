@@ -58,8 +58,10 @@ Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni:
   return poses;
 }
 
-omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
-                                 const std::string& frame, const std::string& source, bool binary) {
+namespace {
+omni::octomap_t TreeMessage(const octomap::AbstractOcTree& tree, const std::string& bytes,
+                            bool binary, int64_t utime, const std::string& frame,
+                            const std::string& source) {
   omni::octomap_t msg;
   msg.utime = utime;
   msg.frame = frame;
@@ -67,25 +69,20 @@ omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
   msg.tree_type = tree.getTreeType();
   msg.resolution_m = tree.getResolution();
   msg.binary = binary;
-  const std::string bytes = SerializeTree(tree, binary);
   msg.data.assign(bytes.begin(), bytes.end());
   msg.size = static_cast<int32_t>(msg.data.size());
   return msg;
 }
+}  // namespace
+
+omni::octomap_t ToOctomapMessage(const octomap::OcTree& tree, int64_t utime,
+                                 const std::string& frame, const std::string& source, bool binary) {
+  return TreeMessage(tree, SerializeTree(tree, binary), binary, utime, frame, source);
+}
 
 omni::octomap_t ToOctomapMessage(const octomap::ColorOcTree& tree, int64_t utime,
                                  const std::string& frame, const std::string& source) {
-  omni::octomap_t msg;
-  msg.utime = utime;
-  msg.frame = frame;
-  msg.source = source;
-  msg.tree_type = tree.getTreeType();
-  msg.resolution_m = tree.getResolution();
-  msg.binary = false;
-  const std::string bytes = SerializeColorTree(tree);
-  msg.data.assign(bytes.begin(), bytes.end());
-  msg.size = static_cast<int32_t>(msg.data.size());
-  return msg;
+  return TreeMessage(tree, SerializeColorTree(tree), false, utime, frame, source);
 }
 
 OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock)

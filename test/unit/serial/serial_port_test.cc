@@ -16,6 +16,20 @@ std::string TempLink(const char* name) {
   return std::string("/tmp/omni_serial_test_") + std::to_string(getpid()) + "_" + name;
 }
 
+// Reads up to `n` bytes from the pty master within about 100 ms; returns how many came.
+ssize_t ReadMaster(int fd, uint8_t* buf, size_t n) {
+  size_t m = 0;
+  for (int tries = 0; tries < 100 && m < n; ++tries) {
+    const ssize_t k = read(fd, buf + m, n - m);
+    if (k > 0) {
+      m += static_cast<size_t>(k);
+    } else {
+      usleep(1000);
+    }
+  }
+  return static_cast<ssize_t>(m);
+}
+
 TEST(SerialPort, MissingDeviceIsNotFoundNamingThePath) {
   auto port = SerialPort::Open("/dev/does-not-exist-omni", 115200);
   ASSERT_FALSE(port.ok());
@@ -51,16 +65,7 @@ TEST(SerialPort, BytesPassBothWaysUnchangedAtCustomBaud) {
   const uint8_t cmd[2] = {0xA5, 0x20};
   ASSERT_TRUE((*port)->Write(cmd, 2).ok());
   uint8_t back[2] = {0, 0};
-  ssize_t m = 0;
-  for (int tries = 0; tries < 100 && m < 2; ++tries) {
-    const ssize_t k = read((*pty)->master_fd(), back + m, 2 - static_cast<size_t>(m));
-    if (k > 0) {
-      m += k;
-    } else {
-      usleep(1000);
-    }
-  }
-  EXPECT_EQ(m, 2);
+  EXPECT_EQ(ReadMaster((*pty)->master_fd(), back, 2), 2);
   EXPECT_EQ(back[0], 0xA5);
   EXPECT_EQ(back[1], 0x20);
 }
@@ -141,16 +146,7 @@ TEST(SerialPort, DrainOnAPtyReturnsAndTheBytesArrive) {
   const Status st = (*port)->Drain(200);
   EXPECT_TRUE(st.ok()) << st.message();
   uint8_t back[3] = {0, 0, 0};
-  ssize_t m = 0;
-  for (int tries = 0; tries < 100 && m < 3; ++tries) {
-    const ssize_t k = read((*pty)->master_fd(), back + m, 3 - static_cast<size_t>(m));
-    if (k > 0) {
-      m += k;
-    } else {
-      usleep(1000);
-    }
-  }
-  EXPECT_EQ(m, 3);
+  EXPECT_EQ(ReadMaster((*pty)->master_fd(), back, 3), 3);
   EXPECT_EQ(back[1], 0xAA);
 }
 
