@@ -7,6 +7,7 @@
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <string_view>
 
 #include <octomap/AbstractOcTree.h>
 
@@ -37,7 +38,7 @@ namespace {
 //   full (.ot):   node = value (float) [+ R G B for a ColorOcTree] + 1 byte, bit i set: child i
 //                 follows (depth first)
 //   binary (.bt): node = 2 bytes, 2 bits per child (11: inner, its node follows afterwards)
-bool WalkFull(const std::string& b, size_t* pos, int depth, size_t node_size) {
+bool WalkFull(std::string_view b, size_t* pos, int depth, size_t node_size) {
   if (b.size() - *pos < node_size) return false;
   const auto mask = static_cast<uint8_t>(b[*pos + node_size - 1]);
   *pos += node_size;
@@ -48,7 +49,7 @@ bool WalkFull(const std::string& b, size_t* pos, int depth, size_t node_size) {
   return true;
 }
 
-bool WalkBinary(const std::string& b, size_t* pos, int depth) {
+bool WalkBinary(std::string_view b, size_t* pos, int depth) {
   if (b.size() - *pos < 2) return false;
   const unsigned bits = static_cast<uint8_t>(b[*pos]) | (static_cast<uint8_t>(b[*pos + 1]) << 8);
   *pos += 2;
@@ -63,11 +64,11 @@ bool WalkBinary(const std::string& b, size_t* pos, int depth) {
 // Checks the header ("id <type>", "size N", "data") and the node layout after it. A full
 // node is its data (`node_bytes`: 4 for OcTree's float, 7 for ColorOcTree's float + RGB) and a
 // child-mask byte.
-std::string ValidateTreeFile(const std::string& bytes, bool binary,
+std::string ValidateTreeFile(std::string_view bytes, bool binary,
                              const std::string& type = "OcTree", size_t node_bytes = 4) {
   const size_t data = bytes.find("\ndata\n");
-  if (data == std::string::npos) return "no 'data' line in the header";
-  const std::string header = bytes.substr(0, data);
+  if (data == std::string_view::npos) return "no 'data' line in the header";
+  const std::string header(bytes.substr(0, data));
   const std::string id = "\nid " + type;
   const size_t at = header.find(id);
   if (at == std::string::npos ||
@@ -94,7 +95,7 @@ Result<std::unique_ptr<octomap::OcTree>> LoadTree(const std::string& path) {
   return ParseTree(buf.str(), binary, path);
 }
 
-std::string CheckTreeBytes(const std::string& bytes, bool binary, const std::string& tree_type) {
+std::string CheckTreeBytes(std::string_view bytes, bool binary, const std::string& tree_type) {
   if (tree_type == "ColorOcTree")
     return binary ? "a ColorOcTree has no binary form"
                   : ValidateTreeFile(bytes, false, tree_type, 7);

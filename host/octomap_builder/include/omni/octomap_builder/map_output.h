@@ -4,6 +4,7 @@
 
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include <octomap/ColorOcTree.h>
 #include <octomap/OcTree.h>
@@ -27,7 +28,7 @@ Result<std::unique_ptr<octomap::OcTree>> ParseTree(const std::string& bytes, boo
 // Only the check ParseTree and ParseColorTree make before octomap reads the bytes (header, then
 // the node layout walked within the buffer and the tree depth), for `tree_type` "OcTree" or
 // "ColorOcTree" (full form only): "" when readable, else why not. Cheap next to building the tree.
-std::string CheckTreeBytes(const std::string& bytes, bool binary, const std::string& tree_type);
+std::string CheckTreeBytes(std::string_view bytes, bool binary, const std::string& tree_type);
 
 // A ColorOcTree in the full form (.ot: log-odds and R G B per node; OctoMap has no colour in
 // .bt), written through a temporary file and rename(); read back with octomap's
