@@ -17,6 +17,7 @@
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/map_save.h"
 #include "omni/bus/slam_log.h"
+#include "omni/color_image_t.hpp"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
@@ -253,6 +254,38 @@ TEST(Bus, AMessageWithANegativeArrayCountIsADecodeErrorNotACrash) {
   Pump(**bus);
   EXPECT_EQ(handled, 0);
   EXPECT_EQ((*bus)->counters().decode_errors, 1);
+}
+
+// The same decoders would allocate (and zero) whatever an array count claims before looking for
+// the bytes, and throw on a string whose length field is 0. The generated headers are patched
+// at build time (common/lcmtypes/harden_decoders.cmake; found by fuzzing): a count beyond the
+// bytes left and a non-positive string length fail the decode before any allocation.
+TEST(Bus, ACountBeyondTheMessageIsRefusedBeforeAnythingIsAllocated) {
+  omni::color_image_t m{};
+  m.frame = "camera";
+  m.width = 2;
+  m.height = 1;
+  m.data = {1, 2, 3, 4, 5, 6};
+  m.size = 6;
+  std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+  ASSERT_GT(m.encode(buf.data(), 0, static_cast<int>(buf.size())), 0);
+  // `size` is the int32 just before the 6 data bytes at the end: claim 2^31 - 1 bytes.
+  const size_t at = buf.size() - 6 - 4;
+  ASSERT_EQ(buf[at + 3], 6);
+  buf[at] = 0x7F;
+  buf[at + 1] = buf[at + 2] = buf[at + 3] = 0xFF;
+  omni::color_image_t out;
+  EXPECT_EQ(out.decode(buf.data(), 0, static_cast<int>(buf.size())), -1);
+  EXPECT_EQ(out.data.capacity(), 0u) << "the claimed 2 GB were allocated before the check";
+
+  // A string length of 0 (LCM counts the terminating NUL, so a real one is >= 1).
+  ASSERT_GT(m.encode(buf.data(), 0, static_cast<int>(buf.size())), 0);
+  const size_t frame_len = 8 + 8 + 8;  // after the hash, utime and seq
+  ASSERT_EQ(buf[frame_len + 3], m.frame.size() + 1);
+  buf[frame_len + 3] = 0;
+  int rc = 0;
+  EXPECT_NO_THROW(rc = out.decode(buf.data(), 0, static_cast<int>(buf.size())));
+  EXPECT_EQ(rc, -1);
 }
 
 TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {

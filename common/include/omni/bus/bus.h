@@ -85,8 +85,10 @@ class Bus {
 };
 
 // Decodes an LCM message; -1 when it does not decode. lcm-gen's decoders size arrays from the
-// counts in the bytes before checking them against the data, so a negative or absurd count
-// throws (length_error, bad_alloc): that is an undecodable message too, never a crash.
+// counts in the bytes before checking them against the data; the build patches them
+// (common/lcmtypes/harden_decoders.cmake) to refuse a count beyond the bytes and a string
+// length of 0 first, and anything they still throw (length_error, bad_alloc) is an undecodable
+// message too, never a crash.
 template <class Msg>
 int DecodeMessage(Msg* msg, const void* data, int size) noexcept {
   try {
