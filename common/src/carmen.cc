@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <limits>
 #include <sstream>
 
 #include <zlib.h>
@@ -38,12 +39,31 @@ class LineParser {
     ++i_;
     return true;
   }
+  // A number that must be finite: poses, angles, ranges' limits (a NaN there is a corrupt
+  // line, not a reading to count downstream) and no larger than `limit` in magnitude.
+  bool Finite(const char* what, double* v, double limit = 1e15) {
+    if (!Number(what, v)) return false;
+    if (!std::isfinite(*v) || std::fabs(*v) > limit) {
+      --i_;
+      return Fail(std::string("'") + tok_[i_] + "' is not a finite number within +-" +
+                  Short(limit) + " (" + what + ")");
+    }
+    return true;
+  }
+  // A time stamp in seconds: finite and within +-73,000 years (what microseconds in an int64
+  // can hold with room for sums), so converting it to a stamp is defined.
+  bool Stamp(const char* what, double* v) { return Finite(what, v, 2.3e12); }
   bool Skip(const char* what) {
     if (i_ >= tok_.size()) return Fail(std::string("line ends before ") + what);
     ++i_;
     return true;
   }
   size_t remaining() const { return tok_.size() - i_; }
+  static std::string Short(double v) {
+    std::ostringstream ss;
+    ss << v;
+    return ss.str();
+  }
   const std::string& error() const { return error_; }
 
  private:
@@ -56,6 +76,15 @@ class LineParser {
   size_t i_ = 1;  // token 0 is the tag
   std::string error_;
 };
+
+// A range reading as float: NaN and infinities pass (the mappers count them as invalid beams),
+// and so does a finite value too large for a float, as an infinity (the plain conversion of
+// such a value is undefined behaviour).
+float RangeToFloat(double v) {
+  if (std::isfinite(v) && std::fabs(v) > std::numeric_limits<float>::max())
+    return v > 0 ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity();
+  return static_cast<float>(v);
+}
 
 bool ParseCount(LineParser& p, const char* what, size_t* n) {
   double v = 0;
@@ -123,10 +152,10 @@ Result<CarmenLog> ParseCarmenLog(std::istream& in, const std::string& name) {
       r.kind = CarmenRecord::Kind::kOdom;
       r.odom.line = lineno;
       double accel = 0;
-      if (!p.Number("x", &r.odom.pose.x) || !p.Number("y", &r.odom.pose.y) ||
-          !p.Number("theta", &r.odom.pose.theta) || !p.Number("tv", &r.odom.tv_m_s) ||
+      if (!p.Finite("x", &r.odom.pose.x) || !p.Finite("y", &r.odom.pose.y) ||
+          !p.Finite("theta", &r.odom.pose.theta) || !p.Number("tv", &r.odom.tv_m_s) ||
           !p.Number("rv", &r.odom.rv_rad_s) || !p.Number("accel", &accel) ||
-          !p.Number("ipc_timestamp", &r.odom.timestamp_s) || !p.Skip("ipc_hostname") ||
+          !p.Stamp("ipc_timestamp", &r.odom.timestamp_s) || !p.Skip("ipc_hostname") ||
           !p.Skip("logger_timestamp")) {
         return fail("malformed ODOM line");
       }
@@ -145,13 +174,13 @@ Result<CarmenLog> ParseCarmenLog(std::istream& in, const std::string& name) {
       for (size_t i = 0; i < n; ++i) {
         double v = 0;
         if (!p.Number("a range reading", &v)) return fail("truncated ranges");
-        l.ranges_m[i] = static_cast<float>(v);
-        if (std::isfinite(v)) max_r = std::max(max_r, static_cast<float>(v));
+        l.ranges_m[i] = RangeToFloat(v);
+        if (std::isfinite(l.ranges_m[i])) max_r = std::max(max_r, l.ranges_m[i]);
       }
-      if (!p.Number("x", &l.laser_pose.x) || !p.Number("y", &l.laser_pose.y) ||
-          !p.Number("theta", &l.laser_pose.theta) || !p.Number("odom_x", &l.robot_pose.x) ||
-          !p.Number("odom_y", &l.robot_pose.y) || !p.Number("odom_theta", &l.robot_pose.theta) ||
-          !p.Number("ipc_timestamp", &l.timestamp_s) || !p.Skip("ipc_hostname") ||
+      if (!p.Finite("x", &l.laser_pose.x) || !p.Finite("y", &l.laser_pose.y) ||
+          !p.Finite("theta", &l.laser_pose.theta) || !p.Finite("odom_x", &l.robot_pose.x) ||
+          !p.Finite("odom_y", &l.robot_pose.y) || !p.Finite("odom_theta", &l.robot_pose.theta) ||
+          !p.Stamp("ipc_timestamp", &l.timestamp_s) || !p.Skip("ipc_hostname") ||
           !p.Skip("logger_timestamp")) {
         return fail("malformed laser line");
       }
@@ -167,9 +196,9 @@ Result<CarmenLog> ParseCarmenLog(std::istream& in, const std::string& name) {
       l.tag = tag;
       l.line = lineno;
       double laser_type, start, fov, res, max_range, accuracy, remission_mode;
-      if (!p.Number("laser_type", &laser_type) || !p.Number("start_angle", &start) ||
-          !p.Number("field_of_view", &fov) || !p.Number("angular_resolution", &res) ||
-          !p.Number("maximum_range", &max_range) || !p.Number("accuracy", &accuracy) ||
+      if (!p.Number("laser_type", &laser_type) || !p.Finite("start_angle", &start, 1e3) ||
+          !p.Number("field_of_view", &fov) || !p.Finite("angular_resolution", &res, 1e3) ||
+          !p.Finite("maximum_range", &max_range, 1e9) || !p.Number("accuracy", &accuracy) ||
           !p.Number("remission_mode", &remission_mode)) {
         return fail("malformed ROBOTLASER1 header");
       }
@@ -179,22 +208,22 @@ Result<CarmenLog> ParseCarmenLog(std::istream& in, const std::string& name) {
       for (size_t i = 0; i < n; ++i) {
         double v = 0;
         if (!p.Number("a range reading", &v)) return fail("truncated ranges");
-        l.ranges_m[i] = static_cast<float>(v);
+        l.ranges_m[i] = RangeToFloat(v);
       }
       size_t nrem = 0;
       if (!ParseCount(p, "num_remissions", &nrem)) return fail("bad remission count");
       for (size_t i = 0; i < nrem; ++i)
         if (!p.Skip("a remission value")) return fail("truncated remissions");
       double tv, rv, fsd, ssd, turn;
-      if (!p.Number("laser_pose_x", &l.laser_pose.x) ||
-          !p.Number("laser_pose_y", &l.laser_pose.y) ||
-          !p.Number("laser_pose_theta", &l.laser_pose.theta) ||
-          !p.Number("robot_pose_x", &l.robot_pose.x) ||
-          !p.Number("robot_pose_y", &l.robot_pose.y) ||
-          !p.Number("robot_pose_theta", &l.robot_pose.theta) || !p.Number("laser_tv", &tv) ||
+      if (!p.Finite("laser_pose_x", &l.laser_pose.x) ||
+          !p.Finite("laser_pose_y", &l.laser_pose.y) ||
+          !p.Finite("laser_pose_theta", &l.laser_pose.theta) ||
+          !p.Finite("robot_pose_x", &l.robot_pose.x) ||
+          !p.Finite("robot_pose_y", &l.robot_pose.y) ||
+          !p.Finite("robot_pose_theta", &l.robot_pose.theta) || !p.Number("laser_tv", &tv) ||
           !p.Number("laser_rv", &rv) || !p.Number("forward_safety_dist", &fsd) ||
           !p.Number("side_safety_dist", &ssd) || !p.Number("turn_axis", &turn) ||
-          !p.Number("timestamp", &l.timestamp_s) || !p.Skip("hostname") ||
+          !p.Stamp("timestamp", &l.timestamp_s) || !p.Skip("hostname") ||
           !p.Skip("logger_timestamp")) {
         return fail("malformed ROBOTLASER1 line");
       }

@@ -78,6 +78,30 @@ TEST(Carmen, NonNumberNamed) {
   EXPECT_NE(log.error().message.find("'zero'"), std::string::npos) << log.error().message;
 }
 
+// Found by fuzzing (test/fuzz/carmen_fuzz.cc): a NaN or absurd stamp was accepted, and the
+// importer's sort by stamp and the conversion to microseconds are undefined on it. Poses must be
+// finite too; ranges may be anything (the mappers count invalid beams), and one too large for a
+// float becomes an infinity rather than an undefined conversion.
+TEST(Carmen, NonFiniteStampsAndPosesAreErrorsNamingTheLine) {
+  for (const char* line :
+       {"ODOM 0 0 0 0 0 0 nan host 1.0", "ODOM 0 0 0 0 0 0 1e300 host 1.0",
+        "ODOM 0 inf 0 0 0 0 1.0 host 1.0", "FLASER 3 1 2 3 0 0 nan 0 0 0 1.0 host 1.0"}) {
+    std::istringstream in(std::string("ODOM 0 0 0 0 0 0 0.5 host 0.5\n") + line + "\n");
+    auto log = ParseCarmenLog(in, "bad.clf");
+    ASSERT_FALSE(log.ok()) << line;
+    EXPECT_NE(log.error().message.find("bad.clf:2"), std::string::npos) << log.error().message;
+    EXPECT_NE(log.error().message.find("not a finite number"), std::string::npos)
+        << log.error().message;
+  }
+  std::istringstream in("FLASER 3 nan 1e300 3 0 0 0 0 0 0 1.0 host 1.0\n");
+  auto log = ParseCarmenLog(in, "ranges.clf");
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  const CarmenLaser& l = log->records[0].laser;
+  EXPECT_TRUE(std::isnan(l.ranges_m[0]));
+  EXPECT_TRUE(std::isinf(l.ranges_m[1]));
+  EXPECT_FLOAT_EQ(l.max_range_m, 3.f);
+}
+
 TEST(Carmen, MissingFile) {
   auto log = ReadCarmenLog("/nonexistent.clf");
   ASSERT_FALSE(log.ok());

@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <limits>
 
 namespace omni {
 
@@ -10,7 +11,13 @@ namespace omni {
 using Utime = int64_t;
 
 inline double UtimeToSeconds(Utime t) { return static_cast<double>(t) * 1e-6; }
+// Rounded to the microsecond. A NaN or a time beyond what an int64 of microseconds holds
+// (+-292,000 years) saturates to INT64_MIN / INT64_MAX instead of the undefined conversion;
+// readers refuse such stamps (the CARMEN reader already at +-73,000 years).
 inline Utime SecondsToUtime(double s) {
+  if (!(s > -9.2e12 && s < 9.2e12)) {
+    return s > 0 ? std::numeric_limits<Utime>::max() : std::numeric_limits<Utime>::min();
+  }
   return static_cast<Utime>(s * 1e6 + (s >= 0 ? 0.5 : -0.5));
 }
 
