@@ -141,7 +141,8 @@ int Extract(int argc, char** argv) {
     ++messages;
     omni::octomap_t m;
     const int size = static_cast<int>(ev.data.size());
-    if (m.decode(ev.data.data(), 0, size) != size) {
+    // DecodeMessage: lcm-gen's decoder throws on some corrupt length fields.
+    if (omni::bus::DecodeMessage(&m, ev.data.data(), size) != size) {
       ++undecodable;
       continue;
     }

@@ -1,5 +1,6 @@
 #include "omni/octomap_builder/octomap_node.h"
 
+#include <cmath>
 #include <filesystem>
 
 #include "omni/bus/convert.h"
@@ -53,8 +54,14 @@ Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni:
                                                       "', not the map frame '" + map_frame + "'");
   std::vector<std::pair<int64_t, Pose2>> poses;
   poses.reserve(n);
-  for (size_t i = 0; i < n; ++i)
+  for (size_t i = 0; i < n; ++i) {
+    // A NaN pose would re-pose keyframes into NaN points: the whole message is refused (and
+    // counted as a rejected trajectory), the next one replaces it.
+    if (!std::isfinite(m.x_m[i]) || !std::isfinite(m.y_m[i]) || !std::isfinite(m.yaw_rad[i]))
+      return MakeError(ErrorCode::kInvalidArgument,
+                       "trajectory message: pose " + std::to_string(i) + " is not finite");
     poses.emplace_back(m.pose_utime[i], Pose2(m.x_m[i], m.y_m[i], m.yaw_rad[i]));
+  }
   return poses;
 }
 

@@ -9,9 +9,13 @@
 namespace omni::octo {
 
 std::string ColorIntrinsics::Validate() const {
-  if (!std::isfinite(fx) || !std::isfinite(fy) || fx == 0 || fy == 0)
-    return "colour fx and fy must be finite and non-zero";
-  if (!std::isfinite(cx) || !std::isfinite(cy)) return "colour cx and cy must be finite";
+  // The depth intrinsics' bounds (depth_points.h): far outside any camera, and every
+  // projection stays finite.
+  if (!(std::fabs(fx) >= kMinFocalPx && std::fabs(fx) <= kMaxFocalPx) ||
+      !(std::fabs(fy) >= kMinFocalPx && std::fabs(fy) <= kMaxFocalPx))
+    return "colour fx and fy must be finite, with magnitudes in [0.001, 1e7] pixels";
+  if (!(std::fabs(cx) <= kMaxPrincipalPx) || !(std::fabs(cy) <= kMaxPrincipalPx))
+    return "colour cx and cy must be finite and within +-1e6 pixels";
   return "";
 }
 

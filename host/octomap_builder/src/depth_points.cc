@@ -12,10 +12,15 @@
 namespace omni::octo {
 
 std::string DepthIntrinsics::Validate() const {
-  if (!std::isfinite(fx) || !std::isfinite(fy) || fx == 0 || fy == 0)
-    return "fx and fy must be finite and non-zero";
-  if (!std::isfinite(cx) || !std::isfinite(cy)) return "cx and cy must be finite";
-  if (!std::isfinite(depth_scale) || depth_scale <= 0) return "depth_scale must be > 0";
+  // The bounds are far outside any camera (a Kinect: f ~ 520 px, c ~ 320 px, scale 1000) and
+  // keep every point of a 16-bit depth image finite as a float.
+  if (!(std::fabs(fx) >= kMinFocalPx && std::fabs(fx) <= kMaxFocalPx) ||
+      !(std::fabs(fy) >= kMinFocalPx && std::fabs(fy) <= kMaxFocalPx))
+    return "fx and fy must be finite, with magnitudes in [0.001, 1e7] pixels";
+  if (!(std::fabs(cx) <= kMaxPrincipalPx) || !(std::fabs(cy) <= kMaxPrincipalPx))
+    return "cx and cy must be finite and within +-1e6 pixels";
+  if (!(depth_scale >= kMinDepthScale && depth_scale <= kMaxDepthScale))
+    return "depth_scale must be in [0.001, 1e9] raw units per metre";
   return "";
 }
 

@@ -38,25 +38,30 @@ namespace {
 //   full (.ot):   node = value (float) [+ R G B for a ColorOcTree] + 1 byte, bit i set: child i
 //                 follows (depth first)
 //   binary (.bt): node = 2 bytes, 2 bits per child (11: inner, its node follows afterwards)
-bool WalkFull(std::string_view b, size_t* pos, int depth, size_t node_size) {
+// `nodes` counts the nodes the reader will create, which it then compares with the header's size.
+bool WalkFull(std::string_view b, size_t* pos, int depth, size_t node_size, long long* nodes) {
   if (b.size() - *pos < node_size) return false;
   const auto mask = static_cast<uint8_t>(b[*pos + node_size - 1]);
   *pos += node_size;
+  ++*nodes;
   if (mask != 0 && depth >= 16) return false;
   for (int i = 0; i < 8; ++i)
     if ((mask >> i) & 1)
-      if (!WalkFull(b, pos, depth + 1, node_size)) return false;
+      if (!WalkFull(b, pos, depth + 1, node_size, nodes)) return false;
   return true;
 }
 
-bool WalkBinary(std::string_view b, size_t* pos, int depth) {
+// (Each child whose bits are not 00 is a node: 01 and 10 are leaves without a record of their own.)
+bool WalkBinary(std::string_view b, size_t* pos, int depth, long long* nodes) {
   if (b.size() - *pos < 2) return false;
   const unsigned bits = static_cast<uint8_t>(b[*pos]) | (static_cast<uint8_t>(b[*pos + 1]) << 8);
   *pos += 2;
   for (int i = 0; i < 8; ++i) {
-    if (((bits >> (2 * i)) & 3) != 3) continue;
+    const unsigned child = (bits >> (2 * i)) & 3;
+    if (child != 0) ++*nodes;
+    if (child != 3) continue;
     if (depth + 1 >= 16) return false;
-    if (!WalkBinary(b, pos, depth + 1)) return false;
+    if (!WalkBinary(b, pos, depth + 1, nodes)) return false;
   }
   return true;
 }
@@ -66,6 +71,10 @@ bool WalkBinary(std::string_view b, size_t* pos, int depth) {
 // child-mask byte.
 std::string ValidateTreeFile(std::string_view bytes, bool binary,
                              const std::string& type = "OcTree", size_t node_bytes = 4) {
+  // OctoMap's readers refuse a file whose first line is not theirs (and print why to stderr).
+  const std::string_view first = binary ? "# Octomap OcTree binary file" : "# Octomap OcTree file";
+  if (bytes.substr(0, first.size()) != first)
+    return "the first line is not '" + std::string(first) + "'";
   const size_t data = bytes.find("\ndata\n");
   if (data == std::string_view::npos) return "no 'data' line in the header";
   const std::string header(bytes.substr(0, data));
@@ -80,8 +89,14 @@ std::string ValidateTreeFile(std::string_view bytes, bool binary,
   const long long n = std::atoll(header.c_str() + sz + 6);
   if (n == 0) return "";
   size_t pos = data + 6;
-  const bool ok = binary ? WalkBinary(bytes, &pos, 0) : WalkFull(bytes, &pos, 0, node_bytes + 1);
-  return ok ? "" : "truncated or corrupt node data";
+  long long nodes = binary ? 1 : 0;  // the binary form has no record for the root itself
+  const bool ok = binary ? WalkBinary(bytes, &pos, 0, &nodes)
+                         : WalkFull(bytes, &pos, 0, node_bytes + 1, &nodes);
+  if (!ok) return "truncated or corrupt node data";
+  if (nodes != n)
+    return "the header's size is " + std::to_string(n) + " nodes, the data holds " +
+           std::to_string(nodes);
+  return "";
 }
 
 }  // namespace

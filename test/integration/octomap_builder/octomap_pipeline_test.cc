@@ -510,8 +510,8 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   EXPECT_EQ(color_maps, 0);
 }
 
-// `omni-octomap extract`: the newest readable tree of each type out of a recorded log, with an
-// undecodable message, a truncated tree and an unrelated channel in it.
+// `omni-octomap extract`: the newest readable tree of each type out of a recorded log, with two
+// undecodable messages, a truncated tree and an unrelated channel in it.
 TEST(OctomapCli, ExtractsTheNewestReadableMapsFromALog) {
   const std::string dir = testing::TempDir() + "/octo_cli_extract";
   fs::remove_all(dir);
@@ -537,6 +537,11 @@ TEST(OctomapCli, ExtractsTheNewestReadableMapsFromALog) {
     auto garbage = Encode(ToOctomapMessage(newer, t0 + 4, "map", "rbpf", true));
     garbage.resize(garbage.size() / 2);  // cut inside the message: undecodable
     put(t0 + 4, "OCTOMAP", garbage);
+    // A string whose length field says 0 (LCM counts the NUL, so never 0): lcm-gen's decoder
+    // throws on it; an undecodable message too, not the end of the command.
+    auto zero_len = Encode(ToOctomapMessage(newer, t0 + 4, "map", "rbpf", true));
+    std::fill(zero_len.begin() + 16, zero_len.begin() + 20, 0);  // after the hash and utime
+    put(t0 + 4, "OCTOMAP", zero_len);
     // Decodes, but its tree is cut short: checked before octomap reads it, and skipped.
     omni::octomap_t cut = ToOctomapMessage(newer, t0 + 5, "map", "rbpf", true);
     cut.data.resize(cut.data.size() - 10);
@@ -547,7 +552,7 @@ TEST(OctomapCli, ExtractsTheNewestReadableMapsFromALog) {
   const std::string out = dir + "/out";
   auto r = RunCommand(Bin("omni-octomap") + " extract " + log + " --out " + out);
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_NE(r.output.find("5 messages on 2 channels, 1 undecodable, 1 unreadable trees"),
+  EXPECT_NE(r.output.find("6 messages on 2 channels, 2 undecodable, 1 unreadable trees"),
             std::string::npos)
       << r.output;
   auto tree = LoadTree(out + "/map.bt");  // sent in binary form: written as it was sent

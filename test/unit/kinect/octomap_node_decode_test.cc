@@ -1,5 +1,6 @@
 // The OctoMap builder's bus path takes DELTA_ZLIB depth from the Kinect codec: a message filled
 // by FillDepthMessage comes out of FromDepthMessage pixel-exact, and a damaged one is an error.
+#include <cmath>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -32,6 +33,40 @@ TEST(DepthMessage, OctomapBuilderDecodesDeltaZlibMessages) {
   EXPECT_EQ(im->data, px);
   msg.data[msg.data.size() / 2] ^= 0x10;
   EXPECT_FALSE(octo::FromDepthMessage(msg).ok());
+}
+
+// Found by fuzzing (test/fuzz/bus_messages_fuzz.cc): intrinsics that are finite but absurd (a
+// principal point at 1e306 px, a depth scale of 1e-306) made every point infinite; a trajectory
+// with a NaN pose was accepted for re-posing.
+TEST(DepthMessage, AbsurdIntrinsicsAndNonFiniteTrajectoriesAreRefused) {
+  std::vector<uint16_t> px(4 * 3, 1500);
+  omni::depth_image_t msg{};
+  msg.fx = msg.fy = 5.0;
+  msg.cx = 1.5;
+  msg.cy = 1.0;
+  msg.depth_scale = 1000;
+  ASSERT_TRUE(FillDepthMessage(px.data(), 4, 3, DepthEncoding::kRaw, {}, &msg).ok());
+  ASSERT_TRUE(octo::FromDepthMessage(msg).ok());
+  for (auto damage : std::vector<void (*)(omni::depth_image_t*)>{
+           [](omni::depth_image_t* m) { m->cx = -1.36e306; },
+           [](omni::depth_image_t* m) { m->depth_scale = 5.6e-306; },
+           [](omni::depth_image_t* m) { m->fx = 1e-300; },
+           [](omni::depth_image_t* m) { m->fy = 1e9; }}) {
+    omni::depth_image_t bad = msg;
+    damage(&bad);
+    EXPECT_FALSE(octo::FromDepthMessage(bad).ok());
+  }
+  omni::trajectory_t traj{};
+  traj.num_poses = 2;
+  traj.pose_utime = {1, 2};
+  traj.x_m = {0.0, 1.0};
+  traj.y_m = {0.0, 0.0};
+  traj.yaw_rad = {0.0, 0.0};
+  ASSERT_TRUE(octo::FromTrajectoryMessage(traj, "map").ok());
+  traj.y_m[1] = std::nan("");
+  auto poses = octo::FromTrajectoryMessage(traj, "map");
+  ASSERT_FALSE(poses.ok());
+  EXPECT_NE(poses.error().message.find("pose 1 is not finite"), std::string::npos);
 }
 
 }  // namespace

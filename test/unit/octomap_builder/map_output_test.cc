@@ -77,6 +77,30 @@ TEST(MapOutput, SavedTreesLoadBackWithTheSameLeaves) {
   }
 }
 
+// Found by fuzzing (test/fuzz/bus_messages_fuzz.cc): the byte check passed trees OctoMap then
+// refused (a header first line it does not know, a size that disagrees with the nodes), so
+// `octomap extract` could pick such a tree over an older readable one. The check now says why.
+TEST(MapOutput, TheTreeCheckRefusesWhatOctomapWouldRefuse) {
+  octomap::OcTree t(0.1);
+  for (int i = 0; i < 10; ++i) t.updateNode(0.1 * i + 0.05, 0.05, 0.05, i % 2 == 0);
+  for (bool binary : {true, false}) {
+    const std::string good = SerializeTree(t, binary);
+    EXPECT_EQ(CheckTreeBytes(good, binary, "OcTree"), "");
+    ASSERT_TRUE(ParseTree(good, binary, "good").ok());
+    std::string other_first = good;
+    other_first[2] = 'o';  // "# octomap ..."
+    EXPECT_NE(CheckTreeBytes(other_first, binary, "OcTree").find("first line"), std::string::npos);
+    std::string wrong_size = good;
+    const size_t at = wrong_size.find("\nsize ");
+    ASSERT_NE(at, std::string::npos);
+    wrong_size.insert(at + 6, "1");  // "size 1NN": more nodes than the data holds
+    EXPECT_NE(CheckTreeBytes(wrong_size, binary, "OcTree").find("the header's size is"),
+              std::string::npos)
+        << CheckTreeBytes(wrong_size, binary, "OcTree");
+    EXPECT_FALSE(ParseTree(wrong_size, binary, "wrong size").ok());
+  }
+}
+
 TEST(MapOutput, ProjectsTheHeightBand) {
   octomap::OcTree t(0.1);
   // A floor (z = 0.05, below the band), a low box (z = 0.25) and free space above the floor.

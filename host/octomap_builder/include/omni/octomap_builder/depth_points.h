@@ -18,6 +18,14 @@
 
 namespace omni::octo {
 
+// Plausibility bounds of camera intrinsics (Validate): far outside any real camera, and they
+// keep every back-projected point of a 16-bit depth image finite.
+inline constexpr double kMinFocalPx = 1e-3;
+inline constexpr double kMaxFocalPx = 1e7;
+inline constexpr double kMaxPrincipalPx = 1e6;
+inline constexpr double kMinDepthScale = 1e-3;
+inline constexpr double kMaxDepthScale = 1e9;
+
 struct DepthIntrinsics {
   double fx = 0;           // focal length along u, pixels (negative flips the axis)
   double fy = 0;           // focal length along v, pixels
