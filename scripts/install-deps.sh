@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs every Debian 12 package omni needs. Idempotent; needs root (or sudo).
 # Nothing is downloaded from anywhere but the configured Debian archive.
+# --fuzz: also clang and its libFuzzer runtime, for ./omni fuzz (not needed to build or test).
 set -euo pipefail
 
 PACKAGES=(
@@ -21,6 +22,12 @@ PACKAGES=(
   # process isolation for multi-process runs (unshare, ip)
   util-linux iproute2 bzip2
 )
+if [ "${1:-}" = "--fuzz" ]; then
+  PACKAGES+=(clang libclang-rt-14-dev)
+elif [ $# -gt 0 ]; then
+  echo "usage: scripts/install-deps.sh [--fuzz]" >&2
+  exit 2
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -95,7 +95,6 @@ omni::octomap_t ToOctomapMessage(const octomap::ColorOcTree& tree, int64_t utime
 OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, const Clock* clock)
     : bus_(bus),
       options_(options),
-      clock_(clock),
       pipeline_(options),
       heartbeat_(bus, "octomap_builder", clock,
                  static_cast<int64_t>(options.heartbeat_period_s * 1e6)) {

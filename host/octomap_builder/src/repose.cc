@@ -27,7 +27,7 @@ void ThinPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<ui
     const double fx = std::floor(p.x() * inv), fy = std::floor(p.y() * inv),
                  fz = std::floor(p.z() * inv);
     if (std::abs(fx) >= kHalf || std::abs(fy) >= kHalf || std::abs(fz) >= kHalf) continue;
-    const auto k = [kHalf](double f) {
+    const auto k = [](double f) {
       return static_cast<uint64_t>(static_cast<int64_t>(f) + kHalf) & 0x1fffff;
     };
     const uint64_t key = k(fx) | (k(fy) << 21) | (k(fz) << 42);

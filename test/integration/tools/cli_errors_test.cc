@@ -43,6 +43,15 @@ TEST(CliErrors, OmniScriptKnowsEveryTool) {
       tools.insert(n.substr(5));
   }
   EXPECT_EQ(list("TOOLS"), tools);
+  // ./omni fuzz knows every target in test/fuzz (NAME_fuzz.cc).
+  std::set<std::string> fuzz;
+  for (const auto& e :
+       std::filesystem::directory_iterator(std::string(OMNI_SOURCE_DIR) + "/test/fuzz")) {
+    const std::string f = e.path().filename().string();
+    if (f.size() > 8 && f.compare(f.size() - 8, 8, "_fuzz.cc") == 0)
+      fuzz.insert(f.substr(0, f.size() - 8));
+  }
+  EXPECT_EQ(list("FUZZ_TARGETS"), fuzz);
   // A build without Google Benchmark lacks some benchmarks; the script may list more.
   const std::set<std::string> listed = list("BENCHMARKS");
   for (const auto& b : benches) EXPECT_TRUE(listed.count(b)) << b << " missing from BENCHMARKS";

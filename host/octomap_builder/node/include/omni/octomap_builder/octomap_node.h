@@ -67,7 +67,6 @@ class OctomapNode {
  private:
   bus::Bus* bus_;
   OctomapBuilderOptions options_;
-  const Clock* clock_;
   OctomapPipeline pipeline_;
   bus::Heartbeat heartbeat_;
   int64_t depth_decode_errors_ = 0;
