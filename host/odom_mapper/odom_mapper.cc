@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include "omni/common/scan_checks.h"
+
 namespace omni::odom_mapper {
 
 Result<OdomMapperOptions> OdomMapperOptions::Load(ConfigReader& r) {
@@ -37,7 +39,7 @@ OdomMapper::OdomMapper(const OdomMapperOptions& options)
 
 bool OdomMapper::AddOdometry(int64_t utime, const Pose2& pose) {
   ++counters_.odom_in;
-  if (!std::isfinite(pose.x) || !std::isfinite(pose.y) || !std::isfinite(pose.theta)) {
+  if (!PlausibleOdometryPose(pose)) {
     ++counters_.odom_invalid;
     return false;
   }

@@ -159,7 +159,7 @@ double PoseGraphSlam::NowMs() const {
 
 void PoseGraphSlam::AddOdometry(int64_t utime, const Pose2& raw) {
   ++c_.odom_in;
-  if (!std::isfinite(raw.x) || !std::isfinite(raw.y) || !std::isfinite(raw.theta)) {
+  if (!PlausibleOdometryPose(raw)) {
     ++c_.odom_invalid;
     return;
   }

@@ -44,13 +44,22 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
     : points_(points), res_(o.resolution_m), k_(std::max(1, o.coarse_cells)) {
   if (points.empty()) return;
   Eigen::Vector2d lo = points.front(), hi = points.front();
+  bool finite = true;
   for (const auto& p : points) {
     lo = lo.cwiseMin(p);
     hi = hi.cwiseMax(p);
+    finite = finite && p.allFinite();
+  }
+  // A submap no lidar sees (keyframe estimates gone astray): an empty field, so no match, rather
+  // than an allocation of whatever size the points span.
+  const Eigen::Vector2d cells = (hi - lo + Eigen::Vector2d::Constant(2 * o.margin_m)) / res_;
+  if (!finite || !cells.allFinite() || cells.x() * cells.y() > static_cast<double>(kMaxFieldCells)) {
+    points_.clear();
+    return;
   }
   origin_ = lo - Eigen::Vector2d::Constant(o.margin_m);
-  w_ = static_cast<int>(std::ceil((hi.x() - lo.x() + 2 * o.margin_m) / res_)) + 1;
-  h_ = static_cast<int>(std::ceil((hi.y() - lo.y() + 2 * o.margin_m) / res_)) + 1;
+  w_ = static_cast<int>(std::ceil(cells.x())) + 1;
+  h_ = static_cast<int>(std::ceil(cells.y())) + 1;
   fine_.assign(static_cast<size_t>(w_) * h_, 0.f);
   const int rc = static_cast<int>(std::ceil(3 * o.sigma_m / res_));
   const double inv2s2 = 1.0 / (2 * o.sigma_m * o.sigma_m);

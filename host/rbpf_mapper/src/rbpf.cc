@@ -277,7 +277,7 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
       prelude_.emplace_back(OdomEvent{utime, p});
   }
   ++counters_.odom_in;
-  if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.theta)) {
+  if (!PlausibleOdometryPose(p)) {
     ++counters_.odom_invalid;
     return false;
   }
@@ -335,7 +335,7 @@ std::optional<Pose2> RbpfSlam::RawOdometryAt(int64_t utime) const {
 
 std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
   std::optional<Pose2> raw = scan.odom;
-  if (raw && !(std::isfinite(raw->x) && std::isfinite(raw->y) && std::isfinite(raw->theta))) {
+  if (raw && !PlausibleOdometryPose(*raw)) {
     ++counters_.odom_invalid;
     raw.reset();
   }

@@ -122,5 +122,21 @@ TEST(ScanChecks, RealLidarsPassAbsurdGeometryDoesNot) {
   EXPECT_FALSE(PlausibleScanGeometry(0.0, 1e-6, kMaxScanBeams + 1, 25.0, mount));
 }
 
+// Odometry poses: a base that has driven far or turned often passes; finite but absurd poses,
+// at which a centimetre step rounds away, do not (found by the mapper_stream fuzz target: an
+// odometry pose at 1e232 m froze the pose graph's odometry and its submap asked for an
+// impossible likelihood field).
+TEST(ScanChecks, OdometryPosesFarBeyondAnyRobotAreRefused) {
+  EXPECT_TRUE(PlausibleOdometryPose(Pose2(0, 0, 0)));
+  EXPECT_TRUE(PlausibleOdometryPose(Pose2(-250000.0, 999999.0, -3.1)));
+  EXPECT_TRUE(PlausibleOdometryPose(Pose2(1.0, 2.0, 5000.0)));  // unwrapped heading
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(1.7e232, -4.1e232, 0.13)));
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(0, 2e6, 0)));
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(0, 0, 1e300)));
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(NAN, 0, 0)));
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(0, -INFINITY, 0)));
+  EXPECT_FALSE(PlausibleOdometryPose(Pose2(0, 0, NAN)));
+}
+
 }  // namespace
 }  // namespace omni

@@ -222,6 +222,22 @@ TEST(PoseGraphPlugins, LoopFieldCacheReusesOnlyUnchangedSubmaps) {
   EXPECT_EQ(cached.counters().at("field_cache_hits"), 2);
 }
 
+// A submap whose points span more than any lidar sees (keyframe estimates gone astray) gives an
+// empty field, which matches nothing, instead of allocating whatever the span asks for.
+TEST(PoseGraphPlugins, ASubmapSpanningTooFarGivesAnEmptyField) {
+  std::vector<Eigen::Vector2d> points = Room();
+  EXPECT_FALSE(LikelihoodField(points, {}).empty());
+  points.emplace_back(1.7e232, -4.1e232);
+  const LikelihoodField far(points, {});
+  EXPECT_TRUE(far.empty());
+  EXPECT_TRUE(far.points().empty());
+  EXPECT_EQ(MatchScan(far, Room(), Pose2(), {}).score, 0);
+  points.back() = Eigen::Vector2d(2000.0, 2000.0);  // 40,000 x 40,000 cells
+  EXPECT_TRUE(LikelihoodField(points, {}).empty());
+  points.back() = Eigen::Vector2d(NAN, 0.0);
+  EXPECT_TRUE(LikelihoodField(points, {}).empty());
+}
+
 TEST(PoseGraphPlugins, EmptyInputsAreCountedNotMatched) {
   const LikelihoodField empty_field({}, {});
   EXPECT_TRUE(empty_field.empty());

@@ -31,4 +31,17 @@ inline bool PlausibleScanGeometry(double angle_min_rad, double angle_increment_r
          std::abs(sensor_in_base.y) <= 10.0;
 }
 
+// An odometry pose a real base could report: finite, within 1000 km of the odometry's origin and
+// a heading within a million radians (an unwrapped one after 160,000 turns). Beyond that, double
+// precision cannot hold centimetre steps (at 1e17 m a step of 1 m rounds away), so a pose such as
+// 1e232 m, finite though it is, would freeze the odometry and send poses and grids to absurd
+// places.
+inline constexpr double kMaxOdometryM = 1e6;
+inline constexpr double kMaxOdometryRad = 1e6;
+
+inline bool PlausibleOdometryPose(const Pose2& p) {
+  return std::abs(p.x) <= kMaxOdometryM && std::abs(p.y) <= kMaxOdometryM &&
+         std::abs(p.theta) <= kMaxOdometryRad;  // (false for NaN too)
+}
+
 }  // namespace omni

@@ -43,7 +43,7 @@ struct OdomMapperCounters {
   int64_t invalid_beams = 0;        // NaN/inf/negative ranges
   int64_t odom_in = 0;
   int64_t odom_out_of_order = 0;      // older than the newest odometry: rejected
-  int64_t odom_invalid = 0;           // non-finite pose
+  int64_t odom_invalid = 0;           // non-finite or absurd pose (PlausibleOdometryPose)
   int64_t odom_jumps = 0;             // jumps between samples, bridged (max_odom_jump_*)
   int64_t time_rebases = 0;           // a future-stamped sample dropped (common/stamp_order.h)
   int64_t beams_beyond_grid_cap = 0;  // not mapped: the grid would outgrow max_grid_cells

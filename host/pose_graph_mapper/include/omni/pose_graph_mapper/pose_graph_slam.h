@@ -151,7 +151,8 @@ struct SlamCounters {
   int64_t invalid_beams = 0;       // NaN/inf or out-of-range beams skipped inside used scans
   int64_t sweeps_corrected = 0;    // used scans corrected for the base's motion in their sweep
   int64_t sweeps_uncorrected = 0;  // used scans with a sweep but no (jump-free) odometry over it
-  // odom_invalid: a non-finite pose, or a stamp beyond +-73,000 years (kMaxStamp).
+  // odom_invalid: a non-finite or absurd pose (PlausibleOdometryPose), or a stamp beyond
+  // +-73,000 years (kMaxStamp).
   int64_t odom_in = 0, odom_invalid = 0, odom_out_of_order = 0, odom_jumps = 0;
   // Odometry whose newest sample was followed by a run of older, in-order samples: it was
   // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).

@@ -17,6 +17,7 @@
 // variance.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -34,6 +35,9 @@ struct LikelihoodFieldOptions {
 
 class LikelihoodField {
  public:
+  // Cells a field may have (128 MB of floats: a 560 m square at 5 cm); a submap spanning more
+  // gives an empty field.
+  static constexpr int64_t kMaxFieldCells = int64_t{1} << 25;
   // `points` in the submap's frame. An empty submap gives an empty field (every score 0).
   LikelihoodField(const std::vector<Eigen::Vector2d>& points, const LikelihoodFieldOptions& o);
 

@@ -152,7 +152,7 @@ struct RbpfCounters {
   int64_t scans_bad_geometry = 0;  // non-finite angles / mount
   int64_t invalid_beams = 0;       // NaN, inf, negative or below range_min
   int64_t odom_in = 0;
-  int64_t odom_invalid = 0;
+  int64_t odom_invalid = 0;  // non-finite or absurd pose (PlausibleOdometryPose)
   int64_t odom_out_of_order = 0;
   int64_t odom_jumps = 0;
   int64_t imu_in = 0;
