@@ -215,6 +215,8 @@ int main(int argc, char** argv) {
     return 0;
   }
 
+  std::error_code made;
+  fs::create_directories(crash_dir, made);  // a folder that is not there yet is made, not ignored
   g_crash_path = (fs::path(crash_dir) / ("crash-" + name)).string();
   for (int sig : {SIGABRT, SIGSEGV, SIGFPE, SIGBUS, SIGILL}) ::signal(sig, OnSignal);
   if (__sanitizer_set_death_callback != nullptr) __sanitizer_set_death_callback(WriteCurrent);
