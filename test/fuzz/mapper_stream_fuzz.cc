@@ -1,5 +1,6 @@
 // A stream of scans, odometry, IMU samples and undecodable messages, as the RBPF or the pose-graph
-// mapper node receives it on the bus (memq://), with ticks and deferred processing in between.
+// mapper node receives it on the bus (memq://), with ticks and deferred processing in between (or
+// odom_mapper's library, as its process receives it).
 // The input is a script: its first byte picks the mapper and its mode, then each record is one
 // event whose numbers come from the input, with NaN, infinities, absurd magnitudes and clock
 // jumps among them. What must hold whatever comes: every pose, trajectory and grid the node
@@ -21,6 +22,7 @@
 #include "omni/imu_t.hpp"
 #include "omni/laser_scan_t.hpp"
 #include "omni/occupancy_grid_t.hpp"
+#include "omni/odom_mapper/odom_mapper.h"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "omni/pose_graph_mapper/pose_graph_node.h"
@@ -30,7 +32,8 @@
 namespace {
 
 // Script layout (docs/fuzzing.md):
-//   byte 0: bit 0 the mapper (0 RBPF, 1 pose graph), bit 1 deferred mode, bit 2 IMU fusion
+//   byte 0: bit 0 the mapper (0 RBPF, 1 pose graph), bit 1 deferred mode, bit 2 IMU fusion,
+//           bit 3 odom_mapper's library instead (wired as its process wires it)
 //   records, each an op byte then its fields:
 //     kOdom:  dt, dx, dy, dyaw (a delta from the last odometry pose, or a special value)
 //     kScan:  dt, seq step, beams, room size, angle choice, range limits, sensor pose, sweep,
@@ -163,14 +166,35 @@ class Script {
 
   void Run() {
     const uint8_t mode = r_.U8();
-    const bool pose_graph = mode & 1;
+    const bool odom_only = mode & 8;
+    const bool pose_graph = !odom_only && (mode & 1);
     const bool deferred = mode & 2;
     const bool imu = mode & 4;
     auto bus_or = omni::bus::Bus::Create("memq://");
     OMNI_FUZZ_CHECK(bus_or.ok());
     bus_ = std::move(*bus_or);
     Observer observer(bus_.get(), pose_graph ? "PG" : "RBPF");
-    if (pose_graph) {
+    if (odom_only) {
+      // odom_mapper's process wires its library to the bus this way (host/odom_mapper/main.cc).
+      odom_ =
+          std::make_unique<omni::odom_mapper::OdomMapper>(omni::odom_mapper::OdomMapperOptions{});
+      bus_->Subscribe<omni::odometry_t>("WHEEL_ODOM", [this](const omni::odometry_t& m, int64_t) {
+        (void)odom_->AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad));
+      });
+      bus_->Subscribe<omni::laser_scan_t>(
+          "LIDAR_SCAN", [this](const omni::laser_scan_t& m, int64_t) {
+            omni::odom_mapper::Scan s;
+            s.utime = m.utime;
+            s.seq = m.seq;
+            s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
+            s.angle_min_rad = m.angle_min_rad;
+            s.angle_increment_rad = m.angle_increment_rad;
+            s.range_max_m = m.range_max_m;
+            s.scan_time_s = omni::bus::SweepTime(m.scan_time_s);
+            s.ranges_m = m.ranges_m;
+            (void)odom_->AddScan(s);
+          });
+    } else if (pose_graph) {
       omni::pgm::PoseGraphSlamOptions slam;
       slam.num_threads = 1;
       slam.loop.num_threads = 1;
@@ -210,7 +234,11 @@ class Script {
       }
       Pump();
     }
-    if (pg_) {
+    if (odom_) {
+      const auto& c = odom_->counters();
+      OMNI_FUZZ_CHECK(c.scans_mapped <= c.scans_in && c.odom_invalid <= c.odom_in);
+      CheckMap(odom_->Map());
+    } else if (pg_) {
       pg_->Flush();
       Pump();
       for (const auto& p : pg_->slam().Trajectory())
@@ -329,7 +357,7 @@ class Script {
     if (pg_) {
       pg_->Tick();
       (void)pg_->ProcessReady(ready);
-    } else {
+    } else if (rbpf_) {
       rbpf_->Tick();
       (void)rbpf_->ProcessReady(ready);
     }
@@ -340,6 +368,7 @@ class Script {
   std::unique_ptr<omni::bus::Bus> bus_;
   std::unique_ptr<omni::pgm::PoseGraphNode> pg_;
   std::unique_ptr<omni::rbpf::RbpfNode> rbpf_;
+  std::unique_ptr<omni::odom_mapper::OdomMapper> odom_;
   int64_t utime_ = 1000000;
   int64_t seq_ = 0, odom_seq_ = 0, imu_seq_ = 0;
   int scans_ = 0;
@@ -413,6 +442,7 @@ std::string Drive(uint8_t mode, int steps) {
 
 void omni::fuzz::Seeds(SeedList* seeds) {
   for (uint8_t mode = 0; mode < 8; ++mode) seeds->Add(Drive(mode, 24));
+  seeds->Add(Drive(8, 24));  // odom_mapper
   // A garbled message on each channel between two scans.
   std::string junk = Drive(0, 6);
   for (uint8_t channel = 0; channel < 3; ++channel) {
