@@ -63,8 +63,19 @@ class Reader {
   bool empty() const { return pos_ >= size_; }
   size_t remaining() const { return pos_ < size_ ? size_ - pos_ : 0; }
   uint8_t U8() { return pos_ < size_ ? data_[pos_++] : 0; }
-  uint16_t U16() { return static_cast<uint16_t>(U8() | (U8() << 8)); }
-  uint32_t U32() { return U16() | (static_cast<uint32_t>(U16()) << 16); }
+  // Little-endian. Each read is its own statement: the operands of `|` are unsequenced, so
+  // `U8() | (U8() << 8)` read the bytes in either order, and GCC's sanitizer build and its
+  // plain build disagreed on what an input meant.
+  uint16_t U16() {
+    const uint16_t lo = U8();
+    const uint16_t hi = U8();
+    return static_cast<uint16_t>(lo | (hi << 8));
+  }
+  uint32_t U32() {
+    const uint32_t lo = U16();
+    const uint32_t hi = U16();
+    return lo | (hi << 16);
+  }
   // The next `n` bytes (fewer at the end).
   std::string Bytes(size_t n) {
     n = n < remaining() ? n : remaining();

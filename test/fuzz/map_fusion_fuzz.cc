@@ -74,7 +74,8 @@ omni::occupancy_grid_t Grid(omni::fuzz::Reader& r, int index) {
   g.encoding = omni::occupancy_grid_t::ENCODING_RAW;
   // Cells: each input byte is one cell (unknown, free, occupied, or any value as sent), a run
   // of the input's cells repeated to fill the grid.
-  const std::string cells = r.Bytes(static_cast<size_t>(r.U16() % 2048));
+  const size_t run = r.U16() % 2048;
+  const std::string cells = r.Bytes(run);
   g.data.resize(static_cast<size_t>(g.num_cells));
   for (size_t i = 0; i < g.data.size(); ++i) {
     const uint8_t c = cells.empty() ? 0 : static_cast<uint8_t>(cells[i % cells.size()]);

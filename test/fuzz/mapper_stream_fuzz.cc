@@ -58,8 +58,10 @@ double Value(omni::fuzz::Reader& r, double scale) {
       return std::numeric_limits<double>::infinity();
     case 252:
       return -std::numeric_limits<double>::infinity();
-    case 253:
-      return (r.U8() & 1 ? -1 : 1) * std::pow(10.0, r.U8() % 40 * 8);  // 1 .. 1e312 (inf)
+    case 253: {
+      const double sign = r.U8() & 1 ? -1 : 1;
+      return sign * std::pow(10.0, r.U8() % 40 * 8);  // 1 .. 1e312 (inf)
+    }
     case 254:
       return std::numeric_limits<double>::denorm_min();
     case 255:
