@@ -53,7 +53,8 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
   // A submap no lidar sees (keyframe estimates gone astray): an empty field, so no match, rather
   // than an allocation of whatever size the points span.
   const Eigen::Vector2d cells = (hi - lo + Eigen::Vector2d::Constant(2 * o.margin_m)) / res_;
-  if (!finite || !cells.allFinite() || cells.x() * cells.y() > static_cast<double>(kMaxFieldCells)) {
+  if (!finite || !cells.allFinite() ||
+      cells.x() * cells.y() > static_cast<double>(kMaxFieldCells)) {
     points_.clear();
     return;
   }
