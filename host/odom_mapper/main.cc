@@ -17,6 +17,7 @@
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/odom_mapper/odom_mapper.h"
+#include "omni/odom_mapper/scan_message.h"
 #include "omni/odometry_t.hpp"
 
 namespace {
@@ -76,16 +77,7 @@ int main(int argc, char** argv) {
     if (!mapper.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad))) ++bus.counters().drops;
   });
   bus.Subscribe<omni::laser_scan_t>(opt.scan_channel, [&](const omni::laser_scan_t& m, int64_t) {
-    omni::odom_mapper::Scan s;
-    s.utime = m.utime;
-    s.seq = m.seq;
-    s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-    s.angle_min_rad = m.angle_min_rad;
-    s.angle_increment_rad = m.angle_increment_rad;
-    s.range_max_m = m.range_max_m;
-    s.scan_time_s = omni::bus::SweepTime(m.scan_time_s);
-    s.ranges_m = m.ranges_m;
-    if (!mapper.AddScan(s)) ++bus.counters().drops;
+    if (!mapper.AddScan(omni::odom_mapper::ScanFromMessage(m))) ++bus.counters().drops;
   });
   omni::bus::Heartbeat hb(&bus, "odom_mapper", &clock);
   const auto& c = mapper.counters();

@@ -23,6 +23,7 @@
 #include "omni/laser_scan_t.hpp"
 #include "omni/occupancy_grid_t.hpp"
 #include "omni/odom_mapper/odom_mapper.h"
+#include "omni/odom_mapper/scan_message.h"
 #include "omni/odometry_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "omni/pose_graph_mapper/pose_graph_node.h"
@@ -185,16 +186,7 @@ class Script {
       });
       bus_->Subscribe<omni::laser_scan_t>(
           "LIDAR_SCAN", [this](const omni::laser_scan_t& m, int64_t) {
-            omni::odom_mapper::Scan s;
-            s.utime = m.utime;
-            s.seq = m.seq;
-            s.sensor_in_base = omni::Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
-            s.angle_min_rad = m.angle_min_rad;
-            s.angle_increment_rad = m.angle_increment_rad;
-            s.range_max_m = m.range_max_m;
-            s.scan_time_s = omni::bus::SweepTime(m.scan_time_s);
-            s.ranges_m = m.ranges_m;
-            (void)odom_->AddScan(s);
+            (void)odom_->AddScan(omni::odom_mapper::ScanFromMessage(m));
           });
     } else if (pose_graph) {
       omni::pgm::PoseGraphSlamOptions slam;
