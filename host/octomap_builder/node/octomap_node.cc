@@ -5,6 +5,7 @@
 
 #include "omni/bus/convert.h"
 #include "omni/common/log.h"
+#include "omni/common/scan_checks.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/grid.h"
 #include "omni/octomap_builder/depth_io.h"
@@ -57,10 +58,12 @@ Result<std::vector<std::pair<int64_t, Pose2>>> FromTrajectoryMessage(const omni:
   for (size_t i = 0; i < n; ++i) {
     // A NaN pose would re-pose keyframes into NaN points: the whole message is refused (and
     // counted as a rejected trajectory), the next one replaces it.
-    if (!std::isfinite(m.x_m[i]) || !std::isfinite(m.y_m[i]) || !std::isfinite(m.yaw_rad[i]))
+    const Pose2 p(m.x_m[i], m.y_m[i], m.yaw_rad[i]);
+    if (!PlausibleOdometryPose(p))
       return MakeError(ErrorCode::kInvalidArgument,
-                       "trajectory message: pose " + std::to_string(i) + " is not finite");
-    poses.emplace_back(m.pose_utime[i], Pose2(m.x_m[i], m.y_m[i], m.yaw_rad[i]));
+                       "trajectory message: pose " + std::to_string(i) +
+                           " is not finite or beyond 1000 km / 1e6 rad");
+    poses.emplace_back(m.pose_utime[i], p);
   }
   return poses;
 }
@@ -98,11 +101,8 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
       pipeline_(options),
       heartbeat_(bus, "octomap_builder", clock,
                  static_cast<int64_t>(options.heartbeat_period_s * 1e6)) {
+  // A NaN or absurd pose is refused and counted by the poser (poses_invalid).
   bus_->Subscribe<omni::pose2d_t>(options_.PoseChannel(), [this](const omni::pose2d_t& m, int64_t) {
-    if (!std::isfinite(m.x_m) || !std::isfinite(m.y_m) || !std::isfinite(m.yaw_rad)) {
-      ++bus_->counters().drops;
-      return;
-    }
     pipeline_.AddPose(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
   });
   bus_->Subscribe<omni::depth_image_t>(
@@ -155,6 +155,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("frames_dropped_queue", [&pc] { return pc.frames_dropped_queue; });
   heartbeat_.AddCounter("out_of_order",
                         [&pc] { return pc.frames_out_of_order + pc.poses_out_of_order; });
+  heartbeat_.AddCounter("poses_invalid", [&pc] { return pc.poses_invalid; });
   heartbeat_.AddCounter("time_rebases",
                         [&pc, &c] { return pc.time_rebases + c.color_time_rebases; });
   heartbeat_.AddCounter("frames_dropped_future", [&pc] { return pc.frames_dropped_future; });

@@ -195,6 +195,14 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
                                         const std::vector<uint32_t>* colors) {
   FrameStats st;
   st.points = points_camera.size();
+  // OctoMap keys a coordinate with a plain cast to int, undefined beyond the int range (1e8 m at
+  // 5 cm). A camera outside the tree's key range (about +-1638 m at 5 cm) cannot map anything,
+  // and its points could be that far out: such a frame is returned with no keys (the pipeline
+  // counts it as out of range). Points within max range of a camera inside stay far from it.
+  const double half_extent = tree_->getResolution() * (1 << (tree_->getTreeDepth() - 1));
+  if (!camera_in_map.matrix().allFinite() ||
+      camera_in_map.translation().cwiseAbs().maxCoeff() >= half_extent)
+    return st;
   const Eigen::Isometry3f t = camera_in_map.cast<float>();
   std::vector<Eigen::Vector3f> world;
   world.reserve(points_camera.size());
@@ -211,9 +219,9 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
     for (const auto& p : world) {
       // Only points the octree can hold (a pose far out of the map puts a frame outside its key
       // range), and inside the cloud's own key span (no wrapping, no undefined cast).
-      if (!p.allFinite() || !tree_->coordToKeyChecked(p.x(), p.y(), p.z(), key) ||
-          !(std::abs(p.x() * inv) < kHalfSpan && std::abs(p.y() * inv) < kHalfSpan &&
-            std::abs(p.z() * inv) < kHalfSpan))
+      if (!(std::abs(p.x() * inv) < kHalfSpan && std::abs(p.y() * inv) < kHalfSpan &&
+            std::abs(p.z() * inv) < kHalfSpan) ||
+          !tree_->coordToKeyChecked(p.x(), p.y(), p.z(), key))
         continue;
       const auto ix =
           static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() * inv)) + (1 << 20));
@@ -473,13 +481,13 @@ bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses
   size_t first = 0;  // the poses after the last step back in time
   for (size_t i = 0; ok && i < poses.size(); ++i) {
     const Pose2& p = poses[i].second;
-    ok = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta) && poses[i].first > 0;
+    ok = PlausibleOdometryPose(p) && poses[i].first > 0;
     if (i > 0 && poses[i].first <= poses[i - 1].first) first = i;
   }
   if (!ok) {
     ++counters_.trajectories_invalid;
     last_error_ = "trajectory of " + std::to_string(poses.size()) +
-                  " poses: empty, not finite or a stamp not after 1970; ignored";
+                  " poses: empty, not finite, beyond 1000 km or a stamp not after 1970; ignored";
     return false;
   }
   if (first > 0) {

@@ -67,6 +67,12 @@ TEST(DepthMessage, AbsurdIntrinsicsAndNonFiniteTrajectoriesAreRefused) {
   auto poses = octo::FromTrajectoryMessage(traj, "map");
   ASSERT_FALSE(poses.ok());
   EXPECT_NE(poses.error().message.find("pose 1 is not finite"), std::string::npos);
+  traj.y_m[1] = 0.0;
+  traj.x_m[0] = -2e6;  // finite, but 2000 km from the map's origin
+  poses = octo::FromTrajectoryMessage(traj, "map");
+  ASSERT_FALSE(poses.ok());
+  EXPECT_NE(poses.error().message.find("pose 0 is not finite or beyond 1000 km"), std::string::npos)
+      << poses.error().message;
 }
 
 }  // namespace

@@ -405,7 +405,7 @@ struct DepthOnlyPipeline {
   DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
 };
 
-// A pose 10^7 m out puts every point of the frame outside the octree's key range (about
+// A pose 10^5 m out puts every point of the frame outside the octree's key range (about
 // +-1638 m at 5 cm): nothing is mapped, and the frame is counted as such, not as inserted.
 TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   DepthOnlyPipeline f;
@@ -417,8 +417,8 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   EXPECT_EQ(p.Process(t0 + 100000), 1);
   const size_t cloud = p.builder().AggregateCloud().size();
   EXPECT_GT(cloud, 0u);
-  p.AddPose(t0 + 200000, Pose2(1e7, 0, 0));
-  p.AddPose(t0 + 300000, Pose2(1e7, 0, 0));
+  p.AddPose(t0 + 200000, Pose2(1e5, 0, 0));
+  p.AddPose(t0 + 300000, Pose2(1e5, 0, 0));
   d.utime = t0 + 250000;
   p.AddDepth(d);
   EXPECT_EQ(p.Process(t0 + 300000), 0);
@@ -426,6 +426,27 @@ TEST(OctomapPipeline, AFrameOutsideTheKeyRangeIsCountedNotInserted) {
   EXPECT_EQ(p.counters().frames_out_of_range, 1);
   EXPECT_NE(p.last_error().find("key range"), std::string::npos) << p.last_error();
   EXPECT_EQ(p.builder().AggregateCloud().size(), cloud);  // nor is it in the kept cloud
+}
+
+// A pose no SLAM could give (NaN, 1e7 m, 1e20 m, a heading of 1e9 rad) is refused and
+// counted, never interpolated into a camera pose: the frame waits for real poses around it.
+TEST(OctomapPipeline, AbsurdPosesAreRefusedAndCounted) {
+  DepthOnlyPipeline f;
+  auto& [p, t0, d] = f;
+  p.AddPose(t0, Pose2(0, 0, 0));
+  p.AddPose(t0 + 10000, Pose2(std::nan(""), 0, 0));
+  p.AddPose(t0 + 20000, Pose2(1e7, 0, 0));
+  p.AddPose(t0 + 30000, Pose2(0, -1e20, 0));
+  p.AddPose(t0 + 40000, Pose2(0, 0, 1e9));
+  d.utime = t0 + 50000;
+  p.AddDepth(d);
+  EXPECT_EQ(p.Process(t0 + 60000), 0);  // no pose after the frame yet
+  EXPECT_EQ(p.poser_counters().poses_invalid, 4);
+  EXPECT_EQ(p.poser_counters().poses_out_of_order, 0);
+  p.AddPose(t0 + 100000, Pose2(0.1, 0, 0));
+  EXPECT_EQ(p.Process(t0 + 100000), 1);
+  EXPECT_EQ(p.counters().frames_inserted, 1);
+  EXPECT_EQ(p.counters().frames_out_of_range, 0);
 }
 
 // A depth frame stamped an hour ahead must not become the pipeline's `now`: the frame before

@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 #include <tuple>
@@ -227,6 +228,38 @@ TEST(OctomapBuilder, PlaneAtKnownDistance) {
       EXPECT_GE(it.getX(), slab - 1e-6);
       EXPECT_LE(it.getX(), slab + 0.05 + 1e-6);
     }
+}
+
+// A camera pose far outside the octree (a corrupt pose file, a foreign POSE_* message at
+// 1e20 m) maps nothing and is reported as such. OctoMap turns a coordinate into a key with a
+// plain cast to int, which is undefined beyond the int range: the sanitizer build
+// (float-cast-overflow) fails this test if such a pose reaches it.
+TEST(OctomapBuilder, ACameraFarOutsideTheTreeMapsNothing) {
+  OctomapBuilderOptions opt;
+  opt.resolution_m = 0.05;
+  opt.max_range_m = 5.0;
+  opt.keep_cloud = true;
+  OctomapBuilder builder(opt);
+  DepthImage im;
+  im.width = 16;
+  im.height = 12;
+  im.intrinsics = {12.5, 12.5, 7.5, 5.5, 1000.0};
+  im.data.assign(static_cast<size_t>(im.width) * im.height, 2000);
+  for (const double x : {2000.0, 1e6, 1e12, 1e20, 1e300, std::numeric_limits<double>::infinity(),
+                         std::numeric_limits<double>::quiet_NaN()}) {
+    Eigen::Isometry3d cam = CameraInMap(Pose2(0, 0, 0), opt.mount);
+    cam.translation().x() = x;
+    auto st = builder.InsertDepth(im, cam);
+    ASSERT_TRUE(st.ok()) << x << ": " << st.error().message;
+    EXPECT_EQ(st->points, static_cast<size_t>(im.width * im.height)) << x;
+    EXPECT_EQ(st->insert.free_keys + st->insert.occupied_keys, 0u) << x;
+  }
+  EXPECT_EQ(builder.tree().size(), 0u);
+  EXPECT_TRUE(builder.AggregateCloud().empty());
+  // A camera inside the tree still maps.
+  auto st = builder.InsertDepth(im, CameraInMap(Pose2(1000, -1000, 0), opt.mount));
+  ASSERT_TRUE(st.ok());
+  EXPECT_GT(st->insert.occupied_keys, 0u);
 }
 
 }  // namespace

@@ -236,9 +236,12 @@ TEST(ReposePipeline, BadTrajectoriesAreCountedAndChangeNothing) {
   zero[0].first = 0;
   EXPECT_FALSE(p.AddTrajectory(zero));
   EXPECT_FALSE(p.AddTrajectory({}));
+  auto far = Shifted(21, 0.5);  // finite, but no keyframe could be re-posed 1e20 m out
+  far[7].second.x = 1e20;
+  EXPECT_FALSE(p.AddTrajectory(far));
   p.Process(p.newest_utime());
-  EXPECT_EQ(p.counters().trajectories_in, 3);
-  EXPECT_EQ(p.counters().trajectories_invalid, 3);
+  EXPECT_EQ(p.counters().trajectories_in, 4);
+  EXPECT_EQ(p.counters().trajectories_invalid, 4);
   EXPECT_EQ(p.counters().rebuilds_started, 0);
   EXPECT_NE(p.last_error().find("not finite"), std::string::npos) << p.last_error();
   // Without the option, trajectories are not even taken.

@@ -20,6 +20,7 @@
 #include <Eigen/Geometry>
 
 #include "omni/common/geometry.h"
+#include "omni/common/scan_checks.h"
 #include "omni/common/stamp_order.h"
 
 namespace omni::octo {
@@ -56,6 +57,8 @@ struct FramePoserCounters {
   int64_t frames_out_of_order = 0;     // frame older than the previous frame: rejected
   int64_t poses_in = 0;
   int64_t poses_out_of_order = 0;  // pose older than the newest pose: rejected
+  // Not finite, or beyond 1000 km / a million radians (PlausibleOdometryPose): rejected.
+  int64_t poses_invalid = 0;
   // Poses or frames whose newest stamp was followed by a run of older, in-order ones: it was
   // stamped in the future (or the clock went back); dropped, the run taken (stamp_order.h).
   int64_t time_rebases = 0;
@@ -75,9 +78,13 @@ class FramePoser {
   explicit FramePoser(const FramePoserOptions& options)
       : options_(options), poses_(options.pose_capacity) {}
 
-  // Returns false (and counts) for a pose older than the newest one.
+  // Returns false (and counts) for a pose older than the newest one or one no SLAM could give.
   bool AddPose(int64_t utime, const Pose2& pose) {
     ++counters_.poses_in;
+    if (!PlausibleOdometryPose(pose)) {
+      ++counters_.poses_invalid;
+      return false;
+    }
     const int64_t rebases = poses_.rebases();
     if (!poses_.Insert(utime, pose)) {
       ++counters_.poses_out_of_order;

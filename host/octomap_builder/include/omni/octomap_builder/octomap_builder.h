@@ -193,7 +193,7 @@ class OctomapPipeline {
                                      // uncoloured, message in last_error()
     // Repose option only:
     int64_t trajectories_in = 0;
-    int64_t trajectories_invalid = 0;    // empty, not finite or a stamp <= 0: ignored
+    int64_t trajectories_invalid = 0;    // empty, not finite, absurd or a stamp <= 0: ignored
     int64_t trajectories_truncated = 0;  // a step back in time: only the poses after it taken
     int64_t keyframes = 0;               // kept now
     int64_t keyframe_points = 0;         // their points, after thinning
