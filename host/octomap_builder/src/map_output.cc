@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <iomanip>
 #include <limits>
 #include <sstream>
 #include <string_view>
@@ -18,10 +19,18 @@ namespace omni::octo {
 
 std::string SerializeTree(const octomap::OcTree& tree, bool binary) {
   std::ostringstream s(std::ios::binary);
-  if (binary)
-    tree.writeBinaryConst(s);
-  else
+  if (binary) {
+    // The .bt header, then OctoMap's own node data. (OctoMap's writeBinaryConst writes the same
+    // form but then prints " done." on stderr, which put a line in the node's log for every
+    // OCTOMAP message and every save.) The first line is what readers look for; lines starting
+    // with '#' are comments; the resolution is written with every digit a double holds.
+    s << "# Octomap OcTree binary file\n# written by omni\nid " << tree.getTreeType() << "\nsize "
+      << tree.size() << "\nres " << std::setprecision(std::numeric_limits<double>::max_digits10)
+      << tree.getResolution() << "\ndata\n";
+    tree.writeBinaryData(s);
+  } else {
     tree.write(s);
+  }
   return s.str();
 }
 

@@ -77,6 +77,41 @@ TEST(MapOutput, SavedTreesLoadBackWithTheSameLeaves) {
   }
 }
 
+// The .bt form is written without OctoMap's writeBinaryConst (which prints " done." on stderr
+// after every tree: a log line per OCTOMAP message). It must stay what OctoMap writes: the same
+// node data after the header, read back by OctoMap's own reader into the same tree, with the
+// resolution exact; and nothing goes to stderr.
+TEST(MapOutput, BinaryTreesAreOctomapsFormWithoutItsStderrLine) {
+  const octomap::OcTree t = MakeTree();
+  testing::internal::CaptureStderr();
+  const std::string ours = SerializeTree(t, true);
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  std::ostringstream theirs_stream(std::ios::binary);
+  testing::internal::CaptureStderr();
+  ASSERT_TRUE(t.writeBinaryConst(theirs_stream));
+  (void)testing::internal::GetCapturedStderr();
+  const std::string theirs = theirs_stream.str();
+  const size_t ours_data = ours.find("\ndata\n"), theirs_data = theirs.find("\ndata\n");
+  ASSERT_NE(ours_data, std::string::npos);
+  ASSERT_NE(theirs_data, std::string::npos);
+  EXPECT_EQ(ours.substr(ours_data), theirs.substr(theirs_data));
+  EXPECT_EQ(ours.substr(0, ours.find('\n')), theirs.substr(0, theirs.find('\n')));
+  octomap::OcTree back(0.5);
+  std::istringstream in(ours, std::ios::binary);
+  testing::internal::CaptureStderr();
+  ASSERT_TRUE(back.readBinary(in));
+  (void)testing::internal::GetCapturedStderr();
+  EXPECT_EQ(back.getResolution(), t.getResolution());
+  EXPECT_EQ(back.size(), t.size());
+  EXPECT_EQ(Occupancy(back), Occupancy(t));
+  // A resolution with more digits than OctoMap's default 6 comes back exactly.
+  octomap::OcTree odd(1.0 / 30);
+  odd.updateNode(0.5, 0.5, 0.5, true);
+  auto parsed = ParseTree(SerializeTree(odd, true), true, "odd");
+  ASSERT_TRUE(parsed.ok()) << parsed.error().message;
+  EXPECT_EQ((*parsed)->getResolution(), 1.0 / 30);
+}
+
 // Found by fuzzing (test/fuzz/bus_messages_fuzz.cc): the byte check passed trees OctoMap then
 // refused (a header first line it does not know, a size that disagrees with the nodes), so
 // `octomap extract` could pick such a tree over an older readable one. The check now says why.
