@@ -54,7 +54,8 @@ bool ConfigReader::Has(const std::string& key) const {
 std::vector<std::string> ConfigReader::Keys() const {
   std::vector<std::string> out;
   if (!node_.IsMap()) return out;
-  for (const auto& kv : node_) out.push_back(kv.first.as<std::string>());
+  for (const auto& kv : node_)
+    if (kv.first.IsScalar()) out.push_back(kv.first.Scalar());  // others: an error in Finish()
   return out;
 }
 
@@ -87,7 +88,14 @@ std::string ConfigReader::Dump(const YAML::Node& n) {
 void ConfigReader::CollectUnknown(const YAML::Node& n, const std::string& path) {
   if (!n.IsMap()) return;
   for (const auto& kv : n) {
-    const std::string key = kv.first.as<std::string>();
+    // YAML allows a list or a map as a key; no option has such a name.
+    if (!kv.first.IsScalar()) {
+      state_->errors.push_back(Where(kv.first) + ": key '" + Dump(kv.first) + "'" +
+                               (path.empty() ? "" : " in '" + path + "'") +
+                               " is not a name (a list or map used as a key)");
+      continue;
+    }
+    const std::string key = kv.first.Scalar();
     const std::string full = path.empty() ? key : path + "." + key;
     if (!state_->used.count(full)) {
       state_->errors.push_back(Where(kv.first) + ": key '" + full +

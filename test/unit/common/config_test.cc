@@ -101,5 +101,25 @@ TEST(Config, MissingFileAndBadYaml) {
   EXPECT_NE(bad.error().message.find("broken.yaml:"), std::string::npos) << bad.error().message;
 }
 
+// YAML lets a key be a list or a map ("? [a, b]\n: 1", "{[1]: 2}"). No option is named that way:
+// it is an error naming the line, like any unknown key, never an exception out of Finish() or
+// Keys().
+TEST(Config, AKeyThatIsNotANameIsAnError) {
+  Options o;
+  for (const char* yaml : {"particles: 3\n? [a, b]\n: 1\n", "particles: 3\n{x: 1}: 2\n",
+                           "particles: 3\nmotion:\n  ? [alpha]\n  : 1\n"}) {
+    Status s = Status::Ok();
+    EXPECT_NO_THROW(s = Load(yaml, &o)) << yaml;
+    ASSERT_FALSE(s.ok()) << yaml;
+    EXPECT_NE(s.message().find("mapper.yaml:"), std::string::npos) << s.message();
+    EXPECT_NE(s.message().find("not a name"), std::string::npos) << s.message();
+  }
+  auto r = ConfigReader::FromString("one: 1\n[two]: 2\nthree: 3\n", "procs.yaml");
+  ASSERT_TRUE(r.ok());
+  std::vector<std::string> keys;
+  EXPECT_NO_THROW(keys = r->Keys());
+  EXPECT_EQ(keys, (std::vector<std::string>{"one", "three"}));
+}
+
 }  // namespace
 }  // namespace omni
