@@ -123,13 +123,18 @@ Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, B
                           PoseGraphNodeOptions* node) {
   auto r = ConfigReader::FromFile(path);
   if (!r.ok()) return r.error();
-  ConfigReader b = r->Section("batch");
+  return LoadSlamConfig(*r, slam, batch, node);
+}
+
+Status LoadSlamConfig(ConfigReader& r, PoseGraphSlamOptions* slam, BatchOptions* batch,
+                      PoseGraphNodeOptions* node) {
+  ConfigReader b = r.Section("batch");
   auto bo = BatchOptions::Load(b);
-  ConfigReader s = r->Section("slam");
+  ConfigReader s = r.Section("slam");
   auto so = PoseGraphSlamOptions::Load(s);
-  ConfigReader n = r->Section("node");
+  ConfigReader n = r.Section("node");
   auto no = PoseGraphNodeOptions::Load(n);
-  if (Status st = r->Finish(); !st.ok()) return st;
+  if (Status st = r.Finish(); !st.ok()) return st;
   if (!bo.ok()) return bo.error();
   if (!so.ok()) return so.error();
   if (!no.ok()) return no.error();

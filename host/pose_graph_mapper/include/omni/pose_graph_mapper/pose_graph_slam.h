@@ -143,6 +143,9 @@ struct PoseGraphSlamOptions {
 // returned when `node` is given). Unknown keys anywhere are errors naming file, line and key.
 Status LoadSlamConfigFile(const std::string& path, PoseGraphSlamOptions* slam, BatchOptions* batch,
                           PoseGraphNodeOptions* node = nullptr);
+// The same from a reader already made (e.g. ConfigReader::FromString).
+Status LoadSlamConfig(ConfigReader& reader, PoseGraphSlamOptions* slam, BatchOptions* batch,
+                      PoseGraphNodeOptions* node = nullptr);
 
 struct SlamCounters {
   int64_t scans_in = 0, scans_used = 0;
