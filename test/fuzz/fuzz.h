@@ -92,4 +92,12 @@ class Reader {
   size_t pos_ = 0;
 };
 
+// Numbers for the scripted stream targets (mapper_stream, octomap_stream), read off the script:
+// a value, mostly `scale` times a signed 16-bit fraction; codes 250-255 give NaN, +-inf, a power
+// of ten from 1 to 1e312 (inf), the smallest denormal and 0.
+double ScriptValue(Reader& r, double scale);
+// A clock step in microseconds: mostly 0-255 ms forward; codes 250-254 step an hour back or
+// forward, up to 255 ms back, or to half the int64 maximum or minimum.
+int64_t ScriptTimeStep(Reader& r, int64_t now);
+
 }  // namespace omni::fuzz

@@ -1,7 +1,10 @@
-// Seed loading shared by every fuzz target (both drivers).
+// Seed loading shared by every fuzz target (both drivers), and the script numbers of the stream
+// targets.
 #include <zlib.h>
 
+#include <cmath>
 #include <cstdlib>
+#include <limits>
 
 #include "fuzz.h"
 
@@ -45,6 +48,46 @@ bool SeedList::AddDatasetLines(const std::string& relative_path, size_t max_byte
   const size_t end = text.rfind('\n');
   text.resize(end == std::string::npos ? 0 : end + 1);
   return true;
+}
+
+double ScriptValue(Reader& r, double scale) {
+  const uint8_t code = r.U8();
+  switch (code) {
+    case 250:
+      return std::numeric_limits<double>::quiet_NaN();
+    case 251:
+      return std::numeric_limits<double>::infinity();
+    case 252:
+      return -std::numeric_limits<double>::infinity();
+    case 253: {
+      const double sign = r.U8() & 1 ? -1 : 1;
+      return sign * std::pow(10.0, r.U8() % 40 * 8);  // 1 .. 1e312 (inf)
+    }
+    case 254:
+      return std::numeric_limits<double>::denorm_min();
+    case 255:
+      return 0.0;
+    default:
+      return scale * static_cast<int16_t>(r.U16()) / 32768.0;
+  }
+}
+
+int64_t ScriptTimeStep(Reader& r, int64_t now) {
+  const uint8_t code = r.U8();
+  switch (code) {
+    case 250:
+      return -3600LL * 1000000;
+    case 251:
+      return 3600LL * 1000000;
+    case 252:
+      return -static_cast<int64_t>(r.U8()) * 1000;
+    case 253:
+      return std::numeric_limits<int64_t>::max() / 2 - now;
+    case 254:
+      return std::numeric_limits<int64_t>::min() / 2 - now;
+    default:
+      return static_cast<int64_t>(code) * 1000;
+  }
 }
 
 }  // namespace omni::fuzz

@@ -32,6 +32,9 @@
 
 namespace {
 
+using omni::fuzz::ScriptTimeStep;
+using omni::fuzz::ScriptValue;
+
 // Script layout (docs/fuzzing.md):
 //   byte 0: bit 0 the mapper (0 RBPF, 1 pose graph), bit 1 deferred mode, bit 2 IMU fusion,
 //           bit 3 odom_mapper's library instead (wired as its process wires it)
@@ -47,49 +50,6 @@ enum Op : uint8_t { kOdom, kScan, kImu, kJunk, kTick, kOps };
 constexpr int kMaxRecords = 160;
 constexpr int kMaxScans = 40;
 constexpr int kMaxBeams = 360;
-
-// A number from the script: mostly `scale` times a signed 16-bit fraction; a few codes are the
-// values that break arithmetic.
-double Value(omni::fuzz::Reader& r, double scale) {
-  const uint8_t code = r.U8();
-  switch (code) {
-    case 250:
-      return std::numeric_limits<double>::quiet_NaN();
-    case 251:
-      return std::numeric_limits<double>::infinity();
-    case 252:
-      return -std::numeric_limits<double>::infinity();
-    case 253: {
-      const double sign = r.U8() & 1 ? -1 : 1;
-      return sign * std::pow(10.0, r.U8() % 40 * 8);  // 1 .. 1e312 (inf)
-    }
-    case 254:
-      return std::numeric_limits<double>::denorm_min();
-    case 255:
-      return 0.0;
-    default:
-      return scale * static_cast<int16_t>(r.U16()) / 32768.0;
-  }
-}
-
-// A time step: mostly 0-255 ms forward; a few codes step back, jump an hour or hit the ends.
-int64_t TimeStep(omni::fuzz::Reader& r, int64_t now) {
-  const uint8_t code = r.U8();
-  switch (code) {
-    case 250:
-      return -3600LL * 1000000;
-    case 251:
-      return 3600LL * 1000000;
-    case 252:
-      return -static_cast<int64_t>(r.U8()) * 1000;
-    case 253:
-      return std::numeric_limits<int64_t>::max() / 2 - now;
-    case 254:
-      return std::numeric_limits<int64_t>::min() / 2 - now;
-    default:
-      return static_cast<int64_t>(code) * 1000;
-  }
-}
 
 float Special(uint8_t code, float normal) {
   switch (code % 8) {
@@ -256,7 +216,7 @@ class Script {
   }
 
   void Advance() {
-    const int64_t step = TimeStep(r_, utime_);
+    const int64_t step = ScriptTimeStep(r_, utime_);
     utime_ += step;
   }
 
@@ -269,9 +229,9 @@ class Script {
     m.child_frame = "base";
     // Mostly a step from the last pose (up to 0.3 m, 0.3 rad); a special value is taken as is
     // and the next step starts from it.
-    x_ += Value(r_, 0.3);
-    y_ += Value(r_, 0.3);
-    yaw_ += Value(r_, 0.3);
+    x_ += ScriptValue(r_, 0.3);
+    y_ += ScriptValue(r_, 0.3);
+    yaw_ += ScriptValue(r_, 0.3);
     m.x_m = x_;
     m.y_m = y_;
     m.yaw_rad = yaw_;
@@ -304,9 +264,9 @@ class Script {
     m.range_max_m = limits % 3 == 1 ? Special(r_.U8(), 12.0f) : 12.0f;
     const uint8_t sensor = r_.U8();
     if (sensor % 2 == 1) {
-      m.sensor_x_m = Value(r_, 0.5);
-      m.sensor_y_m = Value(r_, 0.5);
-      m.sensor_yaw_rad = Value(r_, 4.0);
+      m.sensor_x_m = ScriptValue(r_, 0.5);
+      m.sensor_y_m = ScriptValue(r_, 0.5);
+      m.sensor_yaw_rad = ScriptValue(r_, 4.0);
     }
     m.scan_time_s = sensor % 4 >= 2 ? Special(r_.U8(), 0.1f) : 0.0f;
     m.ranges_m.resize(static_cast<size_t>(beams));
@@ -332,7 +292,7 @@ class Script {
     m.seq = imu_seq_++;
     m.frame = "imu";
     m.orientation_wxyz[0] = 1;
-    m.angular_velocity_rad_s[2] = Value(r_, 2.0);
+    m.angular_velocity_rad_s[2] = ScriptValue(r_, 2.0);
     m.magnetic_field_t[0] = m.magnetic_field_t[1] = m.magnetic_field_t[2] = NAN;
     m.temperature_c = NAN;
     bus_->Publish("IMU", m);

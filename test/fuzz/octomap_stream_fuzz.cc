@@ -35,6 +35,9 @@
 
 namespace {
 
+using omni::fuzz::ScriptTimeStep;
+using omni::fuzz::ScriptValue;
+
 // Script layout (docs/fuzzing.md):
 //   byte 0: bit 0 colour, bit 1 re-posing from trajectories, bit 2 the kept cloud, bit 3 the
 //           voxel filter and one ray per voxel
@@ -52,49 +55,6 @@ constexpr int kMaxRecords = 120;
 constexpr int kMaxFrames = 24;
 constexpr int kMaxSide = 32;
 
-// A number from the script: mostly `scale` times a signed 16-bit fraction; a few codes are the
-// values that break arithmetic.
-double Value(omni::fuzz::Reader& r, double scale) {
-  const uint8_t code = r.U8();
-  switch (code) {
-    case 250:
-      return std::numeric_limits<double>::quiet_NaN();
-    case 251:
-      return std::numeric_limits<double>::infinity();
-    case 252:
-      return -std::numeric_limits<double>::infinity();
-    case 253: {
-      const double sign = r.U8() & 1 ? -1 : 1;
-      return sign * std::pow(10.0, r.U8() % 40 * 8);  // 1 .. 1e312 (inf)
-    }
-    case 254:
-      return std::numeric_limits<double>::denorm_min();
-    case 255:
-      return 0.0;
-    default:
-      return scale * static_cast<int16_t>(r.U16()) / 32768.0;
-  }
-}
-
-// A time step: mostly 0-255 ms forward; a few codes step back, jump an hour or hit the ends.
-int64_t TimeStep(omni::fuzz::Reader& r, int64_t now) {
-  const uint8_t code = r.U8();
-  switch (code) {
-    case 250:
-      return -3600LL * 1000000;
-    case 251:
-      return 3600LL * 1000000;
-    case 252:
-      return -static_cast<int64_t>(r.U8()) * 1000;
-    case 253:
-      return std::numeric_limits<int64_t>::max() / 2 - now;
-    case 254:
-      return std::numeric_limits<int64_t>::min() / 2 - now;
-    default:
-      return static_cast<int64_t>(code) * 1000;
-  }
-}
-
 // Intrinsics for a w x h image: mostly a 60° camera; a few codes give what a broken driver or a
 // foreign publisher could send.
 void Intrinsics(omni::fuzz::Reader& r, int w, int h, double* fx, double* fy, double* cx,
@@ -104,16 +64,16 @@ void Intrinsics(omni::fuzz::Reader& r, int w, int h, double* fx, double* fy, dou
   *cy = (h - 1) / 2.0;
   switch (r.U8() % 8) {
     case 0:
-      *fx = Value(r, 100.0);
+      *fx = ScriptValue(r, 100.0);
       break;
     case 1:
-      *fy = Value(r, 100.0);
+      *fy = ScriptValue(r, 100.0);
       break;
     case 2:
-      *cx = Value(r, 1e4);
+      *cx = ScriptValue(r, 1e4);
       break;
     case 3:
-      *cy = Value(r, 1e4);
+      *cy = ScriptValue(r, 1e4);
       break;
     case 4:
       *fx = -*fx;  // a flipped axis
@@ -271,13 +231,13 @@ class Script {
     }
   }
 
-  void Advance() { utime_ += TimeStep(r_, utime_); }
+  void Advance() { utime_ += ScriptTimeStep(r_, utime_); }
 
   void Pose() {
     Advance();
-    x_ += Value(r_, 0.3);
-    y_ += Value(r_, 0.3);
-    yaw_ += Value(r_, 0.3);
+    x_ += ScriptValue(r_, 0.3);
+    y_ += ScriptValue(r_, 0.3);
+    yaw_ += ScriptValue(r_, 0.3);
     omni::pose2d_t m{};
     m.utime = utime_;
     m.frame = "map";
@@ -304,7 +264,7 @@ class Script {
     m.height = 1 + (size / kMaxSide) * 3 % kMaxSide;
     Intrinsics(r_, m.width, m.height, &m.fx, &m.fy, &m.cx, &m.cy);
     const uint8_t scale = r_.U8();
-    m.depth_scale = scale < 250 ? 1000.0 : Value(r_, 5000.0);
+    m.depth_scale = scale < 250 ? 1000.0 : ScriptValue(r_, 5000.0);
     // A wall facing the camera, 0.2-6.6 m away (so some frames lie beyond the range limits).
     const uint16_t wall = static_cast<uint16_t>(200 + r_.U8() * 25);
     std::vector<uint16_t> pixels(static_cast<size_t>(m.width) * m.height, wall);
@@ -354,7 +314,7 @@ class Script {
     // The mapper's whole corrected path: the poses sent so far (the newest `n`), shifted, with
     // one of them replaced by a special value now and then.
     const size_t n = std::min<size_t>(path_.size(), r_.U8() % 65);
-    const double dx = Value(r_, 1.0), dy = Value(r_, 1.0), dyaw = Value(r_, 0.5);
+    const double dx = ScriptValue(r_, 1.0), dy = ScriptValue(r_, 1.0), dyaw = ScriptValue(r_, 0.5);
     omni::trajectory_t t{};
     t.utime = utime_;
     t.frame = r_.U8() % 16 == 0 ? "odom" : "map";
@@ -366,7 +326,7 @@ class Script {
       t.yaw_rad.push_back(path_[i].yaw + dyaw);
     }
     const uint8_t special = r_.U8();
-    if (n > 0 && special % 4 == 0) t.x_m[special % n] = Value(r_, 1e3);
+    if (n > 0 && special % 4 == 0) t.x_m[special % n] = ScriptValue(r_, 1e3);
     if (n > 0 && special % 4 == 1) t.pose_utime[special % n] = -static_cast<int64_t>(special);
     bus_->Publish("TRAJECTORY_RBPF", t);
   }
