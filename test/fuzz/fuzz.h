@@ -92,6 +92,13 @@ class Reader {
   size_t pos_ = 0;
 };
 
+// Appends `v` as Reader::U16 reads it back (little-endian), for seeds written as scripts.
+inline void AppendU16(std::string* s, int v) {
+  const auto u = static_cast<uint16_t>(v);
+  s->push_back(static_cast<char>(u & 0xff));
+  s->push_back(static_cast<char>(u >> 8));
+}
+
 // Numbers for the scripted stream targets (mapper_stream, octomap_stream), read off the script:
 // a value, mostly `scale` times a signed 16-bit fraction; codes 250-255 give NaN, +-inf, a power
 // of ten from 1 to 1e312 (inf), the smallest denormal and 0.

@@ -12,9 +12,9 @@
 
 #include "fuzz.h"
 #include "omni/bus/convert.h"
-#include "omni/common/log.h"
 #include "omni/map_fusion/fusion.h"
 #include "omni/occupancy_grid_t.hpp"
+#include "quiet_logs.h"
 
 namespace {
 
@@ -109,11 +109,7 @@ void CheckFusion(const omni::map_fusion::FusionResult& f,
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  static const bool quiet = [] {
-    omni::SetLogLevel(omni::LogLevel::kError);
-    return true;
-  }();
-  (void)quiet;
+  omni::fuzz::QuietLogs();
   omni::fuzz::Reader r(data, size);
   const int n = 2 + r.U8() % 2;
   std::vector<omni::map_fusion::SourceMap> maps;

@@ -16,7 +16,6 @@
 #include "fuzz.h"
 #include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
-#include "omni/common/log.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/imu_t.hpp"
@@ -29,9 +28,11 @@
 #include "omni/pose_graph_mapper/pose_graph_node.h"
 #include "omni/rbpf_mapper/rbpf_node.h"
 #include "omni/trajectory_t.hpp"
+#include "quiet_logs.h"
 
 namespace {
 
+using omni::fuzz::AppendU16;
 using omni::fuzz::ScriptTimeStep;
 using omni::fuzz::ScriptValue;
 
@@ -332,13 +333,7 @@ class Script {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  // The nodes warn about every refused message; a run of a million inputs would print nothing
-  // else.
-  static const bool quiet = [] {
-    omni::SetLogLevel(omni::LogLevel::kError);
-    return true;
-  }();
-  (void)quiet;
+  omni::fuzz::QuietLogs();
   Script(data, size).Run();
   return 0;
 }
@@ -350,19 +345,15 @@ namespace {
 // IMU sample and a tick every step.
 std::string Drive(uint8_t mode, int steps) {
   std::string s(1, static_cast<char>(mode));
-  auto u16 = [&s](int16_t v) {
-    s += static_cast<char>(static_cast<uint16_t>(v) & 0xff);
-    s += static_cast<char>(static_cast<uint16_t>(v) >> 8);
-  };
   for (int k = 0; k < steps; ++k) {
     s += static_cast<char>(kOdom);
     s += static_cast<char>(40);  // dt 40 ms
     s += static_cast<char>(0);   // dx = 0.3 * v / 32768: a normal value
-    u16(4369);                   // 0.04 m
+    AppendU16(&s, 4369);         // 0.04 m
     s += static_cast<char>(0);
-    u16(0);
+    AppendU16(&s, 0);
     s += static_cast<char>(0);
-    u16(2185);  // 0.02 rad
+    AppendU16(&s, 2185);  // 0.02 rad
     if (k % 2 == 1) {
       s += static_cast<char>(kScan);
       s += static_cast<char>(0);    // same stamp as the odometry
@@ -375,7 +366,7 @@ std::string Drive(uint8_t mode, int steps) {
       s += static_cast<char>(0);                   // sensor at the base, no sweep
       s += static_cast<char>(k % 8 == 1 ? 3 : 0);  // a few NaN/inf/-1 beams now and then
       for (int j = 0; j < (k % 8 == 1 ? 3 : 0); ++j) {
-        u16(static_cast<int16_t>(17 * j + k));
+        AppendU16(&s, static_cast<int16_t>(17 * j + k));
         s += static_cast<char>(j);
       }
     }
@@ -383,7 +374,7 @@ std::string Drive(uint8_t mode, int steps) {
       s += static_cast<char>(kImu);
       s += static_cast<char>(0);
       s += static_cast<char>(0);
-      u16(1638);  // 0.1 rad/s
+      AppendU16(&s, 1638);  // 0.1 rad/s
     }
     s += static_cast<char>(kTick);
     s += static_cast<char>(2);  // 40 ms

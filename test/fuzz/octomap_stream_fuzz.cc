@@ -22,7 +22,6 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
 #include "omni/color_image_t.hpp"
-#include "omni/common/log.h"
 #include "omni/common/time.h"
 #include "omni/depth_image_t.hpp"
 #include "omni/heartbeat_t.hpp"
@@ -32,9 +31,11 @@
 #include "omni/octomap_t.hpp"
 #include "omni/pose2d_t.hpp"
 #include "omni/trajectory_t.hpp"
+#include "quiet_logs.h"
 
 namespace {
 
+using omni::fuzz::AppendU16;
 using omni::fuzz::ScriptTimeStep;
 using omni::fuzz::ScriptValue;
 
@@ -364,12 +365,7 @@ class Script {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  // The node warns about refused messages; a long run would print nothing else.
-  static const bool quiet = [] {
-    omni::SetLogLevel(omni::LogLevel::kError);
-    return true;
-  }();
-  (void)quiet;
+  omni::fuzz::QuietLogs();
   Script(data, size).Run();
   return 0;
 }
@@ -381,19 +377,15 @@ namespace {
 // same time, the path as a trajectory every eighth step, and a tick every step.
 std::string Drive(uint8_t mode, int steps) {
   std::string s(1, static_cast<char>(mode));
-  auto u16 = [&s](int16_t v) {
-    s += static_cast<char>(static_cast<uint16_t>(v) & 0xff);
-    s += static_cast<char>(static_cast<uint16_t>(v) >> 8);
-  };
   for (int k = 0; k < steps; ++k) {
     s += static_cast<char>(kPose);
     s += static_cast<char>(k % 2 == 0 ? 50 : 30);  // the frames sit 20 ms after a pose
     s += static_cast<char>(0);
-    u16(5461);  // 0.05 m
+    AppendU16(&s, 5461);  // 0.05 m
     s += static_cast<char>(0);
-    u16(0);
+    AppendU16(&s, 0);
     s += static_cast<char>(0);
-    u16(1092);  // 0.01 rad
+    AppendU16(&s, 1092);  // 0.01 rad
     if (k % 2 == 1) {
       s += static_cast<char>(kDepth);
       s += static_cast<char>(20);
@@ -404,8 +396,8 @@ std::string Drive(uint8_t mode, int steps) {
       s += static_cast<char>(80);                  // the wall 2.2 m ahead
       s += static_cast<char>(k % 6 == 1 ? 2 : 0);  // a few odd pixels now and then
       for (int j = 0; j < (k % 6 == 1 ? 2 : 0); ++j) {
-        u16(static_cast<int16_t>(31 * j + k));
-        u16(static_cast<int16_t>(j == 0 ? 0 : 9000));
+        AppendU16(&s, static_cast<int16_t>(31 * j + k));
+        AppendU16(&s, static_cast<int16_t>(j == 0 ? 0 : 9000));
       }
       s += static_cast<char>(7);  // undamaged
       if (mode & 1) {
@@ -422,7 +414,7 @@ std::string Drive(uint8_t mode, int steps) {
       s += static_cast<char>(kTraj);
       s += static_cast<char>(64);
       s += static_cast<char>(0);  // dx
-      u16(9830);                  // 0.3 m: past the shift that asks for a rebuild
+      AppendU16(&s, 9830);        // 0.3 m: past the shift that asks for a rebuild
       s += static_cast<char>(255);
       s += static_cast<char>(255);
       s += static_cast<char>(1);  // the map frame
