@@ -1,6 +1,7 @@
 // YAML text into the processes' option loaders, as each process reads its --config file: the
 // first byte picks the loader (RBPF mapper, pose-graph mapper, OctoMap builder, map fusion,
-// odometry mapper, supervisor, base bridge), the rest is the file. What must hold: a loader
+// odometry mapper, supervisor, base bridge, the RPLidar, IMU and Kinect drivers, the firmware
+// simulator), the rest is the file. What must hold: a loader
 // returns options or an error, never an exception or a crash, whatever the text (lists or maps
 // as keys, anchors and aliases, tags, deep nesting, numbers out of range, wrong types); and an
 // error from the reader names the file. Seeds: the shipped files in config/ and a few
@@ -14,12 +15,16 @@
 #include "fuzz.h"
 #include "omni/base_bridge/base_bridge.h"
 #include "omni/common/config.h"
+#include "omni/imu/driver.h"
+#include "omni/kinect/kinect_driver.h"
 #include "omni/map_fusion/fusion.h"
 #include "omni/octomap_builder/octomap_builder.h"
 #include "omni/odom_mapper/odom_mapper.h"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 #include "omni/rbpf_mapper/rbpf.h"
+#include "omni/rplidar/driver.h"
 #include "omni/supervisor/supervisor.h"
+#include "sim_config.h"
 
 namespace {
 
@@ -31,6 +36,10 @@ enum Loader : uint8_t {
   kOdomMapper,
   kSupervisor,
   kBaseBridge,
+  kRplidar,
+  kImu,
+  kKinect,
+  kFirmwareSim,
   kLoaders
 };
 
@@ -46,6 +55,17 @@ void Load(const std::string& text) {
   }
   auto o = Options::Load(*r);
   if (!o.ok()) CheckError(o.error().message);
+}
+
+// The drivers' loaders fill a driver and a node struct from a reader and Finish() it.
+template <class Driver, class Node>
+void LoadPair(const std::string& text, omni::Status (*load)(omni::ConfigReader&, Driver*, Node*)) {
+  auto r = omni::ConfigReader::FromString(text, "fuzz.yaml");
+  if (!r.ok()) return;
+  Driver driver;
+  Node node;
+  const omni::Status s = load(*r, &driver, &node);
+  if (!s.ok()) CheckError(s.message());
 }
 
 }  // namespace
@@ -79,8 +99,22 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case kSupervisor:
       Load<omni::supervisor::SupervisorOptions>(text);
       break;
-    default: {
+    case kBaseBridge: {
       auto o = omni::base_bridge::LoadBaseBridgeOptionsFromString(text, "fuzz.yaml");
+      if (!o.ok()) CheckError(o.error().message);
+      break;
+    }
+    case kRplidar:
+      LoadPair(text, &omni::rplidar::LoadRplidarOptions);
+      break;
+    case kImu:
+      LoadPair(text, &omni::imu::LoadImuOptions);
+      break;
+    case kKinect:
+      LoadPair(text, &omni::kinect::LoadKinectOptions);
+      break;
+    default: {
+      auto o = omni::firmware::sim::LoadSimOptionsFromString(text, "fuzz.yaml");
       if (!o.ok()) CheckError(o.error().message);
       break;
     }
@@ -94,7 +128,9 @@ void omni::fuzz::Seeds(SeedList* seeds) {
       {kRbpf, "rbpf_mapper.yaml"},        {kPoseGraph, "pose_graph_mapper.yaml"},
       {kOctomap, "octomap_builder.yaml"}, {kFusion, "map_fusion.yaml"},
       {kOdomMapper, "odom_mapper.yaml"},  {kSupervisor, "supervisor.yaml"},
-      {kBaseBridge, "base_bridge.yaml"}};
+      {kBaseBridge, "base_bridge.yaml"},  {kRplidar, "rplidar_driver.yaml"},
+      {kImu, "imu_driver.yaml"},          {kKinect, "kinect_driver.yaml"},
+      {kFirmwareSim, "firmware_sim.yaml"}};
   for (const auto& [loader, file] : shipped) {
     const std::string path = std::string(OMNI_SOURCE_DIR) + "/config/" + file;
     std::ifstream in(path, std::ios::binary);

@@ -52,7 +52,10 @@ std::string Seconds(double s) {
 Status LoadImuOptions(const std::string& path, DriverOptions* d, NodeOptions* n) {
   auto reader = ConfigReader::FromFile(path);
   if (!reader.ok()) return reader.error();
-  ConfigReader& r = *reader;
+  return LoadImuOptions(*reader, d, n);
+}
+
+Status LoadImuOptions(ConfigReader& r, DriverOptions* d, NodeOptions* n) {
   r.Get("port", &d->port, Required(), NonEmpty());
   r.Get("baud", &d->baud, Optional(), WitBaud());
   r.Get("trigger", &d->trigger, Optional(),

@@ -24,7 +24,10 @@ bool ParseDepthEncoding(const std::string& name, DepthEncoding* out) {
 Status LoadKinectOptions(const std::string& path, KinectDriverOptions* d, KinectNodeOptions* n) {
   auto reader = ConfigReader::FromFile(path);
   if (!reader.ok()) return reader.error();
-  ConfigReader& r = *reader;
+  return LoadKinectOptions(*reader, d, n);
+}
+
+Status LoadKinectOptions(ConfigReader& r, KinectDriverOptions* d, KinectNodeOptions* n) {
   r.Get("uri", &d->uri, Optional());
   r.Get("color", &d->color, Optional());
   r.Get("register_depth_to_color", &d->register_depth_to_color, Optional());

@@ -12,7 +12,10 @@ namespace omni::rplidar {
 Status LoadRplidarOptions(const std::string& path, DriverOptions* d, NodeOptions* n) {
   auto reader = ConfigReader::FromFile(path);
   if (!reader.ok()) return reader.error();
-  ConfigReader& r = *reader;
+  return LoadRplidarOptions(*reader, d, n);
+}
+
+Status LoadRplidarOptions(ConfigReader& r, DriverOptions* d, NodeOptions* n) {
   r.Get("port", &d->port, Required(), NonEmpty());
   r.Get("baud", &d->baud, Optional(), InRange(0, 4000000));
   r.Get("model", &d->model, Optional(), OneOf({"auto", "a1", "a2", "a3"}));

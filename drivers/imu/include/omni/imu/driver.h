@@ -16,6 +16,10 @@
 #include "omni/imu/witmotion.h"
 #include "omni/serial/serial_port.h"
 
+namespace omni {
+class ConfigReader;
+}  // namespace omni
+
 namespace omni::imu {
 
 // Settings written into the device at each connection (WitMotion register writes), so a
@@ -53,6 +57,8 @@ struct NodeOptions {
 };
 
 Status LoadImuOptions(const std::string& path, DriverOptions* driver, NodeOptions* node);
+// The same from a reader already open (a string in the config fuzz target); Finish()es it.
+Status LoadImuOptions(ConfigReader& reader, DriverOptions* driver, NodeOptions* node);
 
 // The frame type named in the config ("accel" -> 0x51, ...); 0 for "auto" or an unknown name.
 uint8_t TriggerType(const std::string& name);

@@ -14,6 +14,10 @@
 #include "omni/kinect/depth_codec.h"
 #include "omni/kinect/depth_source.h"
 
+namespace omni {
+class ConfigReader;
+}  // namespace omni
+
 namespace omni::kinect {
 
 struct KinectDriverOptions {
@@ -38,6 +42,9 @@ struct KinectNodeOptions {
 };
 
 Status LoadKinectOptions(const std::string& path, KinectDriverOptions* driver,
+                         KinectNodeOptions* node);
+// The same from a reader already open (a string in the config fuzz target); Finish()es it.
+Status LoadKinectOptions(ConfigReader& reader, KinectDriverOptions* driver,
                          KinectNodeOptions* node);
 // "RAW" / "ZLIB" / "DELTA_ZLIB" -> the codec's encoding; false for other names.
 bool ParseDepthEncoding(const std::string& name, DepthEncoding* out);

@@ -17,6 +17,10 @@
 #include "omni/rplidar/scan.h"
 #include "omni/serial/serial_port.h"
 
+namespace omni {
+class ConfigReader;
+}  // namespace omni
+
 namespace omni::rplidar {
 
 struct DriverOptions {
@@ -41,6 +45,8 @@ struct NodeOptions {
   std::string bus_url;
 };
 Status LoadRplidarOptions(const std::string& path, DriverOptions* driver, NodeOptions* node);
+// The same from a reader already open (a string in the config fuzz target); Finish()es it.
+Status LoadRplidarOptions(ConfigReader& reader, DriverOptions* driver, NodeOptions* node);
 
 struct DriverCounters {
   int64_t revolutions = 0;
