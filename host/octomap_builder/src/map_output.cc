@@ -9,8 +9,7 @@
 #include <limits>
 #include <sstream>
 #include <string_view>
-
-#include <octomap/AbstractOcTree.h>
+#include <type_traits>
 
 #include "omni/octomap_builder/color_image.h"
 #include "omni/octomap_builder/depth_io.h"
@@ -75,11 +74,19 @@ bool WalkBinary(std::string_view b, size_t* pos, int depth, long long* nodes) {
   return true;
 }
 
-// Checks the header ("id <type>", "size N", "data") and the node layout after it. A full
+// What the header says: the resolution, the node count and where the node data starts.
+struct TreeHeader {
+  double resolution = 0;
+  long long size = 0;
+  size_t data = 0;
+};
+
+// Checks the header ("id <type>", "size N", "res R", "data") and the node layout after it. A full
 // node is its data (`node_bytes`: 4 for OcTree's float, 7 for ColorOcTree's float + RGB) and a
 // child-mask byte.
 std::string ValidateTreeFile(std::string_view bytes, bool binary,
-                             const std::string& type = "OcTree", size_t node_bytes = 4) {
+                             const std::string& type = "OcTree", size_t node_bytes = 4,
+                             TreeHeader* out = nullptr) {
   // OctoMap's readers refuse a file whose first line is not theirs (and print why to stderr).
   const std::string_view first = binary ? "# Octomap OcTree binary file" : "# Octomap OcTree file";
   if (bytes.substr(0, first.size()) != first)
@@ -96,6 +103,14 @@ std::string ValidateTreeFile(std::string_view bytes, bool binary,
   const size_t sz = header.find("\nsize ");
   if (sz == std::string::npos) return "no 'size' line in the header";
   const long long n = std::atoll(header.c_str() + sz + 6);
+  if (n < 0) return "a negative size in the header";
+  // OctoMap takes any resolution the header gives; 0, a negative or a non-finite one would turn
+  // every coordinate of the tree into inf or NaN.
+  const size_t rs = header.find("\nres ");
+  if (rs == std::string::npos) return "no 'res' line in the header";
+  const double res = std::strtod(header.c_str() + rs + 5, nullptr);
+  if (!(res > 0) || !std::isfinite(res)) return "the resolution is not a positive number";
+  if (out) *out = {res, n, data + 6};
   if (n == 0) return "";
   size_t pos = data + 6;
   long long nodes = binary ? 1 : 0;  // the binary form has no record for the root itself
@@ -127,23 +142,41 @@ std::string CheckTreeBytes(std::string_view bytes, bool binary, const std::strin
   return ValidateTreeFile(bytes, binary);
 }
 
+namespace {
+
+// The node data after a checked header, read by OctoMap's own node readers. (Its file readers,
+// readBinary and AbstractOcTree::read, parse the same header but print "Reading ... octree
+// type" on stderr for every tree.) The count read must be the header's.
+template <class Tree>
+Result<std::unique_ptr<Tree>> ReadNodes(const std::string& bytes, const TreeHeader& h, bool binary,
+                                        const std::string& what, const std::string& form) {
+  auto tree = std::make_unique<Tree>(h.resolution);
+  if (h.size > 0) {
+    std::istringstream in(bytes.substr(h.data), std::ios::binary);
+    if (binary) {
+      if constexpr (std::is_same_v<Tree, octomap::OcTree>) tree->readBinaryData(in);
+    } else {
+      tree->readData(in);
+    }
+    if (in.fail()) return MakeError(ErrorCode::kParse, what + ": not a readable " + form);
+  }
+  if (static_cast<long long>(tree->size()) != h.size)
+    return MakeError(ErrorCode::kParse, what + ": not a readable " + form +
+                                            ": the header's size is " + std::to_string(h.size) +
+                                            " nodes, the data holds " +
+                                            std::to_string(tree->size()));
+  return tree;
+}
+
+}  // namespace
+
 Result<std::unique_ptr<octomap::OcTree>> ParseTree(const std::string& bytes, bool binary,
                                                    const std::string& what) {
-  if (const std::string bad = ValidateTreeFile(bytes, binary); !bad.empty())
-    return MakeError(ErrorCode::kParse,
-                     what + ": not a readable " + (binary ? ".bt" : ".ot") + " OcTree: " + bad);
-  std::istringstream in(bytes, std::ios::binary);
-  if (binary) {
-    auto tree = std::make_unique<octomap::OcTree>(0.1);
-    if (!tree->readBinary(in) || in.fail())
-      return MakeError(ErrorCode::kParse, what + ": not a readable .bt OcTree");
-    return tree;
-  }
-  std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
-  auto* oc = dynamic_cast<octomap::OcTree*>(any.get());
-  if (!oc || in.fail()) return MakeError(ErrorCode::kParse, what + ": not a readable .ot OcTree");
-  any.release();
-  return std::unique_ptr<octomap::OcTree>(oc);
+  TreeHeader h;
+  const std::string form = std::string(binary ? ".bt" : ".ot") + " OcTree";
+  if (const std::string bad = ValidateTreeFile(bytes, binary, "OcTree", 4, &h); !bad.empty())
+    return MakeError(ErrorCode::kParse, what + ": not a readable " + form + ": " + bad);
+  return ReadNodes<octomap::OcTree>(bytes, h, binary, what, form);
 }
 
 std::string SerializeColorTree(const octomap::ColorOcTree& tree) {
@@ -166,15 +199,10 @@ Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& p
 
 Result<std::unique_ptr<octomap::ColorOcTree>> ParseColorTree(const std::string& bytes,
                                                              const std::string& what) {
-  if (const std::string bad = ValidateTreeFile(bytes, false, "ColorOcTree", 7); !bad.empty())
+  TreeHeader h;
+  if (const std::string bad = ValidateTreeFile(bytes, false, "ColorOcTree", 7, &h); !bad.empty())
     return MakeError(ErrorCode::kParse, what + ": not a readable .ot ColorOcTree: " + bad);
-  std::istringstream in(bytes, std::ios::binary);
-  std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
-  auto* color = dynamic_cast<octomap::ColorOcTree*>(any.get());
-  if (!color || in.fail())
-    return MakeError(ErrorCode::kParse, what + ": not a readable .ot ColorOcTree");
-  any.release();
-  return std::unique_ptr<octomap::ColorOcTree>(color);
+  return ReadNodes<octomap::ColorOcTree>(bytes, h, false, what, ".ot ColorOcTree");
 }
 
 bool UpAxis::Parse(const std::string& text, UpAxis* out) {

@@ -136,6 +136,57 @@ TEST(MapOutput, TheTreeCheckRefusesWhatOctomapWouldRefuse) {
   }
 }
 
+// Reading a tree back prints nothing (OctoMap's file readers print "Reading ... octree type" on
+// stderr for every tree), gives the same tree in each form, and refuses a header resolution
+// OctoMap would take and then compute with (0, negative, NaN, inf).
+TEST(MapOutput, TreesReadBackQuietlyAndRefuseAResolutionThatIsNotPositive) {
+  const octomap::OcTree t = MakeTree();
+  octomap::ColorOcTree c(0.05);
+  c.updateNode(0.3, 0.2, 0.1, true);
+  c.setNodeColor(0.3, 0.2, 0.1, 10, 200, 30);
+  c.updateNode(-1.0, 0.7, 0.4, false);
+  const std::string bt = SerializeTree(t, true), ot = SerializeTree(t, false);
+  const std::string cot = SerializeColorTree(c);
+  testing::internal::CaptureStderr();
+  auto from_bt = ParseTree(bt, true, "bt");
+  auto from_ot = ParseTree(ot, false, "ot");
+  auto from_cot = ParseColorTree(cot, "cot");
+  auto empty = ParseTree(SerializeTree(octomap::OcTree(0.2), true), true, "empty");
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  ASSERT_TRUE(from_bt.ok()) << from_bt.error().message;
+  ASSERT_TRUE(from_ot.ok()) << from_ot.error().message;
+  ASSERT_TRUE(from_cot.ok()) << from_cot.error().message;
+  ASSERT_TRUE(empty.ok()) << empty.error().message;
+  EXPECT_EQ(Occupancy(**from_bt), Occupancy(t));
+  EXPECT_TRUE(SameLeaves(t, **from_ot));
+  EXPECT_EQ((*from_bt)->getResolution(), 0.1);
+  EXPECT_EQ((*empty)->size(), 0u);
+  EXPECT_EQ((*empty)->getResolution(), 0.2);
+  EXPECT_EQ((*from_cot)->size(), c.size());
+  const octomap::ColorOcTreeNode* n = (*from_cot)->search(0.3, 0.2, 0.1);
+  ASSERT_NE(n, nullptr);
+  EXPECT_EQ(n->getColor(), octomap::ColorOcTreeNode::Color(10, 200, 30));
+  EXPECT_FLOAT_EQ(n->getLogOdds(), c.search(0.3, 0.2, 0.1)->getLogOdds());
+
+  for (const char* res : {"0", "-0.1", "nan", "inf", "x"}) {
+    for (bool binary : {true, false}) {
+      std::string bad = binary ? bt : ot;
+      const size_t at = bad.find("\nres ");
+      ASSERT_NE(at, std::string::npos);
+      bad.replace(at + 5, bad.find('\n', at + 1) - at - 5, res);
+      auto r = ParseTree(bad, binary, "bad");
+      ASSERT_FALSE(r.ok()) << res;
+      EXPECT_NE(r.error().message.find("resolution"), std::string::npos) << r.error().message;
+    }
+  }
+  std::string no_res = ot;
+  const size_t res_line = no_res.find("\nres ");
+  no_res.erase(res_line, no_res.find('\n', res_line + 1) - res_line);
+  auto r = ParseTree(no_res, false, "no res");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("no 'res' line"), std::string::npos) << r.error().message;
+}
+
 TEST(MapOutput, ProjectsTheHeightBand) {
   octomap::OcTree t(0.1);
   // A floor (z = 0.05, below the band), a low box (z = 0.25) and free space above the floor.

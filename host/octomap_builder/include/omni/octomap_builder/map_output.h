@@ -15,8 +15,8 @@
 
 namespace omni::octo {
 
-// Binary form (.bt: occupied/free per node, writeBinaryConst: the tree is not modified) or the
-// full form (.ot: log-odds per node).
+// Binary form (.bt: occupied/free per node; the tree is not modified) or the full form (.ot:
+// log-odds per node).
 std::string SerializeTree(const octomap::OcTree& tree, bool binary);
 // Writes `base`.bt and `base`.ot, each through a temporary file and rename().
 Status SaveTree(const octomap::OcTree& tree, const std::string& base);
@@ -31,8 +31,8 @@ Result<std::unique_ptr<octomap::OcTree>> ParseTree(const std::string& bytes, boo
 std::string CheckTreeBytes(std::string_view bytes, bool binary, const std::string& tree_type);
 
 // A ColorOcTree in the full form (.ot: log-odds and R G B per node; OctoMap has no colour in
-// .bt), written through a temporary file and rename(); read back with octomap's
-// AbstractOcTree::read (after checking the node layout, as LoadTree does).
+// .bt), written through a temporary file and rename(); read back as LoadTree reads (the header
+// and node layout checked, then OctoMap's node reader).
 std::string SerializeColorTree(const octomap::ColorOcTree& tree);
 Status SaveColorTree(const octomap::ColorOcTree& tree, const std::string& path);
 Result<std::unique_ptr<octomap::ColorOcTree>> LoadColorTree(const std::string& path);
