@@ -79,10 +79,20 @@ void ConfigReader::Fail(const YAML::Node& at, const std::string& key, const std:
 }
 
 std::string ConfigReader::Dump(const YAML::Node& n) {
-  if (n.IsScalar()) return n.Scalar();
-  YAML::Emitter e;
-  e << YAML::Flow << n;
-  return e.c_str();
+  std::string s;
+  if (n.IsScalar()) {
+    s = n.Scalar();
+  } else {
+    YAML::Emitter e;
+    e << YAML::Flow << n;
+    s = e.c_str();
+  }
+  // An error quotes the value, not a whole document that an alias or a pasted blob put there.
+  constexpr size_t kMax = 80;
+  if (s.size() <= kMax) return s;
+  size_t cut = kMax;
+  while (cut > 0 && (static_cast<unsigned char>(s[cut]) & 0xC0) == 0x80) --cut;  // UTF-8
+  return s.substr(0, cut) + "... (" + std::to_string(s.size()) + " bytes)";
 }
 
 void ConfigReader::CollectUnknown(const YAML::Node& n, const std::string& path) {

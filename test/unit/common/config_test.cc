@@ -121,5 +121,38 @@ TEST(Config, AKeyThatIsNotANameIsAnError) {
   EXPECT_EQ(keys, (std::vector<std::string>{"one", "three"}));
 }
 
+// A wrong value is quoted in the error, but not without end: a long list, a pasted blob or an
+// alias of a large section is cut to its first 80 bytes, on a UTF-8 character boundary.
+TEST(Config, ALongWrongValueIsQuotedShort) {
+  Options o;
+  std::string list = "particles: [";
+  for (int i = 0; i < 2000; ++i) list += std::to_string(i) + ", ";
+  list += "1]\n";
+  Status s = Load(list, &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'particles' = '[0, 1, 2, "), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("... ("), std::string::npos) << s.message();
+  EXPECT_LT(s.message().size(), 300u) << s.message();
+
+  std::string blob = "mode: ";
+  for (int i = 0; i < 100; ++i) blob += "\xc3\xa9";  // 'e' with an acute accent, 2 bytes each
+  s = Load(blob + "\n", &o);
+  ASSERT_FALSE(s.ok());
+  const std::string m = s.message();
+  const size_t at = m.find("'mode' = '") + 10, end = m.find("... (200 bytes)");
+  ASSERT_NE(end, std::string::npos) << m;
+  EXPECT_EQ((end - at) % 2, 0u) << "cut inside a character: " << m;
+  EXPECT_LE(end - at, 80u);
+
+  // A value of nested aliases quotes short as well (yaml-cpp emits them with anchors).
+  std::string laughs = "l0: &l0 {a: 1, b: 2}\n";
+  for (int i = 1; i < 30; ++i)
+    laughs += "l" + std::to_string(i) + ": &l" + std::to_string(i) + " {p: *l" +
+              std::to_string(i - 1) + ", q: *l" + std::to_string(i - 1) + "}\n";
+  s = Load(laughs + "particles: *l29\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'particles' = '{p: "), std::string::npos) << s.message();
+}
+
 }  // namespace
 }  // namespace omni
