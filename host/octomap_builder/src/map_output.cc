@@ -104,8 +104,9 @@ std::string ValidateTreeFile(std::string_view bytes, bool binary,
   if (sz == std::string::npos) return "no 'size' line in the header";
   const long long n = std::atoll(header.c_str() + sz + 6);
   if (n < 0) return "a negative size in the header";
-  // OctoMap takes any resolution the header gives; 0, a negative or a non-finite one would turn
-  // every coordinate of the tree into inf or NaN.
+  // OctoMap's file readers refuse a resolution that is not a positive number; its node readers,
+  // which ParseTree calls, never see the header, so the check refuses it here (0, a negative or
+  // a non-finite one would turn every coordinate of the tree into inf or NaN).
   const size_t rs = header.find("\nres ");
   if (rs == std::string::npos) return "no 'res' line in the header";
   const double res = std::strtod(header.c_str() + rs + 5, nullptr);
