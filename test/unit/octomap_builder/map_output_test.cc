@@ -137,8 +137,9 @@ TEST(MapOutput, TheTreeCheckRefusesWhatOctomapWouldRefuse) {
 }
 
 // Reading a tree back prints nothing (OctoMap's file readers print "Reading ... octree type" on
-// stderr for every tree), gives the same tree in each form, and refuses a header resolution
-// OctoMap would take and then compute with (0, negative, NaN, inf).
+// stderr for every tree), gives the same tree in each form, and still refuses a header
+// resolution that is not a positive number (0, negative, NaN, inf), as those readers did: the
+// node readers it calls now never see the header.
 TEST(MapOutput, TreesReadBackQuietlyAndRefuseAResolutionThatIsNotPositive) {
   const octomap::OcTree t = MakeTree();
   octomap::ColorOcTree c(0.05);
