@@ -89,8 +89,8 @@ int main(int argc, char** argv) {
   }
   if (mapper != "rbpf") {
     std::fprintf(stderr,
-                 "omni-slam: mapper '%s' is not implemented here (this runner knows 'rbpf'; "
-                 "'posegraph' is handed to omni-posegraph-slam)\n",
+                 "omni-slam: unknown mapper '%s' (the mappers are 'rbpf', run here, and "
+                 "'posegraph', handed to omni-posegraph-slam)\n",
                  mapper.c_str());
     return 2;
   }
