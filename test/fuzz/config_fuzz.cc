@@ -9,6 +9,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -46,25 +47,32 @@ enum Loader : uint8_t {
 // The loaders' own messages (cross-field rules) need not name the file; the reader's do.
 void CheckError(const std::string& message) { OMNI_FUZZ_CHECK(!message.empty()); }
 
-template <class Options>
-void Load(const std::string& text) {
+// The text as a --config file; an error from the reader itself (not YAML) names the file.
+omni::Result<omni::ConfigReader> Open(const std::string& text) {
   auto r = omni::ConfigReader::FromString(text, "fuzz.yaml");
-  if (!r.ok()) {
-    OMNI_FUZZ_CHECK(r.error().message.find("fuzz.yaml") != std::string::npos);
-    return;
-  }
-  auto o = Options::Load(*r);
+  if (!r.ok()) OMNI_FUZZ_CHECK(r.error().message.find("fuzz.yaml") != std::string::npos);
+  return r;
+}
+
+// Loaders that read the text themselves, or an open reader into one struct.
+template <class Options>
+void CheckLoaded(const omni::Result<Options>& o) {
   if (!o.ok()) CheckError(o.error().message);
 }
 
-// The drivers' loaders fill a driver and a node struct from a reader and Finish() it.
-template <class Driver, class Node>
-void LoadPair(const std::string& text, omni::Status (*load)(omni::ConfigReader&, Driver*, Node*)) {
-  auto r = omni::ConfigReader::FromString(text, "fuzz.yaml");
+template <class Options>
+void Load(const std::string& text) {
+  if (auto r = Open(text); r.ok()) CheckLoaded(Options::Load(*r));
+}
+
+// Loaders that fill several option structs from a reader and Finish() it (the pose graph's
+// slam/batch/node, each driver's driver/node).
+template <class... Out>
+void LoadInto(const std::string& text, omni::Status (*load)(omni::ConfigReader&, Out*...)) {
+  auto r = Open(text);
   if (!r.ok()) return;
-  Driver driver;
-  Node node;
-  const omni::Status s = load(*r, &driver, &node);
+  std::tuple<Out...> out;
+  const omni::Status s = std::apply([&](Out&... o) { return load(*r, &o...); }, out);
   if (!s.ok()) CheckError(s.message());
 }
 
@@ -77,16 +85,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case kRbpf:
       Load<omni::rbpf::RbpfOptions>(text);
       break;
-    case kPoseGraph: {
-      auto r = omni::ConfigReader::FromString(text, "fuzz.yaml");
-      if (!r.ok()) break;
-      omni::pgm::PoseGraphSlamOptions slam;
-      omni::pgm::BatchOptions batch;
-      omni::pgm::PoseGraphNodeOptions node;
-      const omni::Status s = omni::pgm::LoadSlamConfig(*r, &slam, &batch, &node);
-      if (!s.ok()) CheckError(s.message());
+    case kPoseGraph:
+      LoadInto(text, &omni::pgm::LoadSlamConfig);
       break;
-    }
     case kOctomap:
       Load<omni::octo::OctomapBuilderOptions>(text);
       break;
@@ -99,25 +100,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case kSupervisor:
       Load<omni::supervisor::SupervisorOptions>(text);
       break;
-    case kBaseBridge: {
-      auto o = omni::base_bridge::LoadBaseBridgeOptionsFromString(text, "fuzz.yaml");
-      if (!o.ok()) CheckError(o.error().message);
+    case kBaseBridge:
+      CheckLoaded(omni::base_bridge::LoadBaseBridgeOptionsFromString(text, "fuzz.yaml"));
       break;
-    }
     case kRplidar:
-      LoadPair(text, &omni::rplidar::LoadRplidarOptions);
+      LoadInto(text, &omni::rplidar::LoadRplidarOptions);
       break;
     case kImu:
-      LoadPair(text, &omni::imu::LoadImuOptions);
+      LoadInto(text, &omni::imu::LoadImuOptions);
       break;
     case kKinect:
-      LoadPair(text, &omni::kinect::LoadKinectOptions);
+      LoadInto(text, &omni::kinect::LoadKinectOptions);
       break;
-    default: {
-      auto o = omni::firmware::sim::LoadSimOptionsFromString(text, "fuzz.yaml");
-      if (!o.ok()) CheckError(o.error().message);
+    default:
+      CheckLoaded(omni::firmware::sim::LoadSimOptionsFromString(text, "fuzz.yaml"));
       break;
-    }
   }
   return 0;
 }
