@@ -314,8 +314,11 @@ Result<GridMap> ReadMapServer(const std::string& path) {
     } catch (const YAML::Exception& e) {
       return MakeError(ErrorCode::kParse, path + ": " + e.what());
     }
-    if (!(m.resolution_m > 0))
-      return MakeError(ErrorCode::kParse, path + ": resolution must be > 0");
+    if (!(std::isfinite(m.resolution_m) && m.resolution_m > 0))
+      return MakeError(ErrorCode::kParse, path + ": resolution must be a finite number > 0");
+    if (!(occ_th >= 0 && occ_th <= 1 && free_th >= 0 && free_th <= occ_th))
+      return MakeError(ErrorCode::kParse,
+                       path + ": thresholds must satisfy 0 <= free_thresh <= occupied_thresh <= 1");
   }
   auto im = ReadPnm(image_path);
   if (!im.ok()) return im.error();

@@ -17,8 +17,10 @@ Status RenameInto(const std::string& tmp, const std::string& path) {
   return Status::Ok();
 }
 
-// Reads one header token of a Netpbm file, skipping whitespace and comments.
+// Reads one header token of a Netpbm file, skipping whitespace and comments. A token longer
+// than any magic or number is not a header (a binary file, or a device that never ends).
 bool HeaderToken(std::istream& in, std::string* tok) {
+  constexpr size_t kMaxToken = 16;
   tok->clear();
   int c;
   while ((c = in.get()) != EOF) {
@@ -31,6 +33,7 @@ bool HeaderToken(std::istream& in, std::string* tok) {
   }
   if (c == EOF) return false;
   do {
+    if (tok->size() == kMaxToken) return false;
     tok->push_back(static_cast<char>(c));
   } while ((c = in.peek()) != EOF && !std::isspace(c) && in.get());
   return true;
@@ -51,7 +54,7 @@ void PngChunk(std::string* out, const char* type, const std::string& data) {
 
 }  // namespace
 
-Result<Image> ReadPnm(const std::string& path) {
+Result<Image> ReadPnm(const std::string& path, int max_side) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return MakeError(ErrorCode::kNotFound, "cannot open image '" + path + "'");
   std::string magic, w, h, maxv;
@@ -61,25 +64,41 @@ Result<Image> ReadPnm(const std::string& path) {
   }
   in.get();  // the single whitespace after maxval
   Image im;
-  try {
-    im.width = std::stoi(w);
-    im.height = std::stoi(h);
-    im.max_value = std::stoi(maxv);
-  } catch (...) {
-    return MakeError(ErrorCode::kParse, path + ": bad size or maxval in header");
-  }
-  if (im.width <= 0 || im.height <= 0 || im.width > 100000 || im.height > 100000 ||
+  // Netpbm numbers are plain decimal digits; "12abc", "-3" or "0x10" are not a size.
+  auto number = [](const std::string& t, int* v) {
+    if (t.empty() || t.size() > 9 ||
+        !std::all_of(t.begin(), t.end(), [](char c) { return c >= '0' && c <= '9'; }))
+      return false;
+    *v = std::stoi(t);
+    return true;
+  };
+  if (!number(w, &im.width) || !number(h, &im.height) || !number(maxv, &im.max_value))
+    return MakeError(ErrorCode::kParse, path + ": bad size or maxval in header ('" + w + "' '" + h +
+                                            "' '" + maxv + "')");
+  if (im.width <= 0 || im.height <= 0 || im.width > max_side || im.height > max_side ||
       im.max_value <= 0 || im.max_value > 65535)
-    return MakeError(ErrorCode::kParse, path + ": size or maxval out of range");
+    return MakeError(ErrorCode::kParse, path + ": size " + w + " x " + h + " or maxval " + maxv +
+                                            " out of range (sides 1 to " +
+                                            std::to_string(max_side) + ", maxval 1 to 65535)");
   im.channels = magic == "P6" ? 3 : 1;
   const size_t n = static_cast<size_t>(im.width) * im.height * im.channels;
   const int bytes = im.max_value > 255 ? 2 : 1;
-  std::vector<uint8_t> raw(n * bytes);
-  in.read(reinterpret_cast<char*>(raw.data()), static_cast<std::streamsize>(raw.size()));
-  if (static_cast<size_t>(in.gcount()) != raw.size())
+  // The header's size is only a claim: read the samples in chunks, so that a short file with a
+  // huge header costs what the file holds, not what it claims.
+  const size_t want = n * bytes;
+  std::vector<uint8_t> raw;
+  constexpr size_t kChunk = size_t{1} << 20;
+  while (raw.size() < want && in) {
+    const size_t have = raw.size();
+    raw.resize(have + std::min(kChunk, want - have));
+    in.read(reinterpret_cast<char*>(raw.data() + have),
+            static_cast<std::streamsize>(raw.size() - have));
+    raw.resize(have + static_cast<size_t>(in.gcount()));
+  }
+  if (raw.size() != want)
     return MakeError(ErrorCode::kParse, path + ": pixel data truncated (" +
-                                            std::to_string(in.gcount()) + " of " +
-                                            std::to_string(raw.size()) + " bytes)");
+                                            std::to_string(raw.size()) + " of " +
+                                            std::to_string(want) + " bytes)");
   im.pixels.resize(n);
   for (size_t i = 0; i < n; ++i)
     im.pixels[i] = bytes == 2 ? static_cast<uint16_t>(raw[2 * i] << 8 | raw[2 * i + 1]) : raw[i];

@@ -6,9 +6,12 @@
 #include <fstream>
 #include <memory>
 #include <sstream>
+#include <utility>
 
 #include <png.h>
 #include <unistd.h>
+
+#include "omni/io/image_io.h"
 
 namespace omni::octo {
 namespace {
@@ -90,51 +93,13 @@ Status ReadDepthPng(const std::string& path, DepthImage* image) {
 }
 
 Status ReadDepthPgm(const std::string& path, DepthImage* image) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return IoError("cannot open", path);
-  // Header: "P5" width height maxval, separated by whitespace, '#' comments allowed.
-  auto token = [&in]() {
-    std::string t;
-    char c;
-    while (in.get(c)) {
-      if (c == '#') {
-        std::string skip;
-        std::getline(in, skip);
-        continue;
-      }
-      if (std::isspace(static_cast<unsigned char>(c))) {
-        if (!t.empty()) break;
-        continue;
-      }
-      t.push_back(c);
-    }
-    return t;
-  };
-  if (token() != "P5") return MakeError(ErrorCode::kParse, path + ": not a binary PGM (P5)");
-  long w = 0, h = 0, maxval = 0;
-  try {
-    w = std::stol(token());
-    h = std::stol(token());
-    maxval = std::stol(token());
-  } catch (const std::exception&) {
-    return MakeError(ErrorCode::kParse, path + ": malformed PGM header");
-  }
-  if (w <= 0 || h <= 0 || w > 16384 || h > 16384 || maxval <= 0 || maxval > 65535)
-    return MakeError(ErrorCode::kParse, path + ": PGM size or maxval out of range");
-  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
-  const size_t bps = maxval > 255 ? 2 : 1;
-  std::vector<uint8_t> raw(n * bps);
-  in.read(reinterpret_cast<char*>(raw.data()), static_cast<std::streamsize>(raw.size()));
-  if (static_cast<size_t>(in.gcount()) != raw.size()) {
-    std::ostringstream s;
-    s << path << ": truncated PGM (" << in.gcount() << " of " << raw.size() << " data bytes)";
-    return MakeError(ErrorCode::kParse, s.str());
-  }
-  image->width = static_cast<int>(w);
-  image->height = static_cast<int>(h);
-  image->data.resize(n);
-  for (size_t i = 0; i < n; ++i)
-    image->data[i] = bps == 2 ? static_cast<uint16_t>((raw[2 * i] << 8) | raw[2 * i + 1]) : raw[i];
+  auto pnm = io::ReadPnm(path, 16384);
+  if (!pnm.ok()) return pnm.error();
+  if (pnm->channels != 1)
+    return MakeError(ErrorCode::kParse, path + ": a depth image must be a grey PGM (P5), not PPM");
+  image->width = pnm->width;
+  image->height = pnm->height;
+  image->data = std::move(pnm->pixels);
   return Status::Ok();
 }
 

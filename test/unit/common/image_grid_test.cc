@@ -31,6 +31,48 @@ TEST(Image, TruncatedPgmIsAnError) {
   EXPECT_NE(r.error().message.find("truncated"), std::string::npos);
 }
 
+// The header's size is a claim the bytes must back: a 20-byte file that says 100000 x 100000
+// 16-bit RGB is refused by what it holds (it used to be 60 GB asked of the allocator, and an
+// abort; 60000 x 60000 grey took 3.5 GB and 20 s to refuse).
+TEST(Image, AHugeHeaderOnAShortFileIsRefusedByWhatTheFileHolds) {
+  const std::string dir = omni::testing::TempDir();
+  { std::ofstream(dir + "/h.ppm", std::ios::binary) << "P6\n100000 100000\n65535\nabc"; }
+  auto r = ReadPnm(dir + "/h.ppm");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("truncated (3 of 60000000000 bytes)"), std::string::npos)
+      << r.error().message;
+  // Beyond the sides the caller allows: refused from the header alone.
+  { std::ofstream(dir + "/w.pgm", std::ios::binary) << "P5\n20000 2\n255\n"; }
+  auto wide = ReadPnm(dir + "/w.pgm", 16384);
+  ASSERT_FALSE(wide.ok());
+  EXPECT_NE(wide.error().message.find("out of range"), std::string::npos) << wide.error().message;
+}
+
+// Header numbers are decimal digits: what std::stoi would half-read ("4x" as 4, "+4", " -4")
+// is an error naming the tokens; a file with no whitespace for its first 16 bytes (a binary
+// file, a device) is not read on.
+TEST(Image, HeaderNumbersAreDigitsAndTokensAreShort) {
+  const std::string dir = omni::testing::TempDir();
+  for (const char* header : {"P5\n4x 4\n255\n", "P5\n+4 4\n255\n", "P5\n4 -4\n255\n",
+                             "P5\n4 4\n0x10\n", "P5\n4 4\n1e3\n", "P5\n00000000004 4\n255\n"}) {
+    { std::ofstream(dir + "/n.pgm", std::ios::binary) << header << std::string(64, 'a'); }
+    auto r = ReadPnm(dir + "/n.pgm");
+    EXPECT_FALSE(r.ok()) << header;
+  }
+  { std::ofstream(dir + "/z.pgm", std::ios::binary) << std::string(1 << 16, '\0'); }
+  auto zeros = ReadPnm(dir + "/z.pgm");
+  ASSERT_FALSE(zeros.ok());
+  EXPECT_NE(zeros.error().message.find("not a binary PGM/PPM"), std::string::npos);
+  // Comments stay legal anywhere in the header, and a 16-bit grey image reads as before.
+  {
+    std::ofstream(dir + "/c.pgm", std::ios::binary)
+        << "P5 # made by hand\n2 1\n# max\n65535\n\x01\x02\x03\x04";
+  }
+  auto c = ReadPnm(dir + "/c.pgm");
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_EQ(c->pixels, (std::vector<uint16_t>{0x0102, 0x0304}));
+}
+
 TEST(Image, PngHasSignatureAndChunks) {
   const std::string dir = omni::testing::TempDir();
   Image im = Image::Make(4, 4, 3, 128);
@@ -101,6 +143,39 @@ TEST(Grid, MapServerRoundTrip) {
   EXPECT_EQ(back->cells, m.cells);
   EXPECT_DOUBLE_EQ(back->origin_x_m, -1.0);
   EXPECT_DOUBLE_EQ(back->resolution_m, 0.1);
+}
+
+// map_server's numbers are checked where they are read: a resolution that is infinite, or
+// thresholds that are out of [0, 1] or in the wrong order, name the file.
+TEST(Grid, MapServerYamlWithAbsurdNumbersIsAnError) {
+  GridMap m;
+  m.resolution_m = 0.1;
+  m.width = 2;
+  m.height = 2;
+  m.cells = {-1, 0, 100, 0};
+  const std::string dir = omni::testing::TempDir();
+  ASSERT_TRUE(WriteMapServer(m, dir + "/map").ok());
+  const std::string image = "image: map.pgm\norigin: [0, 0, 0]\n";
+  for (const std::string& body :
+       {image + "resolution: .inf\n", image + "resolution: .nan\n", image + "resolution: -0.1\n",
+        image + "resolution: 0.1\noccupied_thresh: 1.5\n",
+        image + "resolution: 0.1\nfree_thresh: 0.7\noccupied_thresh: 0.6\n",
+        image + "resolution: 0.1\nfree_thresh: .nan\n",
+        std::string("image: map.pgm\nresolution: 0.1\norigin: [.inf, 0, 0]\n"),
+        std::string("image: map.pgm\nresolution: 0.1\norigin: 7\n"),
+        std::string("resolution: 0.1\norigin: [0, 0, 0]\n")}) {
+    { std::ofstream(dir + "/bad.yaml") << body; }
+    auto r = ReadMapServer(dir + "/bad.yaml");
+    ASSERT_FALSE(r.ok()) << body;
+    EXPECT_NE(r.error().message.find(dir + "/bad.yaml"), std::string::npos) << r.error().message;
+  }
+  {
+    std::ofstream(dir + "/good.yaml")
+        << image + "resolution: 0.1\nfree_thresh: 0.1\noccupied_thresh: 0.6\n";
+  }
+  auto good = ReadMapServer(dir + "/good.yaml");
+  ASSERT_TRUE(good.ok()) << good.error().message;
+  EXPECT_EQ(good->cells, m.cells);
 }
 
 // A grid turned by yaw about its origin corner, resampled onto the frame's axes: at a quarter

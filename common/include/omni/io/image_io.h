@@ -32,8 +32,10 @@ struct Image {
   }
 };
 
-// P5 (gray) and P6 (RGB) binary forms; 16-bit samples are big-endian (Netpbm).
-Result<Image> ReadPnm(const std::string& path);
+// P5 (gray) and P6 (RGB) binary forms; 16-bit samples are big-endian (Netpbm). Width and
+// height must be 1 to `max_side`; memory follows the bytes the file holds, not its header.
+constexpr int kMaxPnmSide = 100000;
+Result<Image> ReadPnm(const std::string& path, int max_side = kMaxPnmSide);
 Status WritePgm(const std::string& path, const Image& image);
 // 8-bit PNG (values above 255 are clamped). Written atomically (temp file + rename).
 Status WritePng(const std::string& path, const Image& image);
