@@ -6,6 +6,11 @@ namespace {
 constexpr int kMaxFramesPerStep = 8;  // bounded work per period
 constexpr float kTwoPi = 6.28318530718f;
 constexpr float kStoppedRadS = 0.3f;  // |speed| below this counts as stopped
+// A wheel measured this fast against its drive is not braking: a healthy wheel's speed follows
+// its setpoint through zero within a few periods of a reversal.
+constexpr float kRunawayRadS = 2.f;
+// After the stop ramp reaches zero, the wheels have this long to come to rest.
+constexpr uint32_t kStopSettleUs = 300000;
 
 float Abs(float v) { return v < 0.f ? -v : v; }
 bool Finite(float v) { return v == v && v < 3.0e38f && v > -3.0e38f; }
@@ -22,6 +27,7 @@ FwStatus Firmware::Init() {
     pids_[w].Reset();
     wheels_[w] = WheelState{};
     stall_ms_[w] = 0;
+    runaway_ms_[w] = 0;
   }
   MotorsOff();
   UpdateForwardMatrix();
@@ -221,6 +227,7 @@ void Firmware::HandleFrame(const CanFrame& f) {
       under_voltage_ms_ = 0;
       for (int w = 0; w < kNumWheels; ++w) {
         stall_ms_[w] = 0;
+        runaway_ms_[w] = 0;
         wheels_[w].over_current_ms = 0;
       }
       break;
@@ -281,6 +288,15 @@ void Firmware::CheckFaults(float dt_s) {
     } else {
       stall_ms_[w] = 0;
     }
+    // Driven one way, measured turning the other: the loop pushes harder the faster it runs
+    // (a reversed encoder or motor lead), and neither a zero command nor the watchdog's stop
+    // would end it.
+    if (driving && Abs(ws.duty) >= params_.stall_duty && Abs(ws.speed_rad_s) > kRunawayRadS &&
+        (ws.duty > 0.f) != (ws.speed_rad_s > 0.f)) {
+      if (++runaway_ms_[w] >= params_.stall_ms) EnterFault(kFaultRunaway);
+    } else {
+      runaway_ms_[w] = 0;
+    }
   }
 }
 
@@ -323,9 +339,21 @@ void Firmware::Step() {
     state_ = State::kStopping;
     fault_bits_ |= kFaultWatchdog;
     ++counters_.watchdog_trips;
-    for (WheelState& ws : wheels_) ws.target_rad_s = 0.f;
+    float fastest = 0.f;
+    for (WheelState& ws : wheels_) {
+      ws.target_rad_s = 0.f;
+      if (Abs(ws.setpoint_rad_s) > fastest) fastest = Abs(ws.setpoint_rad_s);
+    }
+    stopping_us_ = 0;
+    stop_deadline_us_ = static_cast<uint32_t>(fastest / params_.stop_decel_rad_s2 * 1e6f) +
+                        params_.control_period_us + kStopSettleUs;
   }
   CheckFaults(dt);
+  // A stop that has not come to rest by its deadline is not going to: motors off, latched.
+  if (state_ == State::kStopping) {
+    stopping_us_ += params_.control_period_us;
+    if (stopping_us_ > stop_deadline_us_) EnterFault(kFaultRunaway);
+  }
 
   // 4./5. Speed loop and PWM.
   if (state_ == State::kRunning || state_ == State::kStopping) {

@@ -12,8 +12,9 @@ int64_t Plant::EncoderCounts(int w) const {
 }
 
 uint16_t Plant::EncoderRaw(int w) const {
+  const int64_t counts = reversed_[w] ? -EncoderCounts(w) : EncoderCounts(w);
   return static_cast<uint16_t>(static_cast<uint16_t>(p_.encoder_offset) +
-                               static_cast<uint16_t>(EncoderCounts(w) & 0xFFFF));
+                               static_cast<uint16_t>(counts & 0xFFFF));
 }
 
 void Plant::FreezeEncoder(int w, bool frozen) {

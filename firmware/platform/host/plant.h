@@ -53,6 +53,8 @@ class Plant {
   // Fault injection.
   void FreezeEncoder(int w, bool frozen);
   void LockWheel(int w, bool locked) { locked_[w] = locked; }
+  // Encoder channels A and B swapped: the raw counter runs the other way.
+  void ReverseEncoder(int w, bool reversed) { reversed_[w] = reversed; }
   void OverrideSupply(double v) { supply_override_ = v; }  // < 0: back to nominal
   void SetSlip(int w, double s) { p_.slip[w] = s; }
 
@@ -72,6 +74,7 @@ class Plant {
   bool frozen_[3] = {false, false, false};
   int64_t frozen_counts_[3] = {0, 0, 0};
   bool locked_[3] = {false, false, false};
+  bool reversed_[3] = {false, false, false};
   bool enabled_ = false;
   double supply_override_ = -1.0;
   double x_ = 0, y_ = 0, theta_ = 0, distance_ = 0;

@@ -41,8 +41,15 @@ void Usage(std::FILE* f) {
                "start reads it; default: in memory, empty at start).\n");
 }
 
+// As the board's controller hands frames over (hal_stm32f4.cc): an extended or remote (RTR)
+// frame is the unknown id 0x7FF with no data, counted by the firmware as rx_unknown.
 omni::firmware::CanFrame ToFw(const omni::can::Frame& f) {
   omni::firmware::CanFrame o;
+  if (f.extended || f.rtr) {
+    o.id = 0x7FF;
+    o.dlc = 0;
+    return o;
+  }
   o.id = static_cast<uint16_t>(f.id & 0x7FF);
   o.dlc = f.dlc;
   for (int i = 0; i < 8; ++i) o.data[i] = f.data[i];
@@ -171,7 +178,7 @@ int main(int argc, char** argv) {
           break;
         }
         if (!r.value()) break;
-        if (!f.extended && !f.rtr) hal.rx.push_back(ToFw(f));
+        hal.rx.push_back(ToFw(f));
       }
     } else if (std::chrono::steady_clock::now() - last_open > std::chrono::milliseconds(100)) {
       try_open();

@@ -179,8 +179,13 @@ bool Stm32Hal::CanRead(CanFrame* frame) {
   const uint32_t rdtr = Reg(CAN_RI0R + 4);
   const uint32_t lo = Reg(CAN_RI0R + 8);
   const uint32_t hi = Reg(CAN_RI0R + 12);
-  Reg(CAN_RF0R) |= (1u << 5);  // release the FIFO slot
-  if (rir & (1u << 2)) {       // extended id: not ours, report as unknown standard id 0
+  // Release the FIFO slot. A plain write, not |=: FULL0 and FOVR0 clear when written as 1, and a
+  // read-modify-write would clear an overrun the moment it is read.
+  Reg(CAN_RF0R) = 1u << 5;
+  // An extended id is not ours; a remote (RTR) frame carries no data, so its "payload" would be
+  // whatever the mailbox held (a remote 0x024 read as a twist, 0x023 as CLEAR_FAULTS). Both are
+  // reported as the unknown standard id 0x7FF and counted as such.
+  if (rir & ((1u << 2) | (1u << 1))) {
     frame->id = 0x7FF;
     frame->dlc = 0;
     return true;

@@ -199,6 +199,68 @@ TEST(FaultTest, EncoderStallWhileDriven) {
   EXPECT_TRUE(h.MotorsOff());
 }
 
+// Encoder A/B swapped on one wheel (the wiring mistake the bring-up's sign check looks for): the
+// loop drives harder the faster the wheel turns. One command of +2 rad/s used to run the wheel
+// to full duty and leave it there for good: the watchdog's stop ramps the setpoint to zero, which
+// the reversed reading only pushes further. Now it is a latched RUNAWAY fault, motors off.
+TEST(FaultTest, AReversedEncoderIsARunawayFaultNotAFullSpeedWheel) {
+  Harness h;
+  h.plant.ReverseEncoder(0, true);
+  h.SendWheelSpeeds(2.f, 0.f, 0.f);
+  int faulted_at = -1;
+  double speed_at_fault = 0;
+  for (int ms = 1; ms <= 3000; ++ms) {
+    h.Run(1);
+    if (faulted_at < 0 && h.fw.state() == State::kFault) {
+      faulted_at = ms;
+      speed_at_fault = h.plant.WheelSpeed(0);
+    }
+  }
+  ASSERT_GT(faulted_at, 0) << "state " << static_cast<int>(h.fw.state()) << ", duty "
+                           << h.fw.wheel(0).duty << ", wheel " << h.plant.WheelSpeed(0) << " rad/s";
+  EXPECT_LE(faulted_at, 600) << "stall_ms (300) after the wheel passes 2 rad/s";
+  EXPECT_TRUE(h.fw.fault_bits() & kFaultRunaway);
+  EXPECT_TRUE(h.MotorsOff());
+  EXPECT_LT(std::abs(h.plant.WheelSpeed(0)), 0.5 * std::abs(speed_at_fault))
+      << "coasting with the motors off, from " << speed_at_fault << " rad/s";
+  // Latched: a command does not drive it again until CLEAR_FAULTS, after which the same
+  // wiring trips again.
+  h.SendWheelSpeeds(2.f, 0.f, 0.f);
+  h.Run(5);
+  EXPECT_EQ(h.fw.state(), State::kFault);
+  h.Send(can::EncodeClearFaults(1));
+  h.Run(1);
+  EXPECT_EQ(h.fw.state(), State::kIdle);
+  h.SendWheelSpeeds(2.f, 0.f, 0.f);
+  h.Run(1500);
+  EXPECT_EQ(h.fw.state(), State::kFault);
+  EXPECT_TRUE(h.fw.fault_bits() & kFaultRunaway);
+}
+
+// With the runaway check out of reach (stall_duty 1.0 > max_duty), the stop after the watchdog
+// has a deadline of its own: the ramp from the fastest setpoint (2 rad/s at 80 rad/s^2, 25 ms)
+// plus 300 ms to settle. A wheel still turning then is switched off and latched, not left in
+// STOPPING at full duty.
+TEST(WatchdogTest, AStopThatDoesNotComeToRestByItsDeadlineIsARunawayFault) {
+  Params p;
+  p.stall_duty = 1.f;
+  Harness h(p);
+  h.plant.ReverseEncoder(0, true);
+  h.SendWheelSpeeds(2.f, 0.f, 0.f);
+  int tripped_at = -1, faulted_at = -1;
+  for (int ms = 1; ms <= 3000; ++ms) {
+    h.Run(1);
+    if (tripped_at < 0 && h.fw.state() == State::kStopping) tripped_at = ms;
+    if (faulted_at < 0 && h.fw.state() == State::kFault) faulted_at = ms;
+  }
+  ASSERT_GT(tripped_at, 0);
+  ASSERT_GT(faulted_at, 0) << "still " << static_cast<int>(h.fw.state()) << " at 3 s";
+  EXPECT_GE(faulted_at - tripped_at, 325);
+  EXPECT_LE(faulted_at - tripped_at, 330);
+  EXPECT_TRUE(h.fw.fault_bits() & kFaultRunaway);
+  EXPECT_TRUE(h.MotorsOff());
+}
+
 TEST(FaultTest, OverCurrentFromLockedWheel) {
   Harness h;
   DriveSteady(&h);

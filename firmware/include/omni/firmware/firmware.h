@@ -50,9 +50,13 @@ enum FaultBit : uint32_t {
   kFaultUnderVoltage = 16,
   kFaultCanBusOff = 32,
   kFaultBadCommand = 64,
+  // A wheel turns against its drive (|duty| >= stall_duty, the measured speed of the other sign
+  // and above 2 rad/s, for stall_ms: a reversed encoder or motor lead), or the controlled stop
+  // after the watchdog has not brought every wheel to rest by its deadline.
+  kFaultRunaway = 128,
 };
-inline constexpr uint32_t kLatchedFaults =
-    kFaultEstop | kFaultEncoderStall | kFaultOverCurrent | kFaultUnderVoltage | kFaultCanBusOff;
+inline constexpr uint32_t kLatchedFaults = kFaultEstop | kFaultEncoderStall | kFaultOverCurrent |
+                                           kFaultUnderVoltage | kFaultCanBusOff | kFaultRunaway;
 
 struct WheelState {
   int32_t position = 0;        // accumulated x4 counts
@@ -129,6 +133,9 @@ class Firmware {
   SpeedEstimator estimators_[kNumWheels];
   SpeedPid pids_[kNumWheels];
   uint32_t stall_ms_[kNumWheels] = {0, 0, 0};
+  uint32_t runaway_ms_[kNumWheels] = {0, 0, 0};
+  uint32_t stopping_us_ = 0;       // time in STOPPING so far
+  uint32_t stop_deadline_us_ = 0;  // set at the watchdog's trip: the ramp's length + settling
   uint32_t under_voltage_ms_ = 0;
   float bus_voltage_v_ = 0.f;
   uint32_t uptime_ms_ = 0;
