@@ -150,7 +150,17 @@ FwStatus Stm32Hal::Init() {
   return FwStatus::kOk;
 }
 
-uint32_t Stm32Hal::MicrosNow() { return Reg(kDwtCyccnt) / (kSysClockHz / 1000000); }
+uint32_t Stm32Hal::MicrosNow() {
+  // Dividing the raw counter would wrap at 2^32 / 168 us = 25.6 s, not at 2^32 us, and a step
+  // timed across that wrap would read as 4.27e9 us (max_step_us stuck at 65535). Whole
+  // microseconds elapsed are added instead; the remainder cycles carry to the next call.
+  constexpr uint32_t kCyclesPerUs = kSysClockHz / 1000000;
+  const uint32_t cycles = Reg(kDwtCyccnt);
+  const uint32_t us = (cycles - last_cycles_) / kCyclesPerUs;
+  last_cycles_ += us * kCyclesPerUs;
+  micros_ += us;
+  return micros_;
+}
 
 uint16_t Stm32Hal::ReadEncoder(int w) {
   return static_cast<uint16_t>(Reg(kEncoderTimers[w] + TIM_CNT) & 0xFFFF);

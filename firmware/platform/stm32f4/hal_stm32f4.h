@@ -43,6 +43,13 @@ class Stm32Hal final : public Hal {
   bool has_param_store() const override { return true; }
   uint32_t ParamStoreRead(uint8_t* buf, uint32_t cap) override;
   FwStatus ParamStoreWrite(const uint8_t* buf, uint32_t len) override;
+
+ private:
+  // MicrosNow() extends the 32-bit cycle counter (a wrap every 25.6 s at 168 MHz) into a
+  // microsecond count that wraps at 2^32 us as Hal promises; it must be called at least once
+  // per wrap, which the 1 kHz control step does.
+  uint32_t last_cycles_ = 0;
+  uint32_t micros_ = 0;
 };
 
 }  // namespace omni::firmware::stm32
