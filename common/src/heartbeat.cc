@@ -40,7 +40,7 @@ Heartbeat::Heartbeat(Bus* bus, std::string process_name, const Clock* clock, int
       process_(std::move(process_name)),
       clock_(clock),
       period_us_(period_us),
-      start_utime_(clock->NowUtime()) {
+      prev_utime_(clock->NowUtime()) {
   last_cpu_us_ = ProcessCpuMicros();
   last_mono_us_ = MonotonicMicros();
 }
@@ -56,14 +56,16 @@ void Heartbeat::SetState(int8_t state, std::string text) {
 
 bool Heartbeat::Tick(bool force) {
   const int64_t now = clock_->NowUtime();
-  if (!force && last_utime_ != 0 && now - last_utime_ < period_us_) return false;
+  if (now > prev_utime_) uptime_us_ += now - prev_utime_;
+  prev_utime_ = now;
+  if (!force && !PeriodDue(now, last_utime_, period_us_)) return false;
   omni::heartbeat_t hb;
   hb.utime = now;
   hb.process = process_;
   hb.pid = static_cast<int32_t>(getpid());
   hb.state = state_;
   hb.status_text = text_;
-  hb.uptime_us = now - start_utime_;
+  hb.uptime_us = uptime_us_;
   const BusCounters& c = bus_->counters();
   hb.msgs_in = c.msgs_in;
   hb.msgs_out = c.msgs_out + 1;  // counts this heartbeat

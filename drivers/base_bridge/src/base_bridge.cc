@@ -4,12 +4,17 @@
 #include <cmath>
 #include <sstream>
 
+#include "omni/common/time.h"
 #include "omni/firmware/firmware.h"
 #include "omni/firmware/params.h"
 
 namespace omni::base_bridge {
 
 namespace fwcan = omni::firmware::can;
+
+namespace {
+constexpr int64_t kEstopRepeatUs = 100000;
+}  // namespace
 
 BaseBridge::BaseBridge(const BaseBridgeOptions& options)
     : o_(options),
@@ -21,13 +26,19 @@ void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
   switch (cmd.mode) {
     case Command::kEstop:
       pending_estop_ = true;
+      estop_latched_ = true;
       have_cmd_ = false;
       sent_ = {};
       return;
     case Command::kClearFaults:
       pending_clear_ = true;
+      estop_latched_ = false;
       return;
     case Command::kTwist:
+      if (estop_latched_) {
+        ++counters_.commands_in_estop;
+        return;
+      }
       break;
     default:
       ++counters_.commands_rejected;
@@ -57,8 +68,12 @@ void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
 void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   last_tick_us_ = now_us;
   if (!link_up_) return;
-  if (pending_estop_) {
+  const bool fw_in_estop = have_hb_ && fw_state_ == static_cast<int8_t>(firmware::State::kEstop);
+  if (pending_estop_ ||
+      (estop_latched_ && !fw_in_estop && PeriodDue(now_us, last_estop_us_, kEstopRepeatUs))) {
     out->push_back(fwcan::EncodeEstop(node_));
+    ++counters_.estops_sent;
+    last_estop_us_ = now_us;
     pending_estop_ = false;
     sending_ = false;
   }
@@ -70,7 +85,7 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   // while a parameter differs, ask again every 5 s so a corrected one clears the warning.
   const int64_t recheck_us = geometry_checked_ ? 5000000 : 1000000;
   if ((!geometry_checked_ || !mismatches_.empty()) && have_hb_ &&
-      now_us - geometry_query_us_ > recheck_us) {
+      PeriodDue(now_us, geometry_query_us_, recheck_us + 1)) {
     geometry_query_us_ = now_us;
     for (uint16_t id :
          {firmware::kParamAlpha, firmware::kParamCenterToWheel, firmware::kParamWheelRadius,
@@ -79,8 +94,9 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
     }
   }
   const int64_t period_us = static_cast<int64_t>(1e6 / o_.send_rate_hz);
-  if (last_send_us_ != 0 && now_us - last_send_us_ < period_us) return;
-  int64_t dt_us = last_send_us_ == 0 ? period_us : now_us - last_send_us_;
+  if (!PeriodDue(now_us, last_send_us_, period_us)) return;
+  // The clock set back: the step is not a period of motion.
+  int64_t dt_us = last_send_us_ == 0 || now_us < last_send_us_ ? period_us : now_us - last_send_us_;
   dt_us = std::min<int64_t>(dt_us, 5 * period_us);
   const bool fresh =
       have_cmd_ && now_us - cmd_us_ <= static_cast<int64_t>(o_.command_timeout_s * 1e6);

@@ -46,6 +46,8 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("commands_clamped", [c] { return c->commands_clamped; });
   heartbeat_.AddCounter("accel_limited", [c] { return c->accel_limited; });
   heartbeat_.AddCounter("commands_rejected", [c] { return c->commands_rejected; });
+  heartbeat_.AddCounter("commands_in_estop", [c] { return c->commands_in_estop; });
+  heartbeat_.AddCounter("estops_sent", [c] { return c->estops_sent; });
   heartbeat_.AddCounter("can_rx_errors", [c] { return c->can_rx_errors; });
   heartbeat_.AddCounter("unknown_frames", [c] { return c->unknown_frames; });
   heartbeat_.AddCounter("missed_fw_heartbeats", [c] { return c->missed_heartbeats; });
@@ -56,6 +58,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("firmware_returns", [c] { return c->firmware_returns; });
   heartbeat_.AddCounter("fw_rx_unknown", [c] { return c->firmware_rx_unknown; });
   heartbeat_.AddCounter("fw_rx_bad_length", [c] { return c->firmware_rx_bad_length; });
+  heartbeat_.AddCounter("fw_tx_dropped", [c] { return c->firmware_tx_dropped; });
   heartbeat_.AddCounter("fw_max_step_us", [c] { return c->firmware_max_step_us; });
   heartbeat_.AddCounter("can_rx_overruns",
                         [this] { return can_ ? can_->stats().rx_overruns : int64_t{0}; });
@@ -81,7 +84,8 @@ void BaseBridgeNode::TryOpen(int64_t now_us) {
 
 void BaseBridgeNode::SpinOnce() {
   int64_t now = clock_->NowUtime();
-  if (!can_ && now - last_open_try_us_ >= static_cast<int64_t>(o_.reconnect_period_s * 1e6)) {
+  if (!can_ &&
+      PeriodDue(now, last_open_try_us_, static_cast<int64_t>(o_.reconnect_period_s * 1e6))) {
     TryOpen(now);
     if (!can_ && !ever_opened_) {
       ever_opened_ = true;  // the first failure counts as a link loss, later successes reconnect
@@ -144,7 +148,7 @@ void BaseBridgeNode::Publish(int64_t now) {
   }
   Encoders en;
   if (bridge_.TakeEncoders(&en)) bus_->Publish(o_.encoders_channel, ToMessage(en, o_));
-  if (now - last_status_us_ >= static_cast<int64_t>(1e6 / o_.status_rate_hz)) {
+  if (PeriodDue(now, last_status_us_, static_cast<int64_t>(1e6 / o_.status_rate_hz))) {
     last_status_us_ = now;
     const BaseStatus s = bridge_.status(now);
     bus_->Publish(o_.status_channel, ToMessage(s, bridge_.counters()));

@@ -101,7 +101,11 @@ void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
   out->has_depth = false;
   out->has_color = false;
   if (state_ == KinectState::kDisconnected) {
-    if (clock_->NowUtime() < next_attempt_) return;
+    const Utime now = clock_->NowUtime();
+    // A wait longer than the whole interval means the clock was set back: wait one from now.
+    const Utime interval = SecondsToUtime(options_.reconnect_interval_s);
+    if (next_attempt_ - now > interval) next_attempt_ = now + interval;
+    if (now < next_attempt_) return;
     Status st = Connect();
     if (!st.ok()) return;
     LOG_INFO << "reconnected: " << status_;
@@ -118,6 +122,8 @@ void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
     ++counters_.depth_frames;
     counters_.dropped_frames += gaps_.Add(out->depth.frame_index, out->depth.device_timestamp_us);
     last_data_ = now;
+  } else if (now < last_data_) {
+    last_data_ = now;  // the clock set back: the silence is counted from now
   } else if (now - last_data_ > SecondsToUtime(options_.data_timeout_s)) {
     Lose("no depth frame from " + source_->Describe() + " for " +
          std::to_string(options_.data_timeout_s) + " s");

@@ -74,9 +74,7 @@ void MapFusionNode::Tick() {
   heartbeat_.Tick();
   const int64_t now = clock_->NowUtime();
   if (!changed_ || static_cast<int>(latest_.size()) < o_.min_maps) return;
-  if (last_fuse_utime_ != 0 &&
-      now - last_fuse_utime_ < static_cast<int64_t>(o_.fuse_interval_s * 1e6))
-    return;
+  if (!PeriodDue(now, last_fuse_utime_, static_cast<int64_t>(o_.fuse_interval_s * 1e6))) return;
   last_fuse_utime_ = now;
   (void)FuseNow();
 }

@@ -318,7 +318,7 @@ void PoseGraphNode::Tick() {
   const int64_t used = slam_.counters().scans_used;
   auto due = [&](double interval_s, int64_t last_wall, int64_t used_then) {
     return interval_s > 0 && used > used_then &&
-           now - last_wall >= static_cast<int64_t>(interval_s * 1e6);
+           PeriodDue(now, last_wall, static_cast<int64_t>(interval_s * 1e6));
   };
   if (due(o_.trajectory_publish_interval_s, last_traj_wall_, used_at_last_traj_)) {
     PublishTrajectory();

@@ -270,13 +270,14 @@ void RbpfNode::Tick() {
   heartbeat_.Tick();
   const int64_t now = clock_->NowUtime();
   if (slam_.counters().scans_processed > 0 &&
-      now - last_grid_utime_ >= static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6)) {
+      PeriodDue(now, last_grid_utime_, static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6))) {
     PublishGrid();
     last_grid_utime_ = now;
   }
   const int64_t processed = slam_.counters().scans_processed;
   if (opt_.trajectory_publish_interval_s > 0 && processed > processed_at_last_traj_ &&
-      now - last_traj_utime_ >= static_cast<int64_t>(opt_.trajectory_publish_interval_s * 1e6)) {
+      PeriodDue(now, last_traj_utime_,
+                static_cast<int64_t>(opt_.trajectory_publish_interval_s * 1e6))) {
     PublishTrajectory();
     last_traj_utime_ = now;
     processed_at_last_traj_ = processed;

@@ -123,6 +123,81 @@ TEST(BaseBridgeTest, EstopAndClearFaultsGoOutAtOnce) {
   EXPECT_EQ(out[0].id, fwcan::MakeId(1, fwcan::kClearFaults));
 }
 
+// ESTOP is latched in the bridge as in the firmware: sent again every 100 ms until the firmware's
+// heartbeat shows the ESTOP state (a frame lost on a full queue is not the end of it), sent again
+// when a board that reset forgets it, and twists are refused until CLEAR_FAULTS.
+TEST(BaseBridgeTest, EstopIsRepeatedUntilTheFirmwareShowsItAndHoldsTwistsBack) {
+  BaseBridge b(TestOptions());
+  std::vector<CanFrame> out;
+  auto estops = [&] {
+    int n = 0;
+    for (const CanFrame& f : out) n += f.id == fwcan::MakeId(1, fwcan::kEstop);
+    return n;
+  };
+  fwcan::Heartbeat hb;
+  hb.state = static_cast<uint8_t>(firmware::State::kRunning);
+  b.OnFrame(fwcan::EncodeHeartbeat(1, hb), 1000);
+  Command e;
+  e.mode = Command::kEstop;
+  b.OnCommand(e, 1000);
+  for (int64_t t = 2000; t <= 301000; t += 1000) b.Tick(t, &out);
+  EXPECT_EQ(estops(), 3) << "at once (2 ms), then every 100 ms while the firmware does not show it";
+  // The firmware shows ESTOP: no more.
+  hb.state = static_cast<uint8_t>(firmware::State::kEstop);
+  b.OnFrame(fwcan::EncodeHeartbeat(1, hb), 301500);
+  out.clear();
+  for (int64_t t = 302000; t <= 800000; t += 1000) {
+    if (t % 100000 == 0) b.OnFrame(fwcan::EncodeHeartbeat(1, hb), t);
+    if (t % 50000 == 0) b.OnCommand(Twist(0.3, 0.0, 0.0), t);
+    b.Tick(t, &out);
+  }
+  EXPECT_EQ(estops(), 0);
+  EXPECT_TRUE(SentTwists(out).empty()) << "twists wait for CLEAR_FAULTS";
+  EXPECT_EQ(b.counters().commands_in_estop, 10);
+  // The board resets (brown-out) and comes back IDLE: ESTOP goes out again.
+  hb.state = static_cast<uint8_t>(firmware::State::kIdle);
+  b.OnFrame(fwcan::EncodeHeartbeat(1, hb), 800500);
+  out.clear();
+  b.Tick(801000, &out);
+  EXPECT_EQ(estops(), 1);
+  EXPECT_EQ(b.counters().estops_sent, 4);
+  // CLEAR_FAULTS releases both latches; the next twist drives.
+  Command c;
+  c.mode = Command::kClearFaults;
+  b.OnCommand(c, 802000);
+  b.OnCommand(Twist(0.3, 0.0, 0.0), 802000);
+  out.clear();
+  for (int64_t t = 803000; t <= 1000000; t += 1000) b.Tick(t, &out);
+  ASSERT_FALSE(out.empty());
+  EXPECT_EQ(out[0].id, fwcan::MakeId(1, fwcan::kClearFaults));
+  EXPECT_EQ(estops(), 0);
+  EXPECT_FALSE(SentTwists(out).empty());
+}
+
+// The wall clock set back a minute while commands stream: twists go on at 100 Hz from the step
+// (they used to stop until the clock was back where it had been; the firmware's watchdog then
+// parked the base under a host that was still commanding it).
+TEST(BaseBridgeTest, TwistsGoOnWhenTheClockIsSetBack) {
+  BaseBridge b(TestOptions());
+  std::vector<CanFrame> out;
+  int64_t t = 100000000;
+  for (int i = 0; i < 100; ++i, t += 10000) {
+    b.OnCommand(Twist(0.2, 0.0, 0.0), t);
+    b.Tick(t, &out);
+  }
+  const size_t before = SentTwists(out).size();
+  EXPECT_EQ(before, 100u);
+  out.clear();
+  t -= 60000000;
+  for (int i = 0; i < 100; ++i, t += 10000) {
+    b.OnCommand(Twist(0.2, 0.0, 0.0), t);
+    b.Tick(t, &out);
+  }
+  const auto after = SentTwists(out);
+  ASSERT_EQ(after.size(), 100u);
+  EXPECT_NEAR(after.back().vx_m_s, 0.2, 1e-3) << "no jump or stall in the ramp";
+}
+
 // Generates the encoder frames the firmware would send for a constant body twist.
 struct FakeFirmware {
   explicit FakeFirmware(const BaseBridgeOptions& o)

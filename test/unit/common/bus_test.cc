@@ -106,6 +106,33 @@ TEST(Bus, HeartbeatCarriesCounters) {
   EXPECT_GT(got[1].rss_mb, 0.f);
 }
 
+// The wall clock set back a minute (NTP stepping it at boot): heartbeats go on at their period
+// from the step instead of stopping for the minute (the supervisor would have restarted every
+// process), and the uptime neither goes negative nor stalls.
+TEST(Bus, HeartbeatGoesOnWhenTheClockIsSetBack) {
+  auto bus = Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok());
+  std::vector<omni::heartbeat_t> got;
+  (*bus)->Subscribe<omni::heartbeat_t>(
+      "HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) { got.push_back(m); });
+  ManualClock clock(100'000'000);
+  Heartbeat hb(bus->get(), "tester", &clock);
+  ASSERT_TRUE(hb.Tick());
+  clock.Advance(1'000'000);
+  ASSERT_TRUE(hb.Tick());
+  clock.Set(41'000'000);  // 60 s back
+  EXPECT_TRUE(hb.Tick()) << "the step back is not a wait of 60 s";
+  clock.Advance(500'000);
+  EXPECT_FALSE(hb.Tick());
+  clock.Advance(500'000);
+  EXPECT_TRUE(hb.Tick()) << "one period after the step";
+  Pump(**bus);
+  ASSERT_EQ(got.size(), 4u);
+  EXPECT_EQ(got[1].uptime_us, 1'000'000);
+  EXPECT_EQ(got[2].uptime_us, 1'000'000);
+  EXPECT_EQ(got[3].uptime_us, 2'000'000);
+}
+
 // A map save request reaches the processes it names (or all), each writes where it was asked
 // (its --out by default; DIR/<process> when every mapper is asked) and answers with the request's
 // number; a folder that cannot be made and a failed write are answered as failures and counted.

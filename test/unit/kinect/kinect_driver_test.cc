@@ -196,6 +196,33 @@ TEST(KinectDriver, SilentDeviceTimesOut) {
   EXPECT_NE(d.status_text().find("fake://cam"), std::string::npos);
 }
 
+// The wall clock set back a minute (NTP at boot) while the device is silent: the silence is
+// counted from the step, so a device that is gone is still found gone, 2 s later — not once the
+// clock has caught up with where it was.
+TEST(KinectDriver, SilentDeviceTimesOutAfterTheClockIsSetBack) {
+  Script s;
+  ManualClock clock(100000000);
+  KinectDriverOptions o;
+  o.data_timeout_s = 2.0;
+  o.reconnect_interval_s = 1.0;
+  KinectDriver d(o, std::make_unique<FakeSource>(&s), &clock);
+  ASSERT_TRUE(d.Connect().ok());
+  SourceFrames f;
+  clock.Set(40000000);  // 60 s back
+  d.Step(10, &f);
+  EXPECT_EQ(d.state(), KinectState::kStreaming);
+  clock.Advance(2500000);
+  d.Step(10, &f);
+  EXPECT_EQ(d.state(), KinectState::kDisconnected);
+  // Gone, and the clock set back again: the next attempt comes one interval later, not 60 s.
+  clock.Set(clock.NowUtime() - 60000000);
+  d.Step(10, &f);
+  EXPECT_EQ(d.state(), KinectState::kDisconnected);
+  clock.Advance(1000001);
+  d.Step(10, &f);
+  EXPECT_EQ(d.state(), KinectState::kStreaming) << d.status_text();
+}
+
 TEST(KinectNode, PublishesDepthColourAndHeartbeat) {
   auto bus = bus::Bus::Create("memq://");
   ASSERT_TRUE(bus.ok()) << bus.error().ToString();

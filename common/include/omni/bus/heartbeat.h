@@ -21,8 +21,10 @@ class Heartbeat {
   void AddCounter(const std::string& name, std::function<int64_t()> read);
   // heartbeat_t::STATE_* and a short text shown by lcm-spy and the supervisor.
   void SetState(int8_t state, std::string text);
-  // Publishes when at least one period passed since the last one (or `force`).
-  // Returns true when it published.
+  // Publishes when at least one period passed since the last one (or `force`), or when the
+  // clock was set back since (the period then counts from the step). Returns true when it
+  // published. `uptime_us` adds up the clock's forward steps between calls, so a clock set back
+  // neither makes it negative nor holds it.
   bool Tick(bool force = false);
   int64_t published() const { return published_; }
 
@@ -31,7 +33,8 @@ class Heartbeat {
   std::string process_;
   const Clock* clock_;
   int64_t period_us_;
-  int64_t start_utime_;
+  int64_t prev_utime_;  // the clock at the previous Tick
+  int64_t uptime_us_ = 0;
   int64_t last_utime_ = 0;
   int64_t last_cpu_us_ = 0;
   int64_t last_mono_us_ = 0;

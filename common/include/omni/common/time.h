@@ -37,6 +37,14 @@ class SystemClock final : public Clock {
   }
 };
 
+// Whether a periodic action on a wall clock is due: never done (`last` 0), `period_us` passed,
+// or the clock is now before `last` — set back by NTP or by hand — in which case waiting for it
+// to come back to `last` would silence the action for as long as the step (heartbeats, grids,
+// the base's commands), so the action runs and the caller's `last = now` re-bases it.
+inline bool PeriodDue(Utime now, Utime last, int64_t period_us) {
+  return last == 0 || now < last || now - last >= period_us;
+}
+
 // Monotonic clock in microseconds, for measuring durations.
 inline int64_t MonotonicMicros() {
   return std::chrono::duration_cast<std::chrono::microseconds>(

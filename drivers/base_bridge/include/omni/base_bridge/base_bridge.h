@@ -107,6 +107,8 @@ struct Counters {
   int64_t commands_clamped = 0;   // above a speed limit: clamped
   int64_t accel_limited = 0;      // send periods in which an acceleration limit held the twist back
   int64_t commands_rejected = 0;  // non-finite values or unknown mode
+  int64_t commands_in_estop = 0;  // twists refused while ESTOP is latched (until CLEAR_FAULTS)
+  int64_t estops_sent = 0;        // ESTOP frames, first and repeated until the firmware shows it
   int64_t frames_sent = 0;
   int64_t frames_in = 0;
   int64_t can_rx_errors = 0;         // our node, wrong length
@@ -161,6 +163,11 @@ class BaseBridge {
   bool have_cmd_ = false;
   bool pending_estop_ = false;
   bool pending_clear_ = false;
+  // ESTOP is latched here too: from MODE_ESTOP until MODE_CLEAR_FAULTS twists are refused, and
+  // ESTOP is sent again every kEstopRepeatUs while the firmware's heartbeat does not show it (a
+  // frame lost on a full queue or a dead link, a board reset that forgot its latch).
+  bool estop_latched_ = false;
+  int64_t last_estop_us_ = 0;
   kinematics::BodyTwist<double> sent_;
   int64_t last_send_us_ = 0;
   int64_t last_tick_us_ = 0;
