@@ -56,10 +56,12 @@ int DecodeRplidar(const std::vector<uint8_t>& bytes, bool express) {
       static_cast<long long>(revs.partial_samples_dropped()));
   std::printf(
       "# checkbit_errors %lld\n# checksum_errors %lld\n# bad_angles %lld\n"
-      "# angle_jumps %lld\n# resyncs %lld\n# bytes_skipped %lld\n",
+      "# angle_jumps %lld\n# unconfirmed %lld\n# resyncs %lld\n# bytes_skipped %lld\n"
+      "# implied_starts %lld\n",
       static_cast<long long>(c.checkbit_errors), static_cast<long long>(c.checksum_errors),
       static_cast<long long>(c.bad_angles), static_cast<long long>(c.angle_jumps),
-      static_cast<long long>(c.resyncs), static_cast<long long>(c.bytes_skipped));
+      static_cast<long long>(c.unconfirmed), static_cast<long long>(c.resyncs),
+      static_cast<long long>(c.bytes_skipped), static_cast<long long>(revs.implied_starts()));
   if (express) std::printf("# capsules %lld\n", static_cast<long long>(c.capsules));
   return 0;
 }

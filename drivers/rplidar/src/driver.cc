@@ -252,7 +252,7 @@ void RplidarDriver::Step(int timeout_ms, std::vector<std::vector<Sample>>* out) 
     return;
   }
   last_data_us_ = now_mono;
-  samples_.clear();
+  // samples_ may still hold what came in with the scan's descriptor (Handshake): keep it.
   parser_.Feed(chunk, *n, clock_->NowUtime(), &samples_);
   std::vector<Sample> done;
   for (const Sample& s : samples_) {

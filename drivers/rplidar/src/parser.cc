@@ -17,6 +17,7 @@ void MeasurementParser::Reset(StreamMode mode) {
   in_sync_ = mode == StreamMode::kStandard;  // nodes start right after the descriptor
   ever_synced_ = in_sync_;
   have_last_ = false;
+  next_checked_ = false;
   have_prev_capsule_ = false;
 }
 
@@ -59,12 +60,61 @@ bool MeasurementParser::Near(double a, double b) const {
   return d <= max_step_deg_;
 }
 
+MeasurementParser::LineUp MeasurementParser::NodesLineUpAt(size_t at, bool at_end) const {
+  const size_t avail = buf_.size() > at ? buf_.size() - at : 0;
+  size_t need = static_cast<size_t>(lookahead_);
+  if (avail < need * kSampleSize) {
+    if (!at_end) return LineUp::kWait;
+    if (avail < kSampleSize) return LineUp::kNo;
+    need = avail / kSampleSize;
+  }
+  for (size_t k = 0; k < need; ++k) {
+    if (!NodeOk(at + k * kSampleSize)) return LineUp::kNo;
+    if (k > 0 && !Near(NodeAngle(at + (k - 1) * kSampleSize), NodeAngle(at + k * kSampleSize)))
+      return LineUp::kNo;
+  }
+  return LineUp::kYes;
+}
+
 void MeasurementParser::ParseStandard(int64_t utime, bool at_end, std::vector<Sample>* out) {
   while (true) {
     const size_t avail = buf_.size() - pos_;
     if (in_sync_) {
       if (avail < kSampleSize) return;
-      if (NodeOk(pos_) && (!have_last_ || Near(last_angle_, NodeAngle(pos_)))) {
+      // The node at pos_ was checked against the last one already when that was emitted.
+      const bool checked = next_checked_;
+      next_checked_ = false;
+      if (checked || (NodeOk(pos_) && (!have_last_ || Near(last_angle_, NodeAngle(pos_))))) {
+        // Held back until what follows it is known. A byte lost in a node's distance field
+        // leaves a window of that node's first bytes and the next node's quality byte, which
+        // passes every check with a range of ~64 mm x that byte; only the bytes after it show
+        // it: real nodes then start 4 bytes in, not 5. Garbage inserted after a good node
+        // shows no such line-up inside the window, so that node is kept.
+        if (avail < 2 * kSampleSize && !at_end) {
+          next_checked_ = checked;
+          return;
+        }
+        const bool next_ok = avail >= 2 * kSampleSize && NodeOk(pos_ + kSampleSize) &&
+                             Near(NodeAngle(pos_), NodeAngle(pos_ + kSampleSize));
+        if (avail >= 2 * kSampleSize && !next_ok) {
+          size_t inside = 0;
+          for (size_t o = 1; o < kSampleSize && inside == 0; ++o) {
+            const LineUp l = NodesLineUpAt(pos_ + o, at_end);
+            if (l == LineUp::kWait) {
+              next_checked_ = checked;
+              return;
+            }
+            if (l == LineUp::kYes) inside = o;
+          }
+          if (inside > 0) {
+            ++counters_.unconfirmed;
+            in_sync_ = false;
+            have_last_ = false;
+            pos_ += inside;
+            counters_.bytes_skipped += static_cast<int64_t>(inside);
+            continue;
+          }
+        }
         Sample s = DecodeStandardSample(&buf_[pos_]);
         s.utime = utime;
         out->push_back(s);
@@ -72,6 +122,7 @@ void MeasurementParser::ParseStandard(int64_t utime, bool at_end, std::vector<Sa
         have_last_ = true;
         last_angle_ = s.angle_deg;
         pos_ += kSampleSize;
+        next_checked_ = next_ok;
         continue;
       }
       const uint8_t* p = &buf_[pos_];
@@ -94,18 +145,9 @@ void MeasurementParser::ParseStandard(int64_t utime, bool at_end, std::vector<Sa
       continue;
     }
     // Searching: need `lookahead_` consecutive good nodes (fewer at the end of a capture).
-    size_t need = static_cast<size_t>(lookahead_);
-    if (avail < need * kSampleSize) {
-      if (!at_end || avail < kSampleSize) return;
-      need = avail / kSampleSize;
-    }
-    bool ok = true;
-    for (size_t k = 0; k < need && ok; ++k) {
-      ok = NodeOk(pos_ + k * kSampleSize) &&
-           (k == 0 ||
-            Near(NodeAngle(pos_ + (k - 1) * kSampleSize), NodeAngle(pos_ + k * kSampleSize)));
-    }
-    if (ok) {
+    const LineUp l = NodesLineUpAt(pos_, at_end);
+    if (l == LineUp::kWait || (l == LineUp::kNo && avail < kSampleSize)) return;
+    if (l == LineUp::kYes) {
       in_sync_ = true;
       have_last_ = false;  // the lookahead vouches for this node
       if (ever_synced_) ++counters_.resyncs;
@@ -159,7 +201,18 @@ void MeasurementParser::ParseExpress(int64_t utime, std::vector<Sample>* out) {
 
 bool RevolutionAssembler::Add(const Sample& s, std::vector<Sample>* done) {
   bool completed = false;
-  if (s.start) {
+  bool start = s.start;
+  if (started_ && !current_.empty()) {
+    // Signed step, so a sample a little behind the last (jitter) takes sweep off, not 359 on.
+    const double step = std::remainder(s.angle_deg - current_.back().angle_deg, 360.0);
+    if (!start && sweep_deg_ + step > kMaxSweepDeg) {
+      start = true;
+      ++implied_starts_;
+    }
+    sweep_deg_ += step;
+  }
+  if (start) {
+    sweep_deg_ = 0;
     if (started_ && !current_.empty()) {
       done->swap(current_);
       current_.clear();

@@ -42,6 +42,10 @@ RplidarNode::RplidarNode(bus::Bus* bus, RplidarDriver* driver, NodeOptions optio
   heartbeat_.AddCounter("bytes_skipped", [d] { return d->parser_counters().bytes_skipped; });
   heartbeat_.AddCounter("bad_angles", [d] { return d->parser_counters().bad_angles; });
   heartbeat_.AddCounter("angle_jumps", [d] { return d->parser_counters().angle_jumps; });
+  heartbeat_.AddCounter("unconfirmed", [d] { return d->parser_counters().unconfirmed; });
+  heartbeat_.AddCounter("implied_starts", [d] { return d->assembler().implied_starts(); });
+  heartbeat_.AddCounter("partial_samples_dropped",
+                        [d] { return d->assembler().partial_samples_dropped(); });
   heartbeat_.AddCounter("reconnects", [d] { return d->counters().reconnects; });
   heartbeat_.AddCounter("connect_failures", [d] { return d->counters().connect_failures; });
   heartbeat_.AddCounter("timeouts", [d] { return d->counters().timeouts; });

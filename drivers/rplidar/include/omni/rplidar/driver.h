@@ -79,6 +79,7 @@ class RplidarDriver {
   const Health& health() const { return health_; }
   const DriverCounters& counters() const { return counters_; }
   const ParserCounters& parser_counters() const { return parser_.counters(); }
+  const RevolutionAssembler& assembler() const { return assembler_; }
   const DriverOptions& options() const { return options_; }
 
  private:

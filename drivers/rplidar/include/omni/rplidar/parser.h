@@ -6,7 +6,9 @@
 // the previous sample (consecutive samples of a real scan are < 10 degrees apart). After a
 // failure the parser slides byte by byte until `resync_lookahead` consecutive nodes pass all
 // three tests (a random 5-byte string passes the check bits 1 time in 4), so garbage costs only
-// the bytes it corrupted. Express capsules are located by their sync
+// the bytes it corrupted. A node is emitted once the bytes after it are known: if real nodes
+// start inside its window (a byte lost in transit) it is dropped, not a phantom sample.
+// Express capsules are located by their sync
 // nibbles and XOR checksum. Every failure is counted.
 #pragma once
 
@@ -29,6 +31,8 @@ struct ParserCounters {
   int64_t capsules = 0;         // express capsules accepted
   int64_t bad_angles = 0;       // nodes with an angle >= 360 degrees (rejected)
   int64_t angle_jumps = 0;      // nodes that passed the checks but jumped > max_step_deg
+  int64_t unconfirmed = 0;      // windows that passed the checks but had real nodes starting
+                                // inside them (a byte lost in transit): dropped, not emitted
 };
 
 class MeasurementParser {
@@ -48,6 +52,10 @@ class MeasurementParser {
 
  private:
   void ParseStandard(int64_t utime, bool at_end, std::vector<Sample>* out);
+  enum class LineUp { kYes, kNo, kWait };
+  // Whether `lookahead_` nodes (fewer at the end of a capture) start at `at`, each passing the
+  // checks and near the one before; kWait when more bytes are needed to tell.
+  LineUp NodesLineUpAt(size_t at, bool at_end) const;
   void ParseExpress(int64_t utime, std::vector<Sample>* out);
   bool NodeOk(size_t at) const;
   double NodeAngle(size_t at) const;
@@ -61,6 +69,7 @@ class MeasurementParser {
   std::vector<uint8_t> buf_;
   size_t pos_ = 0;
   bool in_sync_ = false;
+  bool next_checked_ = false;  // the node at pos_ passed its checks as the last one's successor
   bool ever_synced_ = false;
   bool have_prev_capsule_ = false;
   Capsule prev_capsule_;
@@ -68,7 +77,11 @@ class MeasurementParser {
 };
 
 // Groups samples into revolutions: a revolution ends where the next sample carries the start
-// flag. Samples before the first start flag form no revolution (counted as partial).
+// flag. Samples before the first start flag form no revolution (counted as partial). A start
+// flag lost in transit (its node corrupted, or a flipped S bit) would join two turns into one
+// scan of 720 degrees with twice the scan time: once a revolution has swept
+// kMaxSweepDeg (360 + 10; real start flags come within about a degree of a full turn), the
+// next sample starts a new one as if flagged (counted as implied_starts).
 class RevolutionAssembler {
  public:
   // Returns true and fills `done` when `s` completed a revolution.
@@ -76,7 +89,10 @@ class RevolutionAssembler {
   void Reset() {
     current_.clear();
     started_ = false;
+    sweep_deg_ = 0;
   }
+  static constexpr double kMaxSweepDeg = 370.0;
+  int64_t implied_starts() const { return implied_starts_; }
   size_t pending() const { return current_.size(); }
   int64_t revolutions() const { return revolutions_; }
   int64_t partial_samples_dropped() const { return partial_dropped_; }
@@ -86,6 +102,8 @@ class RevolutionAssembler {
   bool started_ = false;
   int64_t revolutions_ = 0;
   int64_t partial_dropped_ = 0;
+  double sweep_deg_ = 0;  // angle swept since the revolution's first sample
+  int64_t implied_starts_ = 0;
 };
 
 }  // namespace omni::rplidar
