@@ -75,7 +75,7 @@ int main(int argc, char** argv) {
   omni::supervisor::Supervisor sup(*opt, &launcher);
   bus.Subscribe<omni::heartbeat_t>(opt->channel, [&](const omni::heartbeat_t& h, int64_t) {
     if (h.process != "supervisor")
-      sup.OnHeartbeat(h.process, h.state, h.status_text, omni::MonotonicMicros());
+      sup.OnHeartbeat(h.process, h.pid, h.state, h.status_text, omni::MonotonicMicros());
   });
   omni::bus::Heartbeat hb(&bus, "supervisor", &clock);
   hb.AddCounter("children", [&] { return static_cast<int64_t>(sup.children().size()); });
@@ -87,6 +87,7 @@ int main(int argc, char** argv) {
   hb.AddCounter("heartbeat_timeouts", [&] { return sup.total(&CS::heartbeat_timeouts); });
   hb.AddCounter("start_errors", [&] { return sup.total(&CS::start_errors); });
   hb.AddCounter("gave_up", [&] { return sup.gave_up(); });
+  hb.AddCounter("foreign_heartbeats", [&] { return sup.foreign_heartbeats(); });
   omni::bus::InstallStopSignals();
   const int64_t t0 = omni::MonotonicMicros();
   sup.Start(t0);

@@ -107,6 +107,7 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   const pid_t pid = fork();
   if (pid < 0)
     return MakeError(ErrorCode::kUnavailable, std::string("fork: ") + std::strerror(errno));
+  if (pid > 0) setpgid(pid, pid);  // also here, so a signal right after Start finds the group
   if (pid == 0) {
     // Child: die with the supervisor, own process group (a terminal's Ctrl-C goes to the
     // supervisor, which stops the children in order).
@@ -145,11 +146,20 @@ std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
   }
   if (WIFSIGNALED(status)) e.signal = WTERMSIG(status);
   if (WIFEXITED(status)) e.code = WEXITSTATUS(status);
+  // Whatever the child left running in its group goes with it. (The group's id stays taken
+  // while any member lives, so this reaches no unrelated process.)
+  kill(-pid, SIGKILL);
   return e;
 }
 
 void PosixLauncher::Signal(int pid, int sig) {
-  if (pid > 0) kill(pid, sig);
+  if (pid <= 0) return;
+  if (kill(-pid, sig) != 0) kill(pid, sig);  // the group, or the child if it has none yet
+}
+
+bool PosixLauncher::Owns(int child_pid, int reported_pid) const {
+  if (reported_pid <= 0 || child_pid <= 0) return false;
+  return reported_pid == child_pid || getpgid(reported_pid) == child_pid;
 }
 
 const char* ChildStateName(ChildState s) {
@@ -323,12 +333,16 @@ void Supervisor::Tick(int64_t now_us) {
   if (stopping_all_) StopNext(now_us);
 }
 
-void Supervisor::OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
-                             int64_t now_us) {
+void Supervisor::OnHeartbeat(const std::string& process, int pid, int8_t state,
+                             const std::string& text, int64_t now_us) {
   for (size_t i = 0; i < st_.size(); ++i) {
     if (o_.children[i].heartbeat != process) continue;
     ChildStatus& s = st_[i];
     if (s.state != ChildState::kStarting && s.state != ChildState::kRunning) continue;
+    if (!launcher_->Owns(s.pid, pid)) {
+      ++foreign_heartbeats_;
+      continue;
+    }
     s.last_heartbeat_us = now_us;
     s.heartbeat_state = state;
     s.heartbeat_text = text;

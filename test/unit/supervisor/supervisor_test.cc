@@ -1,6 +1,7 @@
 // The supervisor: restart policies, backoff and giving up, heartbeat timeouts with SIGTERM then
 // SIGKILL, stopping everything, the options; then the process with real children.
 #include <signal.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -44,6 +45,10 @@ class FakeLauncher final : public Launcher {
       e.signal = sig;
       exits[pid] = e;
     }
+  }
+  // A heartbeat's pid 0 stands for "the child's own" in these tests.
+  bool Owns(int child_pid, int reported_pid) const override {
+    return reported_pid == 0 || reported_pid == child_pid;
   }
   void Exit(int pid, int code) {
     ExitInfo e;
@@ -168,12 +173,12 @@ TEST(Supervisor, ASilentChildIsStoppedKilledIfNeededAndRestarted) {
   EXPECT_EQ(s.children()[0].state, ChildState::kStarting);
   s.Tick(9 * kS);  // within the start grace: nothing
   EXPECT_TRUE(l.signals.empty());
-  s.OnHeartbeat("other_proc", 1, "", 9 * kS);  // someone else's heartbeat does not count
+  s.OnHeartbeat("other_proc", 0, 1, "", 9 * kS);  // someone else's heartbeat does not count
   EXPECT_EQ(s.children()[0].state, ChildState::kStarting);
-  s.OnHeartbeat("mapper_proc", 2, "queue full", 9 * kS);
+  s.OnHeartbeat("mapper_proc", 0, 2, "queue full", 9 * kS);
   EXPECT_EQ(s.children()[0].state, ChildState::kRunning);
   EXPECT_NE(s.Summary().find("mapper degraded: queue full"), std::string::npos) << s.Summary();
-  s.OnHeartbeat("mapper_proc", 1, "mapping", 10 * kS);
+  s.OnHeartbeat("mapper_proc", 0, 1, "mapping", 10 * kS);
   s.Tick(12 * kS);
   EXPECT_TRUE(l.signals.empty());
   EXPECT_EQ(s.Summary(), "all 1 running");
@@ -196,6 +201,88 @@ TEST(Supervisor, ASilentChildIsStoppedKilledIfNeededAndRestarted) {
   s.Tick(17 * kS + 10 * kS + 1);
   EXPECT_EQ(l.signals.back(), std::make_pair(101, SIGTERM));
   EXPECT_EQ(s.children()[0].heartbeat_timeouts, 2);
+}
+
+// A heartbeat with the child's name from another pid (a stale instance, the same process on
+// another machine of the multicast group, `omni replay` of a log with HEARTBEAT in it) does not
+// keep a hung child "running": it is counted and the child is stopped when its own go silent.
+TEST(Supervisor, AHeartbeatFromAnotherPidIsNotTheChilds) {
+  SupervisorOptions o;
+  ChildSpec c = Child("mapper", RestartPolicy::kOnFailure);
+  c.heartbeat = "mapper_proc";
+  c.start_grace_s = 2;
+  c.heartbeat_timeout_s = 3;
+  o.children = {c};
+  FakeLauncher l;
+  Supervisor s(o, &l);
+  s.Start(0);
+  s.OnHeartbeat("mapper_proc", 100, 1, "", 1 * kS);
+  EXPECT_EQ(s.children()[0].state, ChildState::kRunning);
+  for (int t = 2; t <= 6; ++t) s.OnHeartbeat("mapper_proc", 4242, 1, "", t * kS);
+  EXPECT_EQ(s.foreign_heartbeats(), 5);
+  s.Tick(4 * kS + 1);
+  ASSERT_EQ(l.signals.size(), 1u);
+  EXPECT_EQ(l.signals[0], std::make_pair(100, SIGTERM));
+  EXPECT_EQ(s.children()[0].heartbeat_timeouts, 1);
+}
+
+// The real launcher signals the child's process group: a wrapper's worker stops with it, and
+// what a child leaves behind when it exits is killed (review finding 2026-12-06: the worker of
+// `sh -c 'sleep & wait'` outlived its stop, and would have held a driver's serial port).
+bool Alive(int pid) {
+  std::ifstream stat("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  if (!std::getline(stat, line)) return false;
+  const auto paren = line.rfind(')');
+  return paren != std::string::npos && paren + 2 < line.size() && line[paren + 2] != 'Z';
+}
+
+int ReadPid(const std::string& path) {
+  for (int i = 0; i < 500; ++i) {
+    std::ifstream f(path);
+    int pid = 0;
+    if (f >> pid && pid > 0) return pid;
+    usleep(10000);
+  }
+  return -1;
+}
+
+std::optional<ExitInfo> WaitExit(PosixLauncher* l, int pid) {
+  for (int i = 0; i < 500; ++i) {
+    if (auto e = l->Poll(pid)) return e;
+    usleep(10000);
+  }
+  return std::nullopt;
+}
+
+TEST(PosixLauncherTest, SignalsTheChildsWholeGroupAndKillsWhatItLeaves) {
+  const std::string dir = ::testing::TempDir() + "/launcher_group";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  PosixLauncher l;
+  // A wrapper whose worker is a grandchild: SIGTERM to the group stops both.
+  auto wrapper = l.Start({"sh", "-c", "sleep 1000 & echo $! > " + dir + "/w; wait"}, "");
+  ASSERT_TRUE(wrapper.ok()) << wrapper.error().message;
+  const int worker = ReadPid(dir + "/w");
+  ASSERT_GT(worker, 0);
+  EXPECT_TRUE(l.Owns(*wrapper, worker)) << "the worker's heartbeat is the child's";
+  EXPECT_TRUE(l.Owns(*wrapper, *wrapper));
+  EXPECT_FALSE(l.Owns(*wrapper, static_cast<int>(getpid())));
+  EXPECT_FALSE(l.Owns(*wrapper, 0));
+  l.Signal(*wrapper, SIGTERM);
+  ASSERT_TRUE(WaitExit(&l, *wrapper).has_value());
+  for (int i = 0; i < 200 && Alive(worker); ++i) usleep(10000);
+  EXPECT_FALSE(Alive(worker)) << "the wrapper's worker outlived the stop";
+  // A child that exits leaving a process behind: killed when the exit is reaped.
+  auto leaver = l.Start({"sh", "-c", "sleep 1000 & echo $! > " + dir + "/o; exit 0"}, "");
+  ASSERT_TRUE(leaver.ok());
+  const int orphan = ReadPid(dir + "/o");
+  ASSERT_GT(orphan, 0);
+  auto e = WaitExit(&l, *leaver);
+  ASSERT_TRUE(e.has_value());
+  EXPECT_EQ(e->code, 0);
+  for (int i = 0; i < 200 && Alive(orphan); ++i) usleep(10000);
+  EXPECT_FALSE(Alive(orphan)) << "the child's leftover outlived it";
 }
 
 TEST(Supervisor, StopAllStopsNewestFirstAndRestartsNothing) {
@@ -247,7 +334,7 @@ TEST(Supervisor, OneShotsAreWaitedForAndAStopIsNotAFailure) {
   s.Tick(2 * kS);
   ASSERT_EQ(l.started.size(), 2u);
   s.Tick(3 * kS);
-  s.OnHeartbeat("bridge", 1, "", 3 * kS);  // (no heartbeat configured: ignored)
+  s.OnHeartbeat("bridge", 0, 1, "", 3 * kS);  // (no heartbeat configured: ignored)
   EXPECT_TRUE(s.Healthy()) << s.Summary();
   EXPECT_EQ(s.Summary(), "all 1 running (1 one-shot done)");
   s.StopAll(4 * kS);
@@ -282,7 +369,7 @@ TEST(Supervisor, AfterStartsAChildOnceWhatItWaitsForRuns) {
   EXPECT_NE(s.Summary().find("mapper waiting for driver"), std::string::npos) << s.Summary();
   s.Tick(kS);
   EXPECT_EQ(l.started.size(), 3u);
-  s.OnHeartbeat("driver", 1, "", 2 * kS);
+  s.OnHeartbeat("driver", 0, 1, "", 2 * kS);
   s.Tick(2 * kS);
   ASSERT_EQ(l.started.size(), 4u);
   EXPECT_EQ(l.commands[103][0], "/bin/mapper");

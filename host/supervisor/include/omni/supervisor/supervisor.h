@@ -84,17 +84,28 @@ class Launcher {
   // The child's exit once it has ended (reaped), nullopt while it runs.
   virtual std::optional<ExitInfo> Poll(int pid) = 0;
   virtual void Signal(int pid, int signal) = 0;
+  // Whether a heartbeat that says it comes from `reported_pid` is the child `child_pid`'s: the
+  // child itself or a process in its group (a wrapper script's worker).
+  virtual bool Owns(int child_pid, int reported_pid) const {
+    (void)child_pid;
+    (void)reported_pid;
+    return true;
+  }
 };
 
 // fork + execvp; the child gets SIGTERM if the supervisor dies (PR_SET_PDEATHSIG), its own
 // process group, and the supervisor's stdout/stderr. A command that cannot be executed exits
-// 127 (seen as a failure, so restarted with backoff and in the end given up).
+// 127 (seen as a failure, so restarted with backoff and in the end given up). Signals go to the
+// child's whole process group, so the worker of a wrapper (`sh -c '...'`) is stopped with it,
+// and what is left of the group when the child has exited is killed (an orphan would hold the
+// serial port the restarted driver needs).
 class PosixLauncher final : public Launcher {
  public:
   Result<int> Start(const std::vector<std::string>& command,
                     const std::string& working_dir) override;
   std::optional<ExitInfo> Poll(int pid) override;
   void Signal(int pid, int signal) override;
+  bool Owns(int child_pid, int reported_pid) const override;
 };
 
 enum class ChildState { kWaiting, kBackoff, kStarting, kRunning, kStopping, kExited, kGaveUp };
@@ -123,9 +134,12 @@ class Supervisor {
   void Start(int64_t now_us);
   // Reaps exits, acts on silent children, kills those past their stop grace, restarts the due.
   void Tick(int64_t now_us);
-  // A heartbeat from `process` (its heartbeat_t.process) with its state and text.
-  void OnHeartbeat(const std::string& process, int8_t state, const std::string& text,
+  // A heartbeat from `process` (its heartbeat_t.process and .pid) with its state and text. One
+  // whose pid is not the child's (Launcher::Owns) is not the child's: a stale instance, the
+  // same process name on another machine, a replayed log. It is counted, not taken.
+  void OnHeartbeat(const std::string& process, int pid, int8_t state, const std::string& text,
                    int64_t now_us);
+  int64_t foreign_heartbeats() const { return foreign_heartbeats_; }
   // Stops every child, one at a time and newest first (SIGTERM, SIGKILL after its stop grace;
   // the next once it is gone), and restarts none; keep calling Tick until AllStopped().
   void StopAll(int64_t now_us);
@@ -158,6 +172,7 @@ class Supervisor {
   Launcher* launcher_;
   std::vector<ChildStatus> st_;
   bool stopping_all_ = false;
+  int64_t foreign_heartbeats_ = 0;
 };
 
 }  // namespace omni::supervisor
