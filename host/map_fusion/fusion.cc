@@ -83,8 +83,12 @@ bool Usable(const io::GridMap& m, std::string* why) {
 }  // namespace
 
 Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& opt,
-                          AlignmentHints* hints) {
+                          AlignmentHints* hints, std::vector<SourceReport>* sources) {
   FusionResult res;
+  auto fail = [&](const std::string& why) -> Result<FusionResult> {
+    if (sources) *sources = res.sources;
+    return MakeError(ErrorCode::kUnavailable, why);
+  };
   res.sources.resize(maps.size());
   int base = -1;
   for (size_t i = 0; i < maps.size(); ++i) {
@@ -100,9 +104,8 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
     if (!opt.base.empty() ? maps[i].name == opt.base : base < 0) base = static_cast<int>(i);
   }
   if (base < 0)
-    return MakeError(ErrorCode::kUnavailable,
-                     opt.base.empty() ? "no usable map to fuse"
-                                      : "the base map '" + opt.base + "' is missing or unusable");
+    return fail(opt.base.empty() ? "no usable map to fuse"
+                                 : "the base map '" + opt.base + "' is missing or unusable");
   const io::GridMap& ref = maps[static_cast<size_t>(base)].map;
   res.base = maps[static_cast<size_t>(base)].name;
   if (hints && hints->base != res.base) {
@@ -166,9 +169,8 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
     std::string why;
     for (const auto& q : res.sources)
       if (!q.used) why += "; " + q.name + ": " + q.reason;
-    return MakeError(ErrorCode::kUnavailable, "only " + std::to_string(moved.size()) +
-                                                  " usable map(s), min_maps is " +
-                                                  std::to_string(opt.min_maps) + why);
+    return fail("only " + std::to_string(moved.size()) + " usable map(s), min_maps is " +
+                std::to_string(opt.min_maps) + why);
   }
   res.fused = ref;  // the base's grid, every cell decided below
   std::fill(res.fused.cells.begin(), res.fused.cells.end(), int8_t{-1});
@@ -191,6 +193,7 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
       ++res.majority;
     res.fused.cells[c] = static_cast<int8_t>(v < 0 ? -1 : v == 0 ? 0 : 100);
   }
+  if (sources) *sources = res.sources;
   return res;
 }
 

@@ -49,8 +49,11 @@ Result<FusionResult> MapFusionNode::FuseNow() {
   std::vector<SourceMap> maps;
   for (const auto& ch : o_.grid_channels)
     if (auto it = latest_.find(ch); it != latest_.end()) maps.push_back({ch, it->second});
-  auto r = Fuse(maps, o_, &hints_);
+  std::vector<SourceReport> reports;
+  auto r = Fuse(maps, o_, &hints_, &reports);
   changed_ = false;
+  for (const auto& s : reports)
+    if (!s.used) ++sources_rejected_;
   if (!r.ok()) {
     ++fusion_failures_;
     LOG_WARN << "no fusion: " << r.error().message;
@@ -60,8 +63,6 @@ Result<FusionResult> MapFusionNode::FuseNow() {
   ++fusions_;
   alignments_tracked_ += static_cast<int64_t>(r->alignments_tracked);
   alignments_searched_ += static_cast<int64_t>(r->alignments_searched);
-  for (const auto& s : r->sources)
-    if (!s.used) ++sources_rejected_;
   bus::PublishGrid(*bus_, o_.fused_channel, r->fused,
                    newest_utime_ ? newest_utime_ : clock_->NowUtime(), "fused");
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK,

@@ -235,10 +235,16 @@ TEST(MapFusion, MapsThatDoNotAlignOrAreEmptyAreLeftOutWithTheReason) {
   EXPECT_NE(r->sources[3].reason.find("empty"), std::string::npos);
   // Too few left: an error that says why each one was left out.
   o.min_maps = 3;
-  auto bad = Fuse({{"A", a}, {"other", Rasterize(other, Pose2(3, 2, 1.0))}}, o);
+  std::vector<SourceReport> reports;
+  auto bad = Fuse({{"A", a}, {"other", Rasterize(other, Pose2(3, 2, 1.0))}}, o, nullptr, &reports);
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.error().message.find("other: alignment overlap"), std::string::npos)
       << bad.error().message;
+  // The reports come out with the error too (the node counts what it left out from them).
+  ASSERT_EQ(reports.size(), 2u);
+  EXPECT_TRUE(reports[0].used);
+  EXPECT_FALSE(reports[1].used);
+  EXPECT_NE(reports[1].reason.find("alignment overlap"), std::string::npos);
   // A configured base that is not there is an error, not a silent choice.
   o.min_maps = 2;
   o.base = "GRID_PG";
@@ -457,6 +463,19 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   EXPECT_TRUE(fused.empty());
   EXPECT_EQ(node.grids_rejected(), 3);
   EXPECT_EQ(b.counters().decode_errors.load(), 1);
+  // A second map of another place: it does not align, so with min_maps 2 there is no fusion —
+  // and the map left out is counted as such, not only the failed fusion (it used to be counted
+  // only when a fusion succeeded without it).
+  Plan elsewhere;
+  elsewhere.walls = {{{0, 0}, {2, 7}}, {{5, 1}, {9, 1.5}}};
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(elsewhere, Pose2(3, 2, 1.0)), clock.NowUtime(), "rbpf"));
+  pump();
+  clock.Advance(1100000);
+  node.Tick();
+  pump();
+  EXPECT_TRUE(fused.empty());
+  EXPECT_EQ(node.fusion_failures(), 1);
+  EXPECT_EQ(node.sources_rejected(), 1);
   // A second good map (in another frame, with its own error): fused and published.
   b.Publish("GRID_RBPF",
             GridMsg(Rasterize(plan, Pose2(0.3, 0.2, -0.05), cb), clock.NowUtime() + 1000, "rbpf"));

@@ -101,8 +101,11 @@ int VoteCell(const size_t votes[3], TieRule tie, bool* tied = nullptr);
 // than min_maps inputs that are non-empty and well aligned, or a configured base that is not
 // among the inputs.
 // `hints` (optional): previous alignments (see AlignmentHints); updated with this fusion's.
+// `sources` (optional): the per-map reports, also when the fusion fails (which maps were left
+// out, and why).
 Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& options,
-                          AlignmentHints* hints = nullptr);
+                          AlignmentHints* hints = nullptr,
+                          std::vector<SourceReport>* sources = nullptr);
 
 // A one-line JSON object per source and the vote counts, for logs and stats files.
 std::string ReportJson(const FusionResult& result);
