@@ -60,6 +60,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("fw_rx_bad_length", [c] { return c->firmware_rx_bad_length; });
   heartbeat_.AddCounter("fw_tx_dropped", [c] { return c->firmware_tx_dropped; });
   heartbeat_.AddCounter("fw_max_step_us", [c] { return c->firmware_max_step_us; });
+  heartbeat_.AddCounter("can_tx_errors", [this] { return tx_errors_; });
   heartbeat_.AddCounter("can_rx_overruns",
                         [this] { return can_ ? can_->stats().rx_overruns : int64_t{0}; });
   heartbeat_.SetState(omni::heartbeat_t::STATE_STARTING, "opening " + o_.can_url);
@@ -130,7 +131,13 @@ void BaseBridgeNode::SpinOnce() {
     std::copy(ff.data, ff.data + 8, f.data);
     const omni::Status s = can_->Send(f);
     if (!s.ok()) {
-      LOG_WARN << s.error().ToString();
+      // At 100 Hz a full queue (a bus-off controller, no one acking) would be 100 lines a
+      // second: the first, then one every 5 s with the count.
+      ++tx_errors_;
+      if (PeriodDue(now, last_tx_error_log_us_, 5000000)) {
+        LOG_WARN << s.error().ToString() << " (" << tx_errors_ << " send errors so far)";
+        last_tx_error_log_us_ = now;
+      }
       if (s.error().code == ErrorCode::kUnavailable) {
         can_.reset();
         bridge_.OnLinkDown(now);

@@ -36,6 +36,8 @@ class BaseBridgeNode {
   bus::Heartbeat heartbeat_;
   std::unique_ptr<can::CanBus> can_;
   int64_t last_open_try_us_ = 0;
+  int64_t tx_errors_ = 0;  // CAN sends that failed (queue full, interface gone)
+  int64_t last_tx_error_log_us_ = 0;
   int64_t last_status_us_ = 0;
   bool fw_alive_logged_ = false, fw_alive_ever_ = false;  // for the log lines
   bool ever_opened_ = false;
