@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -55,6 +56,10 @@ void PngChunk(std::string* out, const char* type, const std::string& data) {
 }  // namespace
 
 Result<Image> ReadPnm(const std::string& path, int max_side) {
+  // A FIFO or a device (a map YAML's `image: /dev/stdin`) would block or never end.
+  std::error_code ec;
+  if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
+    return MakeError(ErrorCode::kInvalidArgument, "image '" + path + "' is not a regular file");
   std::ifstream in(path, std::ios::binary);
   if (!in) return MakeError(ErrorCode::kNotFound, "cannot open image '" + path + "'");
   std::string magic, w, h, maxv;
@@ -100,8 +105,17 @@ Result<Image> ReadPnm(const std::string& path, int max_side) {
                                             std::to_string(raw.size()) + " of " +
                                             std::to_string(want) + " bytes)");
   im.pixels.resize(n);
-  for (size_t i = 0; i < n; ++i)
+  for (size_t i = 0; i < n; ++i) {
     im.pixels[i] = bytes == 2 ? static_cast<uint16_t>(raw[2 * i] << 8 | raw[2 * i + 1]) : raw[i];
+    if (im.pixels[i] > im.max_value) {
+      const size_t px = i / static_cast<size_t>(im.channels);
+      return MakeError(ErrorCode::kParse,
+                       path + ": sample " + std::to_string(im.pixels[i]) + " at pixel (" +
+                           std::to_string(px % static_cast<size_t>(im.width)) + ", " +
+                           std::to_string(px / static_cast<size_t>(im.width)) +
+                           ") is above the maxval " + std::to_string(im.max_value));
+    }
+  }
   return im;
 }
 

@@ -3,6 +3,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <sstream>
@@ -27,6 +28,17 @@ struct FileCloser {
 };
 using File = std::unique_ptr<FILE, FileCloser>;
 
+// libpng's errors and warnings go to the Status, not to stderr (its default handlers print
+// "libpng error: ..." for every corrupt file).
+struct PngMessages {
+  std::string error;
+};
+[[noreturn]] void PngError(png_structp png, png_const_charp message) {
+  if (auto* m = static_cast<PngMessages*>(png_get_error_ptr(png))) m->error = message;
+  png_longjmp(png, 1);
+}
+void PngWarning(png_structp, png_const_charp) {}
+
 bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() &&
          s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
@@ -35,12 +47,16 @@ bool EndsWith(const std::string& s, const std::string& suffix) {
 }  // namespace
 
 Status ReadDepthPng(const std::string& path, DepthImage* image) {
+  std::error_code ec;
+  if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
+    return MakeError(ErrorCode::kInvalidArgument, path + ": not a regular file");
   File f(std::fopen(path.c_str(), "rb"));
   if (!f) return IoError("cannot open", path);
   uint8_t sig[8];
   if (std::fread(sig, 1, 8, f.get()) != 8 || png_sig_cmp(sig, 0, 8) != 0)
     return MakeError(ErrorCode::kParse, path + ": not a PNG file");
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  PngMessages messages;
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &messages, PngError, PngWarning);
   if (!png) return MakeError(ErrorCode::kInternal, "png_create_read_struct failed");
   png_infop info = png_create_info_struct(png);
   if (!info) {
@@ -51,7 +67,7 @@ Status ReadDepthPng(const std::string& path, DepthImage* image) {
   std::vector<png_bytep> rows;
   if (setjmp(png_jmpbuf(png))) {
     png_destroy_read_struct(&png, &info, nullptr);
-    return MakeError(ErrorCode::kParse, path + ": corrupt PNG data");
+    return MakeError(ErrorCode::kParse, path + ": corrupt PNG data (" + messages.error + ")");
   }
   png_init_io(png, f.get());
   png_set_sig_bytes(png, 8);
@@ -71,6 +87,15 @@ Status ReadDepthPng(const std::string& path, DepthImage* image) {
   if (depth == 16) png_set_swap(png);  // PNG is big-endian; we want host order
   png_read_update_info(png, info);
   const size_t rowbytes = png_get_rowbytes(png, info);
+  // Deflate packs at most ~1032:1: a file too small for the size its header claims is refused
+  // before that size is allocated (a 100-byte file saying 16384 x 16384 x 16 bit is not 512 MB).
+  const auto file_bytes = std::filesystem::file_size(path, ec);
+  if (!ec && static_cast<double>(rowbytes) * h > 1100.0 * static_cast<double>(file_bytes) + 65536) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    return MakeError(ErrorCode::kParse, path + ": " + std::to_string(file_bytes) +
+                                            " bytes cannot hold a " + std::to_string(w) + " x " +
+                                            std::to_string(h) + " image");
+  }
   buf.resize(rowbytes * h);
   rows.resize(h);
   for (png_uint_32 y = 0; y < h; ++y) rows[y] = buf.data() + y * rowbytes;

@@ -1,4 +1,7 @@
+#include <sys/stat.h>
+
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 
@@ -71,6 +74,25 @@ TEST(Image, HeaderNumbersAreDigitsAndTokensAreShort) {
   auto c = ReadPnm(dir + "/c.pgm");
   ASSERT_TRUE(c.ok()) << c.error().message;
   EXPECT_EQ(c->pixels, (std::vector<uint16_t>{0x0102, 0x0304}));
+}
+
+// A sample above the maxval is a malformed file, named with the pixel; a FIFO or device as the
+// image (a map YAML's `image: /dev/stdin`) is refused instead of read until it ends.
+TEST(Image, SamplesAboveMaxvalAndNonRegularFilesAreErrors) {
+  const std::string dir = omni::testing::TempDir();
+  { std::ofstream(dir + "/m.pgm", std::ios::binary) << "P5\n2 1\n200\n\x10\xf0"; }
+  auto r = ReadPnm(dir + "/m.pgm");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("sample 240 at pixel (1, 0) is above the maxval 200"),
+            std::string::npos)
+      << r.error().message;
+  const std::string fifo = dir + "/fifo.pgm";
+  std::filesystem::remove(fifo);
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  auto f = ReadPnm(fifo);
+  ASSERT_FALSE(f.ok());
+  EXPECT_NE(f.error().message.find("not a regular file"), std::string::npos);
+  std::filesystem::remove(fifo);
 }
 
 TEST(Image, PngHasSignatureAndChunks) {

@@ -150,6 +150,47 @@ TEST(DepthIo, Reads16BitBigEndianPgmAndRejectsTruncation) {
   EXPECT_FALSE(ReadDepthFile(testing::TempDir() + "/missing.png", &im).ok());
 }
 
+// A corrupt PNG is an error that carries libpng's reason and prints nothing (libpng's own
+// handler wrote "libpng error: ..." on stderr); a header claiming far more than the file can
+// hold (16384 x 16384 x 16 bit, 512 MB, in a 100-byte file) is refused before it is allocated.
+TEST(DepthIo, ACorruptOrOversizedPngIsAnErrorThatSaysWhyQuietly) {
+  const std::string path = testing::TempDir() + "/octo_small.png";
+  std::vector<uint8_t> px(8 * 6);
+  for (size_t i = 0; i < px.size(); ++i) px[i] = static_cast<uint8_t>(i * 5);
+  ASSERT_TRUE(WritePng8(path, 8, 6, 1, px).ok());
+  std::string bytes;
+  {
+    std::ifstream f(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(f), {});
+  }
+  DepthImage im;
+  ASSERT_TRUE(ReadDepthFile(path, &im).ok());
+  EXPECT_EQ(im.data[7], 35);
+  // Damage the compressed data (the IDAT chunk's body).
+  std::string damaged = bytes;
+  const size_t idat = damaged.find("IDAT");
+  ASSERT_NE(idat, std::string::npos);
+  for (size_t i = idat + 6; i < idat + 12 && i < damaged.size(); ++i) damaged[i] ^= 0x5a;
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << damaged;
+  ::testing::internal::CaptureStderr();
+  const Status s = ReadDepthFile(path, &im);
+  const std::string printed = ::testing::internal::GetCapturedStderr();
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("corrupt PNG data ("), std::string::npos) << s.message();
+  EXPECT_EQ(printed, "");
+  // IHDR (at byte 8: length, "IHDR", 13 bytes, CRC) rewritten to 16384 x 16384, 16-bit grey.
+  std::string huge = bytes;
+  const unsigned char ihdr[13] = {0, 0, 0x40, 0, 0, 0, 0x40, 0, 16, 0, 0, 0, 0};
+  huge.replace(16, 13, reinterpret_cast<const char*>(ihdr), 13);
+  const uLong crc = crc32(0, reinterpret_cast<const Bytef*>(huge.data() + 12), 17);
+  for (int k = 0; k < 4; ++k) huge[29 + k] = static_cast<char>((crc >> (24 - 8 * k)) & 0xff);
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << huge;
+  const Status big = ReadDepthFile(path, &im);
+  ASSERT_FALSE(big.ok());
+  EXPECT_NE(big.message().find("cannot hold a 16384 x 16384 image"), std::string::npos)
+      << big.message();
+}
+
 TEST(DepthIo, ReadsDatasetFramesWithDocumentedRanges) {
   const std::string icl = std::string(OMNI_DATASETS_DIR) + "/rgbd/iclnuim-5frames/depth/1.png";
   const std::string kin = std::string(OMNI_DATASETS_DIR) + "/rgbd/kinect-5frames/depth/1.pgm";
