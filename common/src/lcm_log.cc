@@ -1,6 +1,7 @@
 #include "omni/io/lcm_log.h"
 
 #include <sys/types.h>
+#include <algorithm>
 
 #include <cerrno>
 #include <cstring>
@@ -112,9 +113,25 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     ev->utime = static_cast<int64_t>(Be(hdr + 12, 8));
     ev->offset = start;
     ev->channel.resize(static_cast<size_t>(chan_len));
-    ev->data.resize(static_cast<size_t>(data_len));
+    // The data in chunks: a header that announces 256 MB at the end of a short file costs what
+    // the file holds, not what the header says.
+    const auto read_data = [&]() {
+      const size_t want = static_cast<size_t>(data_len);
+      constexpr size_t kChunk = size_t{1} << 20;
+      ev->data.clear();
+      while (ev->data.size() < want) {
+        const size_t have = ev->data.size();
+        ev->data.resize(have + std::min(kChunk, want - have));
+        const size_t got = std::fread(ev->data.data() + have, 1, ev->data.size() - have, f_);
+        if (have + got < ev->data.size()) {
+          ev->data.resize(have + got);
+          return false;
+        }
+      }
+      return true;
+    };
     if (std::fread(ev->channel.data(), 1, ev->channel.size(), f_) != ev->channel.size() ||
-        (data_len > 0 && std::fread(ev->data.data(), 1, ev->data.size(), f_) != ev->data.size())) {
+        !read_data()) {
       return MakeError(ErrorCode::kParse, where(start) + "event truncated: channel " +
                                               std::to_string(chan_len) + " + data " +
                                               std::to_string(data_len) + " bytes announced");

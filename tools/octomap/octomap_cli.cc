@@ -494,7 +494,13 @@ int main(int argc, char** argv) {
   omni::io::LcmLogEvent ev;
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
-    if (!more.ok()) return Fail(more.error().message);
+    if (!more.ok()) {
+      // With resync only a final event cut short is an error (a logger killed, power lost):
+      // map what came before it, as `extract` and the 2D mappers do.
+      std::fprintf(stderr, "omni-octomap build: %s (reading stops there; %lld events read)\n",
+                   more.error().message.c_str(), static_cast<long long>(events));
+      break;
+    }
     if (!*more) break;
     ++events;
     if (!use_file && ev.channel == pose_channel) {

@@ -196,6 +196,22 @@ TEST(OctomapCli, BuildsFromAnLcmLogPosedBy2dSlam) {
   EXPECT_EQ(grid->at(col, row), 100);
   EXPECT_EQ(grid->at(col - 10, row), 0);
 
+  // The log cut inside its last event (a logger killed, power lost): what came before is
+  // mapped and written, with a warning — it used to be an error and no map at all.
+  const std::string cut = dir + "/cut.lcmlog";
+  fs::copy_file(log, cut, fs::copy_options::overwrite_existing);
+  fs::resize_file(cut, fs::file_size(cut) - 10);
+  r = RunCommand(Bin("omni-octomap") + " build " + cut + " --out " + dir + "/out_cut --config " +
+                 Config());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("event truncated"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("reading stops there"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("6 frames in, 5 inserted, 1 dropped without pose, 0 out of order, 0 "
+                          "decode errors"),
+            std::string::npos)
+      << r.output;  // the truncated depth message was the event cut
+  EXPECT_TRUE(fs::exists(dir + "/out_cut/map.ot"));
+
   // --poses: the same frames posed by a trajectory file (e.g. a mapper's final estimate) in
   // place of the log's POSE_RBPF. This one says the robot was 0.5 m further along x at every
   // time, so the wall is mapped at x = 3.5 m; the log's poses are not read.
