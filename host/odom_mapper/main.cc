@@ -13,6 +13,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/mapping_health.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
@@ -96,6 +97,7 @@ int main(int argc, char** argv) {
   hb.AddCounter("sweeps_corrected", [&] { return c.sweeps_corrected; });
   hb.AddCounter("sweeps_uncorrected", [&] { return c.sweeps_uncorrected; });
   hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
+  omni::MappingHealth health;  // DEGRADED while scans come in without odometry
   // DIR/odom_map.{pgm,yaml,png} and DIR/odom_trajectory.{txt,png}, at exit and on a MAP_SAVE
   // request while mapping.
   auto write_maps = [&](const omni::io::GridMap& map, const std::string& dir) -> omni::Status {
@@ -129,6 +131,12 @@ int main(int argc, char** argv) {
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
       bus, loop, [] { return 0; },
       [&] {
+        const bool was_degraded = health.degraded();
+        health.Update(clock.NowUtime(), c.scans_in, c.scans_no_pose);
+        if (health.degraded())
+          hb.SetState(omni::heartbeat_t::STATE_DEGRADED, health.text());
+        else if (was_degraded)
+          hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
         hb.Tick();
         saver.Serve([&](const std::string& dir) {
           const auto map = mapper.Map();

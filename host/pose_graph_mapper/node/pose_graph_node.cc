@@ -292,7 +292,7 @@ void PoseGraphNode::PublishLastPose() {
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) p.covariance[3 * r + c] = cov(r, c);
   if (bus_->Publish(o_.pose_channel, p)) ++poses_published_;
-  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  if (!health_.degraded()) heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
 }
 
 void PoseGraphNode::PublishGrid() {
@@ -313,8 +313,14 @@ void PoseGraphNode::PublishTrajectory() {
 }
 
 void PoseGraphNode::Tick() {
-  heartbeat_.Tick();
   const int64_t now = clock_->NowUtime();
+  const bool was_degraded = health_.degraded();
+  health_.Update(now, slam_.counters().scans_in, slam_.counters().scans_no_odom);
+  if (health_.degraded())
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, health_.text());
+  else if (was_degraded)
+    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  heartbeat_.Tick();
   const int64_t used = slam_.counters().scans_used;
   auto due = [&](double interval_s, int64_t last_wall, int64_t used_then) {
     return interval_s > 0 && used > used_then &&

@@ -237,7 +237,7 @@ void RbpfNode::Process(const ScanInput& scan) {
   p.covariance[4] = cyy / n;
   p.covariance[8] = ctt / n;
   if (bus_->Publish(opt_.pose_channel, p)) ++poses_published_;
-  heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  if (!health_.degraded()) heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
 }
 
 namespace {
@@ -267,8 +267,14 @@ void RbpfNode::PublishTrajectory() {
 }
 
 void RbpfNode::Tick() {
-  heartbeat_.Tick();
   const int64_t now = clock_->NowUtime();
+  const bool was_degraded = health_.degraded();
+  health_.Update(now, slam_.counters().scans_in, slam_.counters().scans_no_odom);
+  if (health_.degraded())
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, health_.text());
+  else if (was_degraded)
+    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  heartbeat_.Tick();
   if (slam_.counters().scans_processed > 0 &&
       PeriodDue(now, last_grid_utime_, static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6))) {
     PublishGrid();

@@ -419,6 +419,8 @@ struct HeartbeatNode {
     b->Subscribe<omni::heartbeat_t>("HEARTBEAT", [this](const omni::heartbeat_t& h, int64_t) {
       for (size_t i = 0; i < h.counter_names.size(); ++i)
         counts[h.counter_names[i]] = h.counter_values[i];
+      state = h.state;
+      text = h.status_text;
     });
   }
   void Pump() {
@@ -429,7 +431,34 @@ struct HeartbeatNode {
   std::unique_ptr<bus::Bus> b;
   std::unique_ptr<pgm::PoseGraphNode> node;
   std::map<std::string, int64_t> counts;
+  int8_t state = -1;
+  std::string text;
 };
+
+// Scans without odometry (the base bridge stopped): the heartbeat says DEGRADED and why, not
+// "mapping" while every scan is dropped (review finding 2026-12-06: `omni status` exited 0);
+// once odometry comes back and scans are mapped it is OK again.
+TEST(PoseGraphMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
+  HeartbeatNode n(pgm::PoseGraphNodeOptions{}, pgm::PoseGraphSlamOptions{});
+  int seq = 0;
+  auto step = [&](bool with_odom) {
+    n.clock.Advance(100000);
+    const int64_t t = n.clock.NowUtime();
+    if (with_odom) n.b->Publish("WHEEL_ODOM", Odom(t, 0.0, seq));
+    n.b->Publish("LIDAR_SCAN", RingScan(t, seq++));
+    n.Pump();
+    n.node->ProcessReady(10);
+    n.node->Tick();
+    n.Pump();
+  };
+  for (int i = 0; i < 120; ++i) step(false);
+  EXPECT_GT(n.counts["scans_no_odom"], 100);
+  EXPECT_EQ(n.state, omni::heartbeat_t::STATE_DEGRADED) << n.text;
+  EXPECT_NE(n.text.find("no odometry for"), std::string::npos) << n.text;
+  for (int i = 0; i < 120; ++i) step(true);
+  EXPECT_EQ(n.state, omni::heartbeat_t::STATE_OK) << n.text;
+  EXPECT_GT(n.counts["scans_used"], 0);
+}
 
 // With node.absolute_channel set, absolute poses reach the mapper in arrival order: one between
 // two keyframes is spliced, one newer than the newest pose waits for it; a covariance that is not

@@ -333,6 +333,65 @@ TEST(RbpfMapperNode, FollowsAClockSetBack) {
             0.3);
 }
 
+// Scans without odometry (the base bridge stopped): DEGRADED with the reason in the heartbeat,
+// not "waiting for scans" while every scan is dropped (review finding 2026-12-06); OK again once
+// odometry comes back.
+TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  rbpf::RbpfOptions opt;
+  opt.particles = 4;
+  ManualClock clock(1000000);
+  rbpf::RbpfNode node(&b, opt, &clock);
+  int8_t state = -1;
+  std::string text;
+  int64_t no_odom = 0, processed = 0;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    state = h.state;
+    text = h.status_text;
+    for (size_t i = 0; i < h.counter_names.size(); ++i) {
+      if (h.counter_names[i] == "scans_no_odom") no_odom = h.counter_values[i];
+      if (h.counter_names[i] == "scans_processed") processed = h.counter_values[i];
+    }
+  });
+  int64_t seq = 0;
+  auto step = [&](bool with_odom) {
+    clock.Advance(100000);
+    const int64_t t = clock.NowUtime();
+    if (with_odom) {
+      omni::odometry_t o{};
+      o.utime = t;
+      o.seq = seq;
+      o.x_m = 0.02 * static_cast<double>(seq);
+      b.Publish("WHEEL_ODOM", o);
+    }
+    omni::laser_scan_t s{};
+    s.utime = t;
+    s.seq = ++seq;
+    s.angle_min_rad = -1.5f;
+    s.angle_increment_rad = 0.01f;
+    s.range_min_m = 0.1f;
+    s.range_max_m = 30.f;
+    for (int i = 0; i < 300; ++i) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * i));
+    s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
+    b.Publish("LIDAR_SCAN", s);
+    while (b.HandleTimeout(0) > 0) {
+    }
+    node.ProcessReady(10);
+    node.Tick();
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  for (int i = 0; i < 120; ++i) step(false);
+  EXPECT_GT(no_odom, 100);
+  EXPECT_EQ(state, omni::heartbeat_t::STATE_DEGRADED) << text;
+  EXPECT_NE(text.find("no odometry for"), std::string::npos) << text;
+  for (int i = 0; i < 120; ++i) step(true);
+  EXPECT_EQ(state, omni::heartbeat_t::STATE_OK) << text;
+  EXPECT_GT(processed, 0);
+}
+
 TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {
   OMNI_REQUIRE_DATASET(clf, "slam-noisy-odom/intel.noisy.clf.gz");
   const std::string dir = testing::TempDir();

@@ -22,6 +22,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/common/mapping_health.h"
 #include "omni/common/time.h"
 #include "omni/rbpf_mapper/rbpf.h"
 
@@ -69,6 +70,7 @@ class RbpfNode {
   const Clock* clock_;
   RbpfSlam slam_;
   bus::Heartbeat heartbeat_;
+  MappingHealth health_;  // DEGRADED while scans come in without odometry
   std::deque<ScanInput> pending_;
   int64_t newest_odom_utime_ = INT64_MIN;
   // The scans' order: older ones are held, and five in order re-base it (stamp_order.h).

@@ -31,6 +31,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/common/mapping_health.h"
 #include "omni/common/time.h"
 #include "omni/pose_graph_mapper/node_options.h"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
@@ -95,6 +96,7 @@ class PoseGraphNode {
   const Clock* clock_;
   PoseGraphSlam slam_;
   bus::Heartbeat heartbeat_;
+  MappingHealth health_;  // DEGRADED while scans come in without odometry
   std::deque<Item> queue_;
   size_t queued_scans_ = 0;
   int64_t max_queued_scans_ = 0;

@@ -1,0 +1,54 @@
+// Whether a mapper maps what it is given: over each window, scans came in but most were
+// dropped for want of odometry (the base bridge stopped, WHEEL_ODOM on another channel) make
+// the process DEGRADED in its heartbeat, so `omni status` and the supervisor see it; counters
+// alone showed it while the state still said "mapping".
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "omni/common/time.h"
+
+namespace omni {
+
+class MappingHealth {
+ public:
+  explicit MappingHealth(int64_t window_us = 5000000) : window_us_(window_us) {}
+
+  // The cumulative counters as they stand at `now_us`. At the end of each window the verdict
+  // is taken from what the window added: degraded when scans came and at least half of them
+  // had no odometry; a window with no scan keeps the last verdict.
+  void Update(Utime now_us, int64_t scans_in, int64_t scans_without_odometry) {
+    if (!started_) {
+      started_ = true;
+      window_start_us_ = now_us;
+      in0_ = scans_in;
+      dropped0_ = scans_without_odometry;
+      return;
+    }
+    if (!PeriodDue(now_us, window_start_us_, window_us_)) return;
+    const int64_t in = scans_in - in0_, dropped = scans_without_odometry - dropped0_;
+    if (in > 0) {
+      degraded_ = 2 * dropped >= in;
+      if (degraded_)
+        text_ = "no odometry for " + std::to_string(dropped) + " of " + std::to_string(in) +
+                " scans in the last " + std::to_string(window_us_ / 1000000) +
+                " s: nothing mapped (is the base bridge publishing odometry?)";
+    }
+    window_start_us_ = now_us;
+    in0_ = scans_in;
+    dropped0_ = scans_without_odometry;
+  }
+  bool degraded() const { return degraded_; }
+  const std::string& text() const { return text_; }
+
+ private:
+  int64_t window_us_;
+  bool started_ = false;
+  Utime window_start_us_ = 0;
+  int64_t in0_ = 0, dropped0_ = 0;
+  bool degraded_ = false;
+  std::string text_;
+};
+
+}  // namespace omni
