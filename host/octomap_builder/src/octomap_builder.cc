@@ -482,7 +482,9 @@ bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses
   for (size_t i = 0; ok && i < poses.size(); ++i) {
     const Pose2& p = poses[i].second;
     ok = PlausibleOdometryPose(p) && poses[i].first > 0;
-    if (i > 0 && poses[i].first <= poses[i - 1].first) first = i;
+    // A stamp equal to the one before (two scans of a log on one stamp) is not a clock set
+    // back: it is dropped below, not a cut of everything before it.
+    if (i > 0 && poses[i].first < poses[i - 1].first) first = i;
   }
   if (!ok) {
     ++counters_.trajectories_invalid;
@@ -496,6 +498,10 @@ bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses
     ++counters_.trajectories_truncated;
     poses.erase(poses.begin(), poses.begin() + static_cast<std::ptrdiff_t>(first));
   }
+  // Of poses on one stamp, the first is kept (as `--poses` files are read).
+  poses.erase(std::unique(poses.begin(), poses.end(),
+                          [](const auto& a, const auto& b) { return a.first == b.first; }),
+              poses.end());
   trajectory_ = TrajectoryLookup(std::move(poses));
   // The newest trajectory is the whole path: what it asks for replaces any earlier request. While
   // a rebuild runs, the keyframes it has not reached take the newest poses; whether the ones it

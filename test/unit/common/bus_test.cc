@@ -106,6 +106,35 @@ TEST(Bus, HeartbeatCarriesCounters) {
   EXPECT_GT(got[1].rss_mb, 0.f);
 }
 
+// A mapper's whole path as a message stays bounded: past max_poses it goes out as every k-th pose
+// with the newest always in it (10 Hz scans used to grow TRAJECTORY_* by 1.15 MB an hour, beyond
+// a 4 MB receive buffer after about 3.5 h); poses on one stamp go out once (the later one).
+TEST(Bus, TrajectoryMessagesAreDecimatedPastTheirCapAndStampsAreUnique) {
+  struct Stamped {
+    int64_t utime;
+    Pose2 pose;
+  };
+  std::vector<Stamped> path;
+  for (int i = 0; i < 1001; ++i) path.push_back({1000 + 100 * i, Pose2(0.01 * i, 0, 0)});
+  auto whole = ToTrajectoryMessage(path, "map", "rbpf");
+  EXPECT_EQ(whole.num_poses, 1001);
+  auto capped = ToTrajectoryMessage(path, "map", "rbpf", 300);
+  EXPECT_LE(capped.num_poses, 300);
+  EXPECT_GE(capped.num_poses, 250);
+  EXPECT_EQ(capped.num_poses, static_cast<int32_t>(capped.pose_utime.size()));
+  EXPECT_EQ(capped.pose_utime.back(), path.back().utime);
+  EXPECT_DOUBLE_EQ(capped.x_m.back(), path.back().pose.x);
+  EXPECT_EQ(capped.utime, path.back().utime);
+  for (size_t i = 1; i < capped.pose_utime.size(); ++i)
+    EXPECT_EQ(capped.pose_utime[i] - capped.pose_utime[i - 1], 400);  // every 4th
+  std::vector<Stamped> repeated = {
+      {10, Pose2(0, 0, 0)}, {20, Pose2(1, 0, 0)}, {20, Pose2(2, 0, 0)}, {30, Pose2(3, 0, 0)}};
+  auto once = ToTrajectoryMessage(repeated, "map", "rbpf");
+  ASSERT_EQ(once.num_poses, 3);
+  EXPECT_EQ(once.pose_utime, (std::vector<int64_t>{10, 20, 30}));
+  EXPECT_DOUBLE_EQ(once.x_m[1], 2.0);
+}
+
 // The wall clock set back a minute (NTP stepping it at boot): heartbeats go on at their period
 // from the step instead of stopping for the minute (the supervisor would have restarted every
 // process), and the uptime neither goes negative nor stalls.

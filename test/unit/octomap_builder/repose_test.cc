@@ -270,6 +270,24 @@ TEST(ReposePipeline, AfterAStepBackInTimeOnlyTheNewestRunIsTaken) {
   EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
 }
 
+// Two poses on one stamp (an imported log's scans that share a stamp) are not a clock set back:
+// every keyframe is re-posed (it used to cut the path there and leave the keyframes before it
+// where they were, review 2026-12-06).
+TEST(ReposePipeline, APoseRepeatingItsStampDoesNotCutThePath) {
+  OctomapPipeline p(ReposeOptionsForTest());
+  FeedDrive(&p, 21);
+  auto t = Shifted(21, 0.5);
+  t.insert(t.begin() + 15, t[15]);
+  ASSERT_TRUE(p.AddTrajectory(t));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().trajectories_truncated, 0);
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  for (const Keyframe& kf : p.keyframes()) {
+    const double live_x = static_cast<double>(kf.utime - kT0) / 1e6;
+    EXPECT_NEAR(kf.pose.x, live_x + 0.5, 1e-9) << "keyframe at " << kf.utime;
+  }
+}
+
 TEST(ReposePipeline, ANewerTrajectoryThatUndoesTheShiftCancelsTheRequest) {
   OctomapBuilderOptions o = ReposeOptionsForTest();
   o.repose.min_interval_s = 10;

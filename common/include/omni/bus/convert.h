@@ -37,24 +37,42 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
 
 // A whole trajectory as a message: `poses` in time order, each with `utime` (µs) and `pose`
 // (a Pose2 in `frame`); the message's utime is the newest pose's. Empty `poses`: no poses, utime 0.
+// A path of more than `max_poses` poses goes out as every k-th pose (k = ceil(n / max_poses)),
+// the newest always included, so that hours of mapping do not make a message larger than a
+// receive buffer (32 bytes a pose: 10 Hz scans grow a whole path by 1.15 MB an hour); receivers
+// interpolate between poses. Of poses on one stamp only the last is sent.
+inline constexpr size_t kMaxTrajectoryMessagePoses = 40000;  // 1.3 MB
 template <class Stamped>
 omni::trajectory_t ToTrajectoryMessage(const std::vector<Stamped>& poses, const std::string& frame,
-                                       const std::string& source) {
+                                       const std::string& source,
+                                       size_t max_poses = kMaxTrajectoryMessagePoses) {
   omni::trajectory_t m;
   m.utime = poses.empty() ? 0 : poses.back().utime;
   m.frame = frame;
   m.source = source;
-  m.num_poses = static_cast<int32_t>(poses.size());
-  m.pose_utime.reserve(poses.size());
-  m.x_m.reserve(poses.size());
-  m.y_m.reserve(poses.size());
-  m.yaw_rad.reserve(poses.size());
-  for (const auto& e : poses) {
+  const size_t n = poses.size();
+  const size_t stride = max_poses == 0 || n <= max_poses ? 1 : (n + max_poses - 1) / max_poses;
+  const size_t room = n / stride + 2;
+  m.pose_utime.reserve(room);
+  m.x_m.reserve(room);
+  m.y_m.reserve(room);
+  m.yaw_rad.reserve(room);
+  for (size_t i = 0; i < n; ++i) {
+    // Counted from the newest, so the newest pose is always one of those sent.
+    if ((n - 1 - i) % stride != 0) continue;
+    const auto& e = poses[i];
+    if (!m.pose_utime.empty() && e.utime == m.pose_utime.back()) {  // the later one stays
+      m.pose_utime.pop_back();
+      m.x_m.pop_back();
+      m.y_m.pop_back();
+      m.yaw_rad.pop_back();
+    }
     m.pose_utime.push_back(e.utime);
     m.x_m.push_back(e.pose.x);
     m.y_m.push_back(e.pose.y);
     m.yaw_rad.push_back(e.pose.theta);
   }
+  m.num_poses = static_cast<int32_t>(m.pose_utime.size());
   return m;
 }
 
