@@ -20,7 +20,7 @@
 #   journalctl -u omni -f            # the supervisor's and the processes' logs
 set -euo pipefail
 
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+ROOT="$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)"
 PRINT=0
 NAME=omni
 RUN_USER="$(stat -c %U "$ROOT")"
@@ -92,12 +92,18 @@ User=$RUN_USER
 WorkingDirectory=$ROOT
 Environment="LCM_DEFAULT_URL=$URL"
 EOF
+  # What the bus needs and a reboot forgets: the receive buffers the processes ask for
+  # (recv_buf_size) are capped by rmem_max, and UDP multicast needs a route for 224.0.0.0/4,
+  # which a PC off the network at boot has not: then one on the loopback, so the stack runs
+  # (ttl=0 keeps the traffic on the machine anyway).
+  echo "ExecStartPre=+-/sbin/sysctl -q -w net.core.rmem_max=8388608"
+  echo "ExecStartPre=+-/bin/sh -c 'ip route get 224.0.0.1 >/dev/null 2>&1 || ip route add 224.0.0.0/4 dev lo'"
   if [ -n "$CAN_IF" ]; then
     echo "ExecStartPre=+-/sbin/ip link set $CAN_IF down"
     echo "ExecStartPre=+/sbin/ip link set $CAN_IF up type can bitrate $BITRATE restart-ms 100"
   fi
   cat <<EOF
-ExecStart=$BUILD/bin/supervisor --config $CONFIG_PATH
+ExecStart="$BUILD/bin/supervisor" --config "$CONFIG_PATH"
 # SIGTERM to the supervisor only: it stops its children newest first, each within its
 # stop_grace_s (sum $GRACE s here); whatever is left after TimeoutStopSec is killed.
 KillSignal=SIGTERM

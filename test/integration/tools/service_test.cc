@@ -24,9 +24,13 @@ TEST(InstallService, GeneratedUnitVerifies) {
   auto r = testing::Run(kScript + " --print --user root --can can0" + build + " 2>" + warnings);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const std::string unit = r.output;
-  EXPECT_NE(unit.find("ExecStart=" + std::string(OMNI_BINARY_DIR) + "/bin/supervisor --config "),
-            std::string::npos)
+  EXPECT_NE(
+      unit.find("ExecStart=\"" + std::string(OMNI_BINARY_DIR) + "/bin/supervisor\" --config \""),
+      std::string::npos)
       << unit;
+  // What the bus needs and a reboot forgets: the receive buffer limit and a multicast route.
+  EXPECT_NE(unit.find("net.core.rmem_max=8388608"), std::string::npos) << unit;
+  EXPECT_NE(unit.find("ip route add 224.0.0.0/4 dev lo"), std::string::npos) << unit;
   EXPECT_NE(unit.find("KillMode=mixed"), std::string::npos) << unit;
   EXPECT_NE(unit.find("bitrate 1000000"), std::string::npos) << unit;
   // The shipped supervisor config's stop graces add up to 170 s: systemd waits longer.
@@ -40,9 +44,40 @@ TEST(InstallService, GeneratedUnitVerifies) {
   EXPECT_EQ(r.output, "") << "systemd-analyze warned:\n" << r.output;
   // A unit pointing at a binary that does not exist does not verify (the check can fail).
   std::string broken = unit;
-  broken.replace(broken.find("ExecStart=") + 10, 1, "/nonexistent");
+  broken.replace(broken.find("ExecStart=\"") + 11, 1, "/nonexistent/");
   std::ofstream(path) << broken;
   EXPECT_NE(testing::Run("systemd-analyze verify " + path).exit_code, 0);
+}
+
+// A checkout whose path has a space (and a script reached through a symlink): the unit still
+// verifies (ExecStart used to be split at the space, so the stack never started at boot).
+TEST(InstallService, AUnitForACheckoutWithASpaceInItsPathVerifies) {
+  if (testing::Run("command -v systemd-analyze").exit_code != 0)
+    GTEST_SKIP() << "systemd-analyze is not installed (Debian package systemd)";
+  namespace fs = std::filesystem;
+  const std::string root = ::testing::TempDir() + "/with space/repo";
+  fs::remove_all(root);
+  fs::create_directories(root + "/scripts");
+  fs::create_directories(root + "/config");
+  fs::create_directories(root + "/build/bin");
+  fs::copy_file(kScript, root + "/scripts/install-service.sh");
+  fs::copy_file(std::string(OMNI_SOURCE_DIR) + "/config/supervisor.yaml",
+                root + "/config/supervisor.yaml");
+  std::ofstream(root + "/build/bin/supervisor") << "#!/bin/sh\n";
+  fs::permissions(root + "/build/bin/supervisor", fs::perms::owner_all, fs::perm_options::add);
+  const std::string link = ::testing::TempDir() + "/install-service-link.sh";
+  fs::remove(link);
+  fs::create_symlink(root + "/scripts/install-service.sh", link);
+  auto r = testing::Run("'" + link + "' --print --user root 2>/dev/null");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("WorkingDirectory=" + fs::canonical(root).string() + "\n"),
+            std::string::npos)
+      << r.output;
+  const std::string path = ::testing::TempDir() + "/omni-space.service";
+  std::ofstream(path) << r.output;
+  r = testing::Run("systemd-analyze verify " + path);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output, "") << "systemd-analyze warned:\n" << r.output;
 }
 
 TEST(InstallService, BadOptionsAreErrors) {
