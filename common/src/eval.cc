@@ -22,7 +22,21 @@ Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& e
   if (ref.format == io::Trajectory::Format::kIndexed2D &&
       est.format == io::Trajectory::Format::kIndexed2D) {
     std::unordered_map<int64_t, size_t> by_index;
-    for (size_t i = 0; i < est.entries.size(); ++i) by_index[est.entries[i].index] = i;
+    for (size_t i = 0; i < est.entries.size(); ++i)
+      if (!by_index.emplace(est.entries[i].index, i).second)
+        return MakeError(ErrorCode::kInvalidArgument,
+                         "the estimate has index " + std::to_string(est.entries[i].index) +
+                             " twice (entries " +
+                             std::to_string(by_index[est.entries[i].index] + 1) + " and " +
+                             std::to_string(i + 1) + "): which one is meant?");
+    std::unordered_map<int64_t, size_t> ref_seen;
+    for (size_t i = 0; i < ref.entries.size(); ++i)
+      if (!ref_seen.emplace(ref.entries[i].index, i).second)
+        return MakeError(ErrorCode::kInvalidArgument,
+                         "the reference has index " + std::to_string(ref.entries[i].index) +
+                             " twice (entries " +
+                             std::to_string(ref_seen[ref.entries[i].index] + 1) + " and " +
+                             std::to_string(i + 1) + ")");
     for (size_t i = 0; i < ref.entries.size(); ++i) {
       auto it = by_index.find(ref.entries[i].index);
       if (it == by_index.end()) continue;
@@ -32,9 +46,11 @@ Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& e
   } else {
     std::vector<size_t> order(est.entries.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::sort(order.begin(), order.end(), [&](size_t x, size_t y) {
+    // Stable: estimate poses on one stamp keep their file order.
+    std::stable_sort(order.begin(), order.end(), [&](size_t x, size_t y) {
       return est.entries[x].timestamp_s < est.entries[y].timestamp_s;
     });
+    std::unordered_map<double, size_t> taken;  // estimate stamp -> reference poses matched to it
     for (size_t i = 0; i < ref.entries.size(); ++i) {
       const double t = ref.entries[i].timestamp_s;
       auto it = std::lower_bound(order.begin(), order.end(), t, [&](size_t k, double v) {
@@ -51,6 +67,22 @@ Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& e
         }
       }
       if (best == SIZE_MAX) continue;
+      const double stamp = est.entries[best].timestamp_s;
+      const auto same =
+          std::equal_range(order.begin(), order.end(), stamp, [&](const auto& l, const auto& r) {
+            using L = std::decay_t<decltype(l)>;
+            if constexpr (std::is_same_v<L, double>)
+              return l < est.entries[r].timestamp_s;
+            else
+              return est.entries[l].timestamp_s < r;
+          });
+      const size_t shared = static_cast<size_t>(same.second - same.first);
+      if (shared > 1) {
+        ++a.ambiguous;
+        size_t& k = taken[stamp];
+        best = *(same.first + static_cast<std::ptrdiff_t>(std::min(k, shared - 1)));
+        ++k;
+      }
       a.ref_index.push_back(i);
       a.est_index.push_back(best);
     }
@@ -75,6 +107,7 @@ Result<AteResult> ComputeAte(const io::Trajectory& ref, const io::Trajectory& es
     dst.col(static_cast<Eigen::Index>(k)) = ref.entries[assoc->ref_index[k]].position.head(dim);
   }
   AteResult r;
+  r.ambiguous = assoc->ambiguous;
   r.matched = n;
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   if (n >= 2) {
@@ -117,6 +150,7 @@ Result<RpeResult> ComputeRpe(const io::Trajectory& ref, const io::Trajectory& es
     return t;
   };
   RpeResult r;
+  r.ambiguous = assoc->ambiguous;
   double t2 = 0, r2 = 0;
   const size_t n = assoc->ref_index.size();
   for (size_t k = 0; k + static_cast<size_t>(delta) < n; ++k) {

@@ -1,5 +1,6 @@
 #include "omni/io/trajectory_io.h"
 
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <iomanip>
@@ -65,6 +66,11 @@ Result<Trajectory> ReadTrajectory(const std::string& path) {
                        path + ":" + std::to_string(lineno) + ": mixes trajectory forms");
     }
     if (f == Trajectory::Format::kIndexed2D) {
+      // A scan index: a whole number, not 0.9 read as 0 (or 1e300 cast to nothing defined).
+      if (!(v[0] >= 0 && v[0] < 9.0e15 && v[0] == std::floor(v[0])))
+        return MakeError(ErrorCode::kParse, path + ":" + std::to_string(lineno) + ": index " +
+                                                std::to_string(v[0]) +
+                                                " is not a whole number from 0 to 9e15");
       t.entries.push_back(MakeEntry2D(static_cast<int64_t>(v[0]), v[1], Pose2(v[2], v[3], v[4])));
     } else {
       TrajectoryEntry e;

@@ -99,6 +99,12 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "omni eval: %s\n", r.error().message.c_str());
         return 1;
       }
+      if (r->ambiguous > 0)
+        std::fprintf(stderr,
+                     "omni eval: warning: %zu reference poses matched by time a stamp that "
+                     "several estimate poses share; which one is meant is a guess (the indexed "
+                     "form, `index timestamp x y theta`, matches exactly)\n",
+                     r->ambiguous);
       if (json)
         std::printf(
             "{\"metric\": \"ate\", \"matched\": %zu, \"ate_rmse_m\": %.6f, \"ate_mean_m\": %.6f, "
@@ -115,6 +121,12 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "omni eval: %s\n", r.error().message.c_str());
         return 1;
       }
+      if (r->ambiguous > 0)
+        std::fprintf(stderr,
+                     "omni eval: warning: %zu reference poses matched by time a stamp that "
+                     "several estimate poses share; which one is meant is a guess (the indexed "
+                     "form, `index timestamp x y theta`, matches exactly)\n",
+                     r->ambiguous);
       if (json)
         std::printf(
             "{\"metric\": \"rpe\", \"pairs\": %zu, \"rpe_trans_rmse_m\": %.6f, "

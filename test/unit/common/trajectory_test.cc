@@ -43,6 +43,13 @@ TEST(Trajectory, TumRoundTripAndErrors) {
   ASSERT_TRUE(back.ok());
   EXPECT_EQ(back->entries[0].index, 3);
   EXPECT_NEAR(back->entries[0].yaw(), 0.3, 1e-6);
+  // A scan index is a whole number: 0.9 used to be read as 0, 1e300 cast to nothing defined.
+  for (const char* index : {"0.9", "-1", "1e300", "nan"}) {
+    std::ofstream(dir + "/idx.txt") << index << " 10.5 1 2 0.3\n";
+    auto r = ReadTrajectory(dir + "/idx.txt");
+    ASSERT_FALSE(r.ok()) << index;
+    EXPECT_NE(r.error().message.find("idx.txt:1"), std::string::npos) << r.error().message;
+  }
 }
 
 }  // namespace

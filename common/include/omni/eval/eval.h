@@ -17,9 +17,14 @@ namespace omni::eval {
 struct Association {
   std::vector<size_t> ref_index;
   std::vector<size_t> est_index;
+  // Matched by time to a stamp that several estimate poses share (a log's scans on one stamp):
+  // which of them is the reference's pose is a guess. Reference poses on one stamp take the
+  // estimate's poses on the matched stamp in file order.
+  size_t ambiguous = 0;
 };
-// Pairs entries: by scan index when both files are in the indexed form, otherwise by the
-// nearest timestamp within max_dt_s (TUM). Errors when nothing matches.
+// Pairs entries: by scan index when both files are in the indexed form (an index that appears
+// twice in either file is an error), otherwise by the nearest timestamp within max_dt_s (TUM).
+// Errors when nothing matches.
 Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& est,
                               double max_dt_s = 0.02);
 
@@ -30,6 +35,7 @@ struct AteResult {
   double max_m = 0;
   double rot_rmse_rad = 0;
   Eigen::Isometry3d alignment = Eigen::Isometry3d::Identity();  // applied to the estimate
+  size_t ambiguous = 0;                                         // Association::ambiguous
 };
 // Rigid alignment: SE(2) (rotation about z + planar translation) when `se3` is false,
 // otherwise SE(3); both least squares (Umeyama without scale).
@@ -42,6 +48,7 @@ struct RpeResult {
   double trans_max_m = 0;
   double rot_rmse_rad = 0;
   double rot_max_rad = 0;
+  size_t ambiguous = 0;  // Association::ambiguous
 };
 // Relative pose error between consecutive matched poses (`delta` matched steps apart).
 Result<RpeResult> ComputeRpe(const io::Trajectory& ref, const io::Trajectory& est, int delta = 1,
