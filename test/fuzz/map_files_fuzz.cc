@@ -1,14 +1,13 @@
 // Map and image files as users hand them to `omni eval map`, `map_fusion --fuse` and
 // `omni octomap build`: a ROS map_server YAML with its PGM, a PGM/PPM alone, and 16-bit depth
-// images (PGM, PNG). The readers take paths, so each input is written to a private temporary
-// folder first. The first byte picks the reader; for map_server the next two give the YAML's
-// length and the rest is the image.
-// What must hold: a reader that accepts a file returns an image whose size matches its pixels
-// (and a map whose cells are -1, 0 or 100 on a finite grid with a positive cell size); one that
-// refuses says why. A header that claims more than the bytes hold is refused without allocating
-// what it claims (ReadPnm reads in chunks; found by review 2026-12-06, not by this target).
-// Seeds: map_server files as the mappers write them, a 16-bit PGM, and the RGB-D datasets'
-// first depth frames.
+// images (PGM, PNG) and colour PNGs. The readers take paths, so each input is written to a private
+// temporary folder first. The first byte picks the reader; for map_server the next two give the
+// YAML's length and the rest is the image. What must hold: a reader that accepts a file returns an
+// image whose size matches its pixels (and a map whose cells are -1, 0 or 100 on a finite grid with
+// a positive cell size); one that refuses says why. A header that claims more than the bytes hold
+// is refused without allocating what it claims (ReadPnm reads in chunks; found by review
+// 2026-12-06, not by this target). Seeds: map_server files as the mappers write them, a 16-bit PGM,
+// and the RGB-D datasets' first depth frames.
 #include <unistd.h>
 
 #include <cmath>
@@ -19,6 +18,7 @@
 #include "fuzz.h"
 #include "omni/io/grid.h"
 #include "omni/io/image_io.h"
+#include "omni/octomap_builder/color_image.h"
 #include "omni/octomap_builder/depth_io.h"
 
 namespace {
@@ -61,7 +61,7 @@ void CheckImage(const omni::io::Image& im) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   omni::fuzz::Reader r(data, size);
-  const uint8_t which = r.U8() % 4;
+  const uint8_t which = r.U8() % 5;
   const std::string dir = Dir();
   if (which == 0) {
     const std::string yaml = r.Bytes(r.U16());
@@ -85,6 +85,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       return 0;
     }
     CheckImage(*im);
+  } else if (which == 4) {
+    Write(dir + "/color.png", r.Rest());
+    omni::octo::ColorImage color;
+    const omni::Status s = omni::octo::ReadColorPng(dir + "/color.png", &color);
+    if (!s.ok()) {
+      OMNI_FUZZ_CHECK(!s.message().empty());
+      return 0;
+    }
+    OMNI_FUZZ_CHECK(color.width > 0 && color.height > 0);
+    OMNI_FUZZ_CHECK(color.rgb.size() == static_cast<size_t>(color.width) * color.height * 3);
   } else {
     const std::string path = dir + (which == 2 ? "/depth.pgm" : "/depth.png");
     Write(path, r.Rest());
@@ -138,7 +148,9 @@ void omni::fuzz::Seeds(SeedList* seeds) {
   for (size_t i = 0; i < px.size(); ++i) px[i] = static_cast<uint8_t>(i * 5);
   if (omni::octo::WritePng8(dir + "/seed.png", 8, 6, 1, px).ok()) {
     std::ifstream f(dir + "/seed.png", std::ios::binary);
-    seeds->Add(std::string(1, '\3') + std::string((std::istreambuf_iterator<char>(f)), {}));
+    const std::string png((std::istreambuf_iterator<char>(f)), {});
+    seeds->Add(std::string(1, '\3') + png);
+    seeds->Add(std::string(1, '\4') + png);
   }
   // Depth frames of the RGB-D sets (PNG and big-endian PGM), a prefix: enough for the headers
   // and the first rows, so most mutations are truncated frames.

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "omni/kinect/depth_codec.h"
+#include "omni/octomap_builder/color_image.h"
 #include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/depth_points.h"
 
@@ -189,6 +190,16 @@ TEST(DepthIo, ACorruptOrOversizedPngIsAnErrorThatSaysWhyQuietly) {
   ASSERT_FALSE(big.ok());
   EXPECT_NE(big.message().find("cannot hold a 16384 x 16384 image"), std::string::npos)
       << big.message();
+  // The colour reader the same (it took 793 MB to refuse such a file).
+  ColorImage color;
+  const Status big_color = ReadColorPng(path, &color);
+  ASSERT_FALSE(big_color.ok());
+  EXPECT_NE(big_color.message().find("cannot hold a 16384 x 16384 image"), std::string::npos)
+      << big_color.message();
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
+  ASSERT_TRUE(ReadColorPng(path, &color).ok());
+  EXPECT_EQ(color.width, 8);
+  EXPECT_EQ(color.rgb.size(), 8u * 6u * 3u);
 }
 
 TEST(DepthIo, ReadsDatasetFramesWithDocumentedRanges) {
