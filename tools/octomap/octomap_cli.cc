@@ -245,9 +245,12 @@ omni::Status WriteOutputs(const omni::octo::OctomapBuilder& b, const OctomapBuil
                           const std::string& dir, bool pcd) {
   const octomap::OcTree& tree = b.tree();
   if (auto s = omni::octo::SaveTree(tree, dir + "/map"); !s.ok()) return s;
+  // A grid that cannot be made (a map wider than a grid carries) is reported at the end; the
+  // other outputs are written all the same.
   auto grid = omni::octo::ProjectToGrid(tree, o.grid);
-  if (!grid.ok()) return grid.error();
-  if (grid->width > 0) {
+  if (!grid.ok()) {
+    std::fprintf(stderr, "omni-octomap: no grid written: %s\n", grid.error().message.c_str());
+  } else if (grid->width > 0) {
     if (auto s = omni::io::WriteMapServer(*grid, dir + "/grid"); !s.ok()) return s;
     if (auto s = omni::io::WritePng(dir + "/grid.png", omni::io::RenderGrid(*grid)); !s.ok())
       return s;
@@ -266,7 +269,14 @@ omni::Status WriteOutputs(const omni::octo::OctomapBuilder& b, const OctomapBuil
         !s.ok())
       return s;
   }
-  if (pcd) return omni::octo::WritePcd(dir + "/map.pcd", b.AggregateCloud(), true);
+  if (pcd) {
+    if (auto s = omni::octo::WritePcd(dir + "/map.pcd", b.AggregateCloud(), true); !s.ok())
+      return s;
+  }
+  if (!grid.ok())  // the exit status still says a grid is missing
+    return omni::MakeError(grid.error().code, "no grid written (" + grid.error().message +
+                                                  "); the tree and the other outputs are in " +
+                                                  dir);
   return omni::Status::Ok();
 }
 

@@ -149,6 +149,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   const auto& pc = pipeline_.poser_counters();
   const auto& c = pipeline_.counters();
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
+  heartbeat_.AddCounter("grid_errors", [this] { return grid_errors_; });
   heartbeat_.AddCounter("frames_lost", [this] { return depth_frames_lost_; });
   heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });
   heartbeat_.AddCounter("frames_dropped_no_pose", [&pc] { return pc.frames_dropped_no_pose; });
@@ -247,7 +248,13 @@ bool OctomapNode::PublishOctomap() {
 
 bool OctomapNode::PublishGrid() {
   auto grid = ProjectToGrid(pipeline_.builder().tree(), options_.grid);
-  if (!grid.ok() || grid->width == 0) return false;
+  if (!grid.ok()) {  // e.g. a map wider than a grid message carries: counted, and said once
+    if (grid_errors_++ == 0) {
+      LOG_WARN << "no GRID_OCTO: " << grid.error().message;
+    }
+    return false;
+  }
+  if (grid->width == 0) return false;
   return bus::PublishGrid(*bus_, options_.grid_channel, *grid, pipeline_.newest_inserted_utime(),
                           "octomap", options_.map_frame);
 }
@@ -258,9 +265,10 @@ Status OctomapNode::SaveOutputs(const std::string& dir) const {
   if (ec) return MakeError(ErrorCode::kIo, "cannot create " + dir + ": " + ec.message());
   const octomap::OcTree& tree = pipeline_.builder().tree();
   if (Status s = SaveTree(tree, dir + "/map"); !s.ok()) return s;
+  // A grid that cannot be made (a map wider than a grid carries) is reported at the end; the
+  // other outputs are written all the same.
   auto grid = ProjectToGrid(tree, options_.grid);
-  if (!grid.ok()) return grid.error();
-  if (grid->width > 0) {
+  if (grid.ok() && grid->width > 0) {
     if (Status s = io::WriteMapServer(*grid, dir + "/grid"); !s.ok()) return s;
     if (Status s = io::WritePng(dir + "/grid.png", io::RenderGrid(*grid)); !s.ok()) return s;
   }
@@ -273,8 +281,13 @@ Status OctomapNode::SaveOutputs(const std::string& dir) const {
         !s.ok())
       return s;
   }
-  if (options_.keep_cloud)
-    return WritePcd(dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true);
+  if (options_.keep_cloud) {
+    if (Status s = WritePcd(dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true); !s.ok())
+      return s;
+  }
+  if (!grid.ok())
+    return MakeError(grid.error().code, "no grid written (" + grid.error().message +
+                                            "); the tree and the other outputs are in " + dir);
   return Status::Ok();
 }
 

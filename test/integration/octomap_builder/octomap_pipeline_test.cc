@@ -141,6 +141,34 @@ TEST(OctomapCli, BuildsFromAnRgbdFolder) {
   for (int8_t c : grid->cells) g_occ += c == 100, g_free += c == 0;
   EXPECT_GT(g_free, 1000u);
   EXPECT_GT(g_occ, 100u);
+  // One frame posed 2.1 km away (1500, 1500 m; inside the key range of 0.05 m cells, 1638 m): the
+  // map is wider than a grid can carry. The tree, the view and the cloud are still written (they
+  // used to stop at the grid), and the exit says what is missing.
+  const std::string far = testing::TempDir() + "/octo_cli_rgbd_far";
+  fs::remove_all(far);
+  fs::create_directories(far);
+  fs::create_directory_symlink(in + "/depth", far + "/depth");
+  fs::create_directory_symlink(in + "/color", far + "/color");
+  {
+    std::ifstream poses(in + "/pose.txt");
+    std::ofstream moved(far + "/pose.txt");
+    std::string line;
+    for (int i = 0; std::getline(poses, line); ++i) {
+      if (i == 4)
+        line = "1500 0 1500" + line.substr(line.find(' ', line.find(' ', line.find(' ') + 1) + 1));
+      moved << line << "\n";
+    }
+  }
+  const std::string far_out = testing::TempDir() + "/octo_cli_rgbd_far_out";
+  fs::remove_all(far_out);
+  r = RunCommand(Bin("omni-octomap") + " build " + far + " --out " + far_out +
+                 " --fx 518 --fy 519 --cx 325.5 --cy 253.5 --depth-scale 1000 --up -y"
+                 " --grid-min-z -0.3 --grid-max-z 0.5 --resolution 0.05 --pcd");
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("no grid written"), std::string::npos) << r.output;
+  for (const char* f : {"map.bt", "map.ot", "view.png", "map.pcd"})
+    EXPECT_TRUE(fs::exists(far_out + "/" + f)) << f;
+  EXPECT_FALSE(fs::exists(far_out + "/grid.yaml"));
   // Missing intrinsics are an error that says what to give.
   r = RunCommand(Bin("omni-octomap") + " build " + in + " --out " + out);
   EXPECT_NE(r.exit_code, 0);

@@ -73,6 +73,7 @@ class OctomapNode {
   int64_t depth_frames_lost_ = 0, last_depth_seq_ = -1;
   int64_t color_decode_errors_ = 0;
   int64_t trajectories_rejected_ = 0;
+  int64_t grid_errors_ = 0;  // grids that could not be made for GRID_OCTO
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
 };
