@@ -83,6 +83,7 @@ int main(int argc, char** argv) {
   omni::bus::Heartbeat hb(&bus, "odom_mapper", &clock);
   const auto& c = mapper.counters();
   hb.AddCounter("scans_in", [&] { return c.scans_in; });
+  hb.AddCounter("scans_bad_geometry", [&] { return c.scans_bad_geometry; });
   hb.AddCounter("scans_mapped", [&] { return c.scans_mapped; });
   hb.AddCounter("scans_no_pose", [&] { return c.scans_no_pose; });
   hb.AddCounter("scans_too_few_beams", [&] { return c.scans_too_few_beams; });

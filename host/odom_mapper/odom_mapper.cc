@@ -104,6 +104,13 @@ bool OdomMapper::AddScan(const Scan& scan) {
     ++counters_.scans_too_few_beams;
     return false;
   }
+  // As the SLAM mappers check it: NaN or absurd angles, mount pose or range limit are never
+  // mapped (they were counted as mapped, their beams as beyond the grid's cap).
+  if (!PlausibleScanGeometry(scan.angle_min_rad, scan.angle_increment_rad, scan.ranges_m.size(),
+                             scan.range_max_m, scan.sensor_in_base)) {
+    ++counters_.scans_bad_geometry;
+    return false;
+  }
   const auto pose = odom_.At(scan.utime, static_cast<int64_t>(opt_.max_pose_gap_s * 1e6));
   if (!pose) {
     ++counters_.scans_no_pose;

@@ -142,6 +142,15 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (mode == "map") {
+    // A bare image has no cell size or origin: say what is assumed (the comparison scales and
+    // aligns by them).
+    for (const std::string& p : {ref_path, est_path})
+      if (p.size() < 5 || (p.compare(p.size() - 5, 5, ".yaml") != 0 &&
+                           (p.size() < 4 || p.compare(p.size() - 4, 4, ".yml") != 0)))
+        std::fprintf(stderr,
+                     "omni eval: warning: %s is an image without its map_server YAML: 0.05 m "
+                     "cells and origin (0, 0) assumed; give the .yaml for its own\n",
+                     p.c_str());
     auto ref = omni::io::ReadMapServer(ref_path);
     auto est = omni::io::ReadMapServer(est_path);
     if (!ref.ok() || !est.ok()) {

@@ -55,7 +55,11 @@ double Median(std::vector<double> v) {
 int main(int argc, char** argv) {
   using namespace omni;
   using namespace omni::pgm;
-  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") return Usage();
+  if (argc >= 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
+    Usage();
+    return 0;  // asked for: not a mistake
+  }
+  if (argc < 2) return Usage();
   const std::string path = argv[1];
   int gap = 6, submap = 3;
   std::string truth_path;

@@ -108,9 +108,12 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   bus_->Subscribe<omni::depth_image_t>(
       options_.depth_channel, [this](const omni::depth_image_t& m, int64_t) {
         // Gaps in the driver's sequence numbers: frames lost before they reached us (a smaller
-        // number is a restarted driver, not a loss).
-        if (last_depth_seq_ >= 0 && m.seq > last_depth_seq_ + 1)
-          depth_frames_lost_ += m.seq - last_depth_seq_ - 1;
+        // number is a restarted driver, not a loss; nor is a jump of more than a day of frames
+        // at 30 Hz, a corrupt number, which would add ~9e18 to the count).
+        if (last_depth_seq_ >= 0 && m.seq > last_depth_seq_) {
+          const int64_t gap = m.seq - last_depth_seq_ - 1;  // both >= 0: no overflow
+          if (gap <= 3000000) depth_frames_lost_ += gap;
+        }
         last_depth_seq_ = m.seq;
         auto im = FromDepthMessage(m);
         if (!im.ok()) {

@@ -60,7 +60,10 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   depth.Get("min_depth_m", &o.depth.min_depth_m, Required(), NonNegative<double>());
   depth.Get("max_depth_m", &o.depth.max_depth_m, Required(), Positive<double>());
   depth.Get("pixel_stride", &o.depth.pixel_stride, Optional(), InRange(1, 64));
-  depth.Get("voxel_filter_m", &o.voxel_filter_m, Optional(), NonNegative<double>());
+  depth.Get("voxel_filter_m", &o.voxel_filter_m, Optional(), InRange(0.0, 10.0));
+  // 0 is off; a cube below 1 mm would overflow the filter's integer keys for far points.
+  if (o.voxel_filter_m > 0 && o.voxel_filter_m < 0.001)
+    depth.AddError("voxel_filter_m", "must be 0 (off) or at least 0.001 m");
   depth.Get("discretize", &o.discretize, Optional());
   depth.Get("subvoxel", &o.subvoxel, Optional(), InRange(0, 16));
   if (o.discretize && o.subvoxel > 1)

@@ -61,6 +61,31 @@ TEST(OdomMapper, PlacesEachBeamOfASweepAtItsOwnOdometryPose) {
   EXPECT_NEAR(e.second, 5.025, 1e-9);
 }
 
+// A scan whose geometry is absurd (a NaN mount pose, beams over more than a turn) is refused
+// and counted as such, as the SLAM mappers do; it used to be "mapped" with every beam counted
+// as beyond the grid's cap (review 2026-12-06).
+TEST(OdomMapper, AScanWithAbsurdGeometryIsRefusedAndCounted) {
+  OdomMapper m(OdomMapperOptions{});
+  for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
+  Scan s;
+  s.utime = 50000;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_max_m = 20;
+  s.ranges_m.assign(200, 2.f);
+  Scan nan_mount = s;
+  nan_mount.sensor_in_base = Pose2(std::nan(""), 0, 0);
+  EXPECT_FALSE(m.AddScan(nan_mount));
+  Scan wide = s;
+  wide.angle_increment_rad = 0.1f;  // 200 beams over 20 rad
+  EXPECT_FALSE(m.AddScan(wide));
+  EXPECT_EQ(m.counters().scans_bad_geometry, 2);
+  EXPECT_EQ(m.counters().scans_mapped, 0);
+  EXPECT_EQ(m.counters().beams_beyond_grid_cap, 0);
+  EXPECT_TRUE(m.AddScan(s));
+  EXPECT_EQ(m.counters().scans_mapped, 1);
+}
+
 TEST(OdomMapper, ASweepBeyondTheOdometryIsMappedAsItIsAndCounted) {
   OdomMapper m(OdomMapperOptions{});
   ASSERT_TRUE(m.AddOdometry(0, Pose2(0, 0, 0)));

@@ -40,6 +40,7 @@ struct OdomMapperCounters {
   int64_t scans_mapped = 0;
   int64_t scans_no_pose = 0;        // no odometry close enough in time
   int64_t scans_too_few_beams = 0;  // empty or mostly invalid
+  int64_t scans_bad_geometry = 0;   // NaN or absurd angles, mount pose or range limit
   int64_t invalid_beams = 0;        // NaN/inf/negative ranges
   int64_t odom_in = 0;
   int64_t odom_out_of_order = 0;      // older than the newest odometry: rejected
