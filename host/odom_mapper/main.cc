@@ -10,10 +10,10 @@
 #include "omni/bus/convert.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/map_save.h"
+#include "omni/bus/mapping_health.h"
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
-#include "omni/common/mapping_health.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
@@ -132,12 +132,8 @@ int main(int argc, char** argv) {
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
       bus, loop, [] { return 0; },
       [&] {
-        const bool was_degraded = health.degraded();
-        health.Update(clock.NowUtime(), c.scans_in, c.scans_no_pose);
-        if (health.degraded())
-          hb.SetState(omni::heartbeat_t::STATE_DEGRADED, health.text());
-        else if (was_degraded)
-          hb.SetState(omni::heartbeat_t::STATE_OK, "mapping at raw odometry");
+        health.Report(clock.NowUtime(), c.scans_in, c.scans_no_pose, &hb,
+                      "mapping at raw odometry");
         hb.Tick();
         saver.Serve([&](const std::string& dir) {
           const auto map = mapper.Map();

@@ -38,6 +38,16 @@ double Num(const char* flag, const char* v, double lo, double hi, bool integer =
   return d;
 }
 
+// Reference poses matched by time to a stamp several estimate poses share (Association).
+void WarnAmbiguous(size_t ambiguous) {
+  if (ambiguous == 0) return;
+  std::fprintf(stderr,
+               "omni eval: warning: %zu reference poses matched by time a stamp that several "
+               "estimate poses share; which one is meant is a guess (the indexed form, `index "
+               "timestamp x y theta`, matches exactly)\n",
+               ambiguous);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -99,12 +109,7 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "omni eval: %s\n", r.error().message.c_str());
         return 1;
       }
-      if (r->ambiguous > 0)
-        std::fprintf(stderr,
-                     "omni eval: warning: %zu reference poses matched by time a stamp that "
-                     "several estimate poses share; which one is meant is a guess (the indexed "
-                     "form, `index timestamp x y theta`, matches exactly)\n",
-                     r->ambiguous);
+      WarnAmbiguous(r->ambiguous);
       if (json)
         std::printf(
             "{\"metric\": \"ate\", \"matched\": %zu, \"ate_rmse_m\": %.6f, \"ate_mean_m\": %.6f, "
@@ -121,12 +126,7 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "omni eval: %s\n", r.error().message.c_str());
         return 1;
       }
-      if (r->ambiguous > 0)
-        std::fprintf(stderr,
-                     "omni eval: warning: %zu reference poses matched by time a stamp that "
-                     "several estimate poses share; which one is meant is a guess (the indexed "
-                     "form, `index timestamp x y theta`, matches exactly)\n",
-                     r->ambiguous);
+      WarnAmbiguous(r->ambiguous);
       if (json)
         std::printf(
             "{\"metric\": \"rpe\", \"pairs\": %zu, \"rpe_trans_rmse_m\": %.6f, "

@@ -314,12 +314,8 @@ void PoseGraphNode::PublishTrajectory() {
 
 void PoseGraphNode::Tick() {
   const int64_t now = clock_->NowUtime();
-  const bool was_degraded = health_.degraded();
-  health_.Update(now, slam_.counters().scans_in, slam_.counters().scans_no_odom);
-  if (health_.degraded())
-    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, health_.text());
-  else if (was_degraded)
-    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  health_.Report(now, slam_.counters().scans_in, slam_.counters().scans_no_odom, &heartbeat_,
+                 "mapping");
   heartbeat_.Tick();
   const int64_t used = slam_.counters().scans_used;
   auto due = [&](double interval_s, int64_t last_wall, int64_t used_then) {

@@ -268,12 +268,8 @@ void RbpfNode::PublishTrajectory() {
 
 void RbpfNode::Tick() {
   const int64_t now = clock_->NowUtime();
-  const bool was_degraded = health_.degraded();
-  health_.Update(now, slam_.counters().scans_in, slam_.counters().scans_no_odom);
-  if (health_.degraded())
-    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, health_.text());
-  else if (was_degraded)
-    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
+  health_.Report(now, slam_.counters().scans_in, slam_.counters().scans_no_odom, &heartbeat_,
+                 "mapping");
   heartbeat_.Tick();
   if (slam_.counters().scans_processed > 0 &&
       PeriodDue(now, last_grid_utime_, static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6))) {

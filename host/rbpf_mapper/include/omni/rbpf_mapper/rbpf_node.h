@@ -22,7 +22,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
-#include "omni/common/mapping_health.h"
+#include "omni/bus/mapping_health.h"
 #include "omni/common/time.h"
 #include "omni/rbpf_mapper/rbpf.h"
 

@@ -31,7 +31,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
-#include "omni/common/mapping_health.h"
+#include "omni/bus/mapping_health.h"
 #include "omni/common/time.h"
 #include "omni/pose_graph_mapper/node_options.h"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"

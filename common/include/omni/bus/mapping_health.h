@@ -7,7 +7,9 @@
 #include <cstdint>
 #include <string>
 
+#include "omni/bus/heartbeat.h"
 #include "omni/common/time.h"
+#include "omni/heartbeat_t.hpp"
 
 namespace omni {
 
@@ -38,6 +40,17 @@ class MappingHealth {
     window_start_us_ = now_us;
     in0_ = scans_in;
     dropped0_ = scans_without_odometry;
+  }
+  // Update, then put the verdict in `heartbeat`'s state: DEGRADED with the reason, and OK with
+  // `ok_text` when it has just cleared (otherwise the state is the caller's).
+  void Report(Utime now_us, int64_t scans_in, int64_t scans_without_odometry,
+              bus::Heartbeat* heartbeat, const std::string& ok_text) {
+    const bool was = degraded_;
+    Update(now_us, scans_in, scans_without_odometry);
+    if (degraded_)
+      heartbeat->SetState(omni::heartbeat_t::STATE_DEGRADED, text_);
+    else if (was)
+      heartbeat->SetState(omni::heartbeat_t::STATE_OK, ok_text);
   }
   bool degraded() const { return degraded_; }
   const std::string& text() const { return text_; }
