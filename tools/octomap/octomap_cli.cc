@@ -463,6 +463,12 @@ int main(int argc, char** argv) {
       if (o.color)
         std::printf(", %zu coloured keys (colour %.1f ms)", st->colored_keys, st->color_us * 1e-3);
       std::printf(", %.1f ms\n", frame_us * 1e-3);
+      if (st->points > 0 && st->insert.free_keys + st->insert.occupied_keys == 0)
+        std::fprintf(stderr,
+                     "omni-octomap: warning: frame %zu: no point inside the octree's key range "
+                     "(+-%.0f m at %.3f m cells): its pose is far out of the map, nothing "
+                     "inserted\n",
+                     i + 1, 32767 * o.resolution_m, o.resolution_m);
     }
     std::printf("omni-octomap: insertion %.1f ms/frame%s\n",
                 insert_us * 1e-3 / static_cast<double>(poses->size()),

@@ -169,6 +169,23 @@ TEST(OctomapCli, BuildsFromAnRgbdFolder) {
   for (const char* f : {"map.bt", "map.ot", "view.png", "map.pcd"})
     EXPECT_TRUE(fs::exists(far_out + "/" + f)) << f;
   EXPECT_FALSE(fs::exists(far_out + "/grid.yaml"));
+  // Beyond the key range (2000 m at 0.05 m cells, past +-1638 m): said, not silently empty.
+  {
+    std::ifstream poses(in + "/pose.txt");
+    std::ofstream moved(far + "/pose.txt");
+    std::string line;
+    for (int i = 0; std::getline(poses, line); ++i) {
+      if (i == 4)
+        line = "2000 0 2000" + line.substr(line.find(' ', line.find(' ', line.find(' ') + 1) + 1));
+      moved << line << "\n";
+    }
+  }
+  r = RunCommand(Bin("omni-octomap") + " build " + far + " --out " + far_out +
+                 " --fx 518 --fy 519 --cx 325.5 --cy 253.5 --depth-scale 1000 --up -y"
+                 " --grid-min-z -0.3 --grid-max-z 0.5 --resolution 0.05");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("frame 5: no point inside the octree's key range"), std::string::npos)
+      << r.output;
   // Missing intrinsics are an error that says what to give.
   r = RunCommand(Bin("omni-octomap") + " build " + in + " --out " + out);
   EXPECT_NE(r.exit_code, 0);
