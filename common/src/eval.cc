@@ -21,22 +21,21 @@ Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& e
   Association a;
   if (ref.format == io::Trajectory::Format::kIndexed2D &&
       est.format == io::Trajectory::Format::kIndexed2D) {
-    std::unordered_map<int64_t, size_t> by_index;
-    for (size_t i = 0; i < est.entries.size(); ++i)
-      if (!by_index.emplace(est.entries[i].index, i).second)
-        return MakeError(ErrorCode::kInvalidArgument,
-                         "the estimate has index " + std::to_string(est.entries[i].index) +
-                             " twice (entries " +
-                             std::to_string(by_index[est.entries[i].index] + 1) + " and " +
-                             std::to_string(i + 1) + "): which one is meant?");
-    std::unordered_map<int64_t, size_t> ref_seen;
-    for (size_t i = 0; i < ref.entries.size(); ++i)
-      if (!ref_seen.emplace(ref.entries[i].index, i).second)
-        return MakeError(ErrorCode::kInvalidArgument,
-                         "the reference has index " + std::to_string(ref.entries[i].index) +
-                             " twice (entries " +
-                             std::to_string(ref_seen[ref.entries[i].index] + 1) + " and " +
-                             std::to_string(i + 1) + ")");
+    // Index -> entry; an index twice is an error (which one would be meant?).
+    auto index = [](const io::Trajectory& t, const char* which,
+                    std::unordered_map<int64_t, size_t>* by) -> Status {
+      for (size_t i = 0; i < t.entries.size(); ++i)
+        if (auto [at, fresh] = by->emplace(t.entries[i].index, i); !fresh)
+          return MakeError(ErrorCode::kInvalidArgument,
+                           std::string("the ") + which + " has index " +
+                               std::to_string(t.entries[i].index) + " twice (entries " +
+                               std::to_string(at->second + 1) + " and " + std::to_string(i + 1) +
+                               ")");
+      return Status::Ok();
+    };
+    std::unordered_map<int64_t, size_t> by_index, ref_seen;
+    if (Status s = index(est, "estimate", &by_index); !s.ok()) return s.error();
+    if (Status s = index(ref, "reference", &ref_seen); !s.ok()) return s.error();
     for (size_t i = 0; i < ref.entries.size(); ++i) {
       auto it = by_index.find(ref.entries[i].index);
       if (it == by_index.end()) continue;

@@ -55,11 +55,25 @@ void PngChunk(std::string* out, const char* type, const std::string& data) {
 
 }  // namespace
 
-Result<Image> ReadPnm(const std::string& path, int max_side) {
-  // A FIFO or a device (a map YAML's `image: /dev/stdin`) would block or never end.
+Status CheckRegularFile(const std::string& path) {
   std::error_code ec;
   if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
     return MakeError(ErrorCode::kInvalidArgument, "image '" + path + "' is not a regular file");
+  return Status::Ok();
+}
+
+Status CheckCompressedSize(const std::string& path, double raw_bytes, int64_t width,
+                           int64_t height) {
+  std::error_code ec;
+  const auto file_bytes = std::filesystem::file_size(path, ec);
+  if (ec || raw_bytes <= 1100.0 * static_cast<double>(file_bytes) + 65536) return Status::Ok();
+  return MakeError(ErrorCode::kParse, path + ": " + std::to_string(file_bytes) +
+                                          " bytes cannot hold a " + std::to_string(width) + " x " +
+                                          std::to_string(height) + " image");
+}
+
+Result<Image> ReadPnm(const std::string& path, int max_side) {
+  if (Status s = CheckRegularFile(path); !s.ok()) return s.error();
   std::ifstream in(path, std::ios::binary);
   if (!in) return MakeError(ErrorCode::kNotFound, "cannot open image '" + path + "'");
   std::string magic, w, h, maxv;

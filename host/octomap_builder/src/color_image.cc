@@ -2,10 +2,11 @@
 
 #include <cmath>
 #include <cstring>
-#include <filesystem>
 #include <sstream>
 
 #include <png.h>
+
+#include "omni/io/image_io.h"
 
 namespace omni::octo {
 
@@ -57,9 +58,7 @@ Status DecodeColorData(int8_t encoding, const uint8_t* data, size_t size, int wi
 
 Status ReadColorPng(const std::string& path, ColorImage* image) {
   // libpng's simplified API converts grey, palette, alpha and 16-bit to 8-bit RGB.
-  std::error_code ec;
-  if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
-    return MakeError(ErrorCode::kInvalidArgument, path + ": not a regular file");
+  if (Status s = io::CheckRegularFile(path); !s.ok()) return s;
   png_image png;
   std::memset(&png, 0, sizeof(png));
   png.version = PNG_IMAGE_VERSION;
@@ -69,16 +68,13 @@ Status ReadColorPng(const std::string& path, ColorImage* image) {
     png_image_free(&png);
     return MakeError(ErrorCode::kParse, path + ": implausible PNG size");
   }
-  // At least a bit a pixel, deflated at most ~1032:1: a file too small for the size its header
-  // claims is refused before 3 bytes a pixel are allocated (69 bytes saying 16384 x 16384 took
-  // 793 MB to refuse; review 2026-12-06).
-  const auto file_bytes = std::filesystem::file_size(path, ec);
-  if (!ec && static_cast<double>(png.width) * png.height / 8.0 >
-                 1100.0 * static_cast<double>(file_bytes) + 65536) {
+  // At least a bit a pixel before 3 bytes a pixel are allocated (69 bytes saying 16384 x 16384
+  // took 793 MB to refuse; review 2026-12-06).
+  if (Status s = io::CheckCompressedSize(path, static_cast<double>(png.width) * png.height / 8.0,
+                                         png.width, png.height);
+      !s.ok()) {
     png_image_free(&png);
-    return MakeError(ErrorCode::kParse, path + ": " + std::to_string(file_bytes) +
-                                            " bytes cannot hold a " + std::to_string(png.width) +
-                                            " x " + std::to_string(png.height) + " image");
+    return s;
   }
   png.format = PNG_FORMAT_RGB;
   std::vector<uint8_t> rgb(PNG_IMAGE_SIZE(png));

@@ -3,7 +3,6 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
-#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <sstream>
@@ -47,9 +46,7 @@ bool EndsWith(const std::string& s, const std::string& suffix) {
 }  // namespace
 
 Status ReadDepthPng(const std::string& path, DepthImage* image) {
-  std::error_code ec;
-  if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
-    return MakeError(ErrorCode::kInvalidArgument, path + ": not a regular file");
+  if (Status s = io::CheckRegularFile(path); !s.ok()) return s;
   File f(std::fopen(path.c_str(), "rb"));
   if (!f) return IoError("cannot open", path);
   uint8_t sig[8];
@@ -87,14 +84,10 @@ Status ReadDepthPng(const std::string& path, DepthImage* image) {
   if (depth == 16) png_set_swap(png);  // PNG is big-endian; we want host order
   png_read_update_info(png, info);
   const size_t rowbytes = png_get_rowbytes(png, info);
-  // Deflate packs at most ~1032:1: a file too small for the size its header claims is refused
-  // before that size is allocated (a 100-byte file saying 16384 x 16384 x 16 bit is not 512 MB).
-  const auto file_bytes = std::filesystem::file_size(path, ec);
-  if (!ec && static_cast<double>(rowbytes) * h > 1100.0 * static_cast<double>(file_bytes) + 65536) {
+  // A 100-byte file saying 16384 x 16384 x 16 bit is not 512 MB.
+  if (Status s = io::CheckCompressedSize(path, static_cast<double>(rowbytes) * h, w, h); !s.ok()) {
     png_destroy_read_struct(&png, &info, nullptr);
-    return MakeError(ErrorCode::kParse, path + ": " + std::to_string(file_bytes) +
-                                            " bytes cannot hold a " + std::to_string(w) + " x " +
-                                            std::to_string(h) + " image");
+    return s;
   }
   buf.resize(rowbytes * h);
   rows.resize(h);

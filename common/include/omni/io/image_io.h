@@ -35,6 +35,14 @@ struct Image {
 // P5 (gray) and P6 (RGB) binary forms; 16-bit samples are big-endian (Netpbm). Width and
 // height must be 1 to `max_side`; memory follows the bytes the file holds, not its header.
 constexpr int kMaxPnmSide = 100000;
+
+// Refuses a path that exists but is not a regular file: a FIFO or a device (a map YAML's
+// `image: /dev/stdin`) would block or never end.
+Status CheckRegularFile(const std::string& path);
+// Deflate packs at most ~1032:1: a compressed image file too small to decode to `raw_bytes`
+// (what its header claims) is refused before that much is allocated.
+Status CheckCompressedSize(const std::string& path, double raw_bytes, int64_t width,
+                           int64_t height);
 Result<Image> ReadPnm(const std::string& path, int max_side = kMaxPnmSide);
 Status WritePgm(const std::string& path, const Image& image);
 // 8-bit PNG (values above 255 are clamped). Written atomically (temp file + rename).
