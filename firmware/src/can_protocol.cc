@@ -137,6 +137,14 @@ CanFrame EncodeDiagnostics(uint8_t node, const Diagnostics& m) {
   PutU16(&f.data[6], m.max_step_us);
   return f;
 }
+CanFrame EncodeDiagnostics2(uint8_t node, const Diagnostics2& m) {
+  CanFrame f = Make(node, kDiagnostics2);
+  PutU16(&f.data[0], m.watchdog_trips);
+  PutU16(&f.data[2], m.commands_limited);
+  PutU16(&f.data[4], m.rx_overruns);
+  PutU16(&f.data[6], m.reserved);
+  return f;
+}
 
 bool DecodeHeartbeat(const CanFrame& f, Heartbeat* m) {
   if (!CheckLength(f)) return false;
@@ -203,6 +211,14 @@ bool DecodeParamStoreStatus(const CanFrame& f, ParamStoreStatus* m) {
   m->boot_state = f.data[2];
   m->stored = f.data[3];
   m->crc = GetU32(&f.data[4]);
+  return true;
+}
+bool DecodeDiagnostics2(const CanFrame& f, Diagnostics2* m) {
+  if (!CheckLength(f)) return false;
+  m->watchdog_trips = GetU16(&f.data[0]);
+  m->commands_limited = GetU16(&f.data[2]);
+  m->rx_overruns = GetU16(&f.data[4]);
+  m->reserved = GetU16(&f.data[6]);
   return true;
 }
 bool DecodeDiagnostics(const CanFrame& f, Diagnostics* m) {

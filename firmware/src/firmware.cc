@@ -311,7 +311,8 @@ void Firmware::Step() {
     step_accum_us_ -= 1000;
   }
 
-  // 1. Commands.
+  // 1. Commands (and the frames the controller had to drop since the last step).
+  counters_.rx_overruns += hal_->TakeCanRxOverruns();
   CanFrame f;
   for (int n = 0; n < kMaxFramesPerStep && hal_->CanRead(&f); ++n) HandleFrame(f);
 
@@ -418,12 +419,17 @@ void Firmware::SendFeedback() {
     Send(can::EncodeSetpointFeedback(node, sp));
     if (heartbeat_counter_ % 10 == 0) {
       can::Diagnostics d;
-      d.rx_unknown = static_cast<uint16_t>(counters_.rx_unknown);
-      d.rx_bad_length = static_cast<uint16_t>(counters_.rx_bad_length);
-      d.tx_dropped = static_cast<uint16_t>(counters_.tx_dropped);
-      d.max_step_us =
-          static_cast<uint16_t>(counters_.max_step_us > 65535 ? 65535 : counters_.max_step_us);
+      d.rx_unknown = can::SaturateCount(counters_.rx_unknown);
+      d.rx_bad_length = can::SaturateCount(counters_.rx_bad_length);
+      d.tx_dropped = can::SaturateCount(counters_.tx_dropped);
+      d.max_step_us = can::SaturateCount(counters_.max_step_us);
       Send(can::EncodeDiagnostics(node, d));
+    } else if (heartbeat_counter_ % 10 == 5) {
+      can::Diagnostics2 d;
+      d.watchdog_trips = can::SaturateCount(counters_.watchdog_trips);
+      d.commands_limited = can::SaturateCount(counters_.commands_limited);
+      d.rx_overruns = can::SaturateCount(counters_.rx_overruns);
+      Send(can::EncodeDiagnostics2(node, d));
     }
   }
 }

@@ -85,7 +85,7 @@ void FirmwareBase::Advance(const kinematics::BodyTwist<double>* cmd, int64_t now
     // Host to firmware: whatever the bridge sends in this period reaches the controller's FIFO.
     out.clear();
     bridge_.Tick(t, &out);
-    for (const auto& f : out) hal_.rx.push_back(f);
+    for (const auto& f : out) hal_.Deliver(f);
     stats_.frames_to_firmware += static_cast<int64_t>(out.size());
     clock_us_ = t;
     if (booted_) fw_.Step();

@@ -196,6 +196,14 @@ void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
       counters_.firmware_max_step_us = d.max_step_us;
       break;
     }
+    case fwcan::kDiagnostics2: {
+      fwcan::Diagnostics2 d;
+      if (!(ok = fwcan::DecodeDiagnostics2(f, &d))) break;
+      counters_.firmware_watchdog_trips = d.watchdog_trips;
+      counters_.firmware_commands_limited = d.commands_limited;
+      counters_.firmware_rx_overruns = d.rx_overruns;
+      break;
+    }
     default:
       ++counters_.unknown_frames;  // unknown, or a host->firmware command from someone else
       return;

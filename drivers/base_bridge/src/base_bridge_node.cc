@@ -60,6 +60,9 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("fw_rx_bad_length", [c] { return c->firmware_rx_bad_length; });
   heartbeat_.AddCounter("fw_tx_dropped", [c] { return c->firmware_tx_dropped; });
   heartbeat_.AddCounter("fw_max_step_us", [c] { return c->firmware_max_step_us; });
+  heartbeat_.AddCounter("fw_watchdog_trips", [c] { return c->firmware_watchdog_trips; });
+  heartbeat_.AddCounter("fw_commands_limited", [c] { return c->firmware_commands_limited; });
+  heartbeat_.AddCounter("fw_rx_overruns", [c] { return c->firmware_rx_overruns; });
   heartbeat_.AddCounter("can_tx_errors", [this] { return tx_errors_; });
   heartbeat_.AddCounter("can_rx_overruns",
                         [this] { return can_ ? can_->stats().rx_overruns : int64_t{0}; });
@@ -170,6 +173,14 @@ void BaseBridgeNode::Publish(int64_t now) {
       fw_alive_ever_ = fw_alive_ever_ || s.firmware_alive;
       fw_alive_logged_ = s.firmware_alive;
     }
+    // Frames lost on the board: its receive FIFO overran (the host sends faster than the
+    // firmware reads, or the board stalled). Said once per rise of the firmware's count.
+    const int64_t overruns = bridge_.counters().firmware_rx_overruns;
+    if (overruns > fw_overruns_logged_) {
+      LOG_WARN << "base firmware: its CAN receive FIFO overran (" << overruns
+               << " times since boot): frames to it were lost";
+    }
+    fw_overruns_logged_ = overruns;
     if (slip_.slipping() != slip_logged_) {
       if (slip_.slipping()) {
         LOG_WARN << slip_.Problem();

@@ -42,6 +42,21 @@ class HostHal final : public Hal {
     rx.pop_front();
     return true;
   }
+  // A frame reaching the controller: queued, or lost and counted as an overrun when the
+  // receive FIFO already holds rx_capacity frames (the board's FIFO is 3 deep; the simulator's
+  // is deeper because it delivers a whole control period's frames at once).
+  void Deliver(const CanFrame& f) {
+    if (rx.size() >= rx_capacity) {
+      ++rx_overruns_pending;
+      return;
+    }
+    rx.push_back(f);
+  }
+  uint32_t TakeCanRxOverruns() override {
+    const uint32_t n = rx_overruns_pending;
+    rx_overruns_pending = 0;
+    return n;
+  }
   FwStatus CanWrite(const CanFrame& f) override {
     if (tx.size() >= tx_capacity) return FwStatus::kBusy;
     tx.push_back(f);
@@ -91,6 +106,8 @@ class HostHal final : public Hal {
   std::deque<CanFrame> rx;  // frames for the firmware
   std::deque<CanFrame> tx;  // frames sent by the firmware
   size_t tx_capacity = 1024;
+  size_t rx_capacity = 32;
+  uint32_t rx_overruns_pending = 0;
   bool bus_off = false;
   bool led = false;
   bool param_store_enabled = true;

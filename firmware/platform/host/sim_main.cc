@@ -178,7 +178,7 @@ int main(int argc, char** argv) {
           break;
         }
         if (!r.value()) break;
-        hal.rx.push_back(ToFw(f));
+        hal.Deliver(ToFw(f));
       }
     } else if (std::chrono::steady_clock::now() - last_open > std::chrono::milliseconds(100)) {
       try_open();

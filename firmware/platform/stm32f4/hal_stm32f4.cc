@@ -209,6 +209,14 @@ bool Stm32Hal::CanRead(CanFrame* frame) {
   return true;
 }
 
+uint32_t Stm32Hal::TakeCanRxOverruns() {
+  // FOVR0: a frame arrived while FIFO 0 was full and was lost. The flag says "at least one";
+  // writing 1 clears it (and only it: RFOM0 written 0 releases nothing).
+  if ((Reg(CAN_RF0R) & (1u << 4)) == 0) return 0;
+  Reg(CAN_RF0R) = 1u << 4;
+  return 1;
+}
+
 FwStatus Stm32Hal::CanWrite(const CanFrame& frame) {
   const uint32_t tsr = Reg(CAN_TSR);
   int box = -1;

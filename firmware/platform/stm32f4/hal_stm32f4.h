@@ -35,6 +35,7 @@ class Stm32Hal final : public Hal {
   float ReadBusVoltageV() override;
   bool CanRead(CanFrame* frame) override;
   FwStatus CanWrite(const CanFrame& frame) override;
+  uint32_t TakeCanRxOverruns() override;
   bool CanBusOff() override;
   void SetStatusLed(bool on) override;
   // Parameter store: flash sector 1 (16 KiB at 0x08004000, kept out of the image by the linker

@@ -327,6 +327,27 @@ TEST(BaseBridgeTest, MalformedAndForeignFramesCounted) {
   EXPECT_FALSE(b.status(0).firmware_alive);
 }
 
+TEST(BaseBridgeTest, BothFirmwareDiagnosticsFramesReachTheCounters) {
+  BaseBridge b(TestOptions());
+  b.OnFrame(fwcan::EncodeDiagnostics(1, fwcan::Diagnostics{4, 5, 6, 700}), 0);
+  fwcan::Diagnostics2 d2;
+  d2.watchdog_trips = 2;
+  d2.commands_limited = 9;
+  d2.rx_overruns = 11;
+  b.OnFrame(fwcan::EncodeDiagnostics2(1, d2), 0);
+  CanFrame short_frame = fwcan::EncodeDiagnostics2(1, d2);
+  short_frame.dlc = 4;
+  b.OnFrame(short_frame, 0);  // counted as an error, the values stay
+  EXPECT_EQ(b.counters().firmware_rx_unknown, 4);
+  EXPECT_EQ(b.counters().firmware_tx_dropped, 6);
+  EXPECT_EQ(b.counters().firmware_max_step_us, 700);
+  EXPECT_EQ(b.counters().firmware_watchdog_trips, 2);
+  EXPECT_EQ(b.counters().firmware_commands_limited, 9);
+  EXPECT_EQ(b.counters().firmware_rx_overruns, 11);
+  EXPECT_EQ(b.counters().can_rx_errors, 1);
+  EXPECT_EQ(b.counters().unknown_frames, 0);
+}
+
 TEST(BaseBridgeTest, RandomFramesNeverCrash) {
   BaseBridge b(TestOptions());
   uint32_t state = 12345;

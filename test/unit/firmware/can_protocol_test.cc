@@ -100,6 +100,48 @@ TEST(CanGoldenTest, WrongLengthRejectedByDecoders) {
   EXPECT_FALSE(DecodeHeartbeat(f, &hb));
 }
 
+TEST(CanGoldenTest, Diagnostics2SaturatesItsCounts) {
+  Diagnostics2 d;
+  d.watchdog_trips = 3;
+  d.commands_limited = SaturateCount(70000);
+  d.rx_overruns = 0x0102;
+  const CanFrame f = EncodeDiagnostics2(1, d);
+  EXPECT_EQ(f.id, 0x031);
+  EXPECT_EQ(Bytes(f), (std::vector<uint8_t>{0x03, 0x00, 0xFF, 0xFF, 0x02, 0x01, 0x00, 0x00}));
+  Diagnostics2 back;
+  ASSERT_TRUE(DecodeDiagnostics2(f, &back));
+  EXPECT_EQ(back.watchdog_trips, 3);
+  EXPECT_EQ(back.commands_limited, 65535);
+  EXPECT_EQ(back.rx_overruns, 0x0102);
+  CanFrame short_frame = f;
+  short_frame.dlc = 7;
+  EXPECT_FALSE(DecodeDiagnostics2(short_frame, &back));
+}
+
+// The counts DIAGNOSTICS had no room for leave the board: watchdog trips, commands limited to
+// max_wheel_speed, and frames the receive FIFO had to drop.
+TEST(CanFirmwareTest, SecondDiagnosticsFrameCarriesWatchdogLimitAndOverruns) {
+  testing::Harness h;
+  ASSERT_TRUE(h.ok);
+  h.SendTwist(0.f, 0.f, 50.f);  // far beyond max_wheel_speed: limited
+  h.Run(2);
+  for (int i = 0; i < 40; ++i) h.hal.Deliver(EncodeGetParam(1, kParamWatchdogMs));  // a flood
+  EXPECT_EQ(h.hal.rx.size(), h.hal.rx_capacity);
+  h.Run(1000);  // commands stop: the watchdog trips
+  Diagnostics2 last;
+  int seen = 0;
+  for (const CanFrame& f : h.hal.tx) {
+    if (CommandOf(f.id) != kDiagnostics2) continue;
+    ASSERT_TRUE(DecodeDiagnostics2(f, &last));
+    ++seen;
+  }
+  EXPECT_GE(seen, 1);
+  EXPECT_EQ(last.watchdog_trips, 1);
+  EXPECT_EQ(last.commands_limited, 1);
+  EXPECT_EQ(last.rx_overruns, 40 - h.hal.rx_capacity);
+  EXPECT_EQ(h.fw.counters().rx_overruns, 40 - h.hal.rx_capacity);
+}
+
 TEST(CanFirmwareTest, MalformedFramesCountedAndIgnored) {
   testing::Harness h;
   CanFrame bad_len = EncodeSetBodyTwist(1, BodyTwist{0.3f, 0.f, 0.f, 0});

@@ -31,6 +31,7 @@ enum Command : uint8_t {
   kDiagnostics = 0x0E,        // fw -> host, every 10 heartbeats
   kSaveParams = 0x0F,         // host -> fw: store the parameters (or erase the store)
   kParamStoreStatus = 0x10,   // fw -> host, reply to SAVE_PARAMS
+  kDiagnostics2 = 0x11,       // fw -> host, every 10 heartbeats (5 after DIAGNOSTICS)
 };
 
 inline constexpr uint16_t MakeId(uint8_t node, uint8_t cmd) {
@@ -45,6 +46,11 @@ inline constexpr float kAngularScale = 1000.f;  // mrad/s per rad/s (body yaw ra
 inline constexpr float kWheelScale = 100.f;     // 0.01 rad/s per rad/s (wheel speeds)
 inline constexpr float kCurrentScale = 1000.f;  // mA per A
 inline constexpr float kVoltageScale = 1000.f;  // mV per V
+
+// A count since boot as a DIAGNOSTICS field: saturates at 65535 instead of wrapping.
+inline constexpr uint16_t SaturateCount(uint32_t n) {
+  return static_cast<uint16_t>(n > 0xFFFFu ? 0xFFFFu : n);
+}
 
 struct Heartbeat {
   uint32_t fault_bits = 0;
@@ -101,11 +107,20 @@ struct ParamStoreStatus {
   uint32_t crc = 0;        // CRC-32 of the stored record (0: empty)
 };
 
+// Counts since boot; each field stops at 65535 (read it as "at least").
 struct Diagnostics {
   uint16_t rx_unknown = 0;     // frames for this node with an unknown command
   uint16_t rx_bad_length = 0;  // frames for this node with a wrong DLC
   uint16_t tx_dropped = 0;     // frames not sent (mailboxes full / bus-off)
   uint16_t max_step_us = 0;    // longest control step since boot, microseconds
+};
+// The second diagnostics frame (DIAGNOSTICS did not have room): counts since boot, each
+// stopping at 65535.
+struct Diagnostics2 {
+  uint16_t watchdog_trips = 0;    // stops because motion commands stopped coming
+  uint16_t commands_limited = 0;  // motion commands scaled down to max_wheel_speed
+  uint16_t rx_overruns = 0;       // receive-FIFO overruns: frames the controller had to drop
+  uint16_t reserved = 0;          // sent as 0
 };
 
 // Encoders fill id, dlc = 8 and the payload. Values are saturated to the field range.
@@ -123,6 +138,7 @@ CanFrame EncodeCurrentFeedback(uint8_t node, const WheelTriple& m);
 CanFrame EncodeBodyTwistFeedback(uint8_t node, const BodyTwist& m);
 CanFrame EncodeSetpointFeedback(uint8_t node, const WheelTriple& m);
 CanFrame EncodeDiagnostics(uint8_t node, const Diagnostics& m);
+CanFrame EncodeDiagnostics2(uint8_t node, const Diagnostics2& m);
 CanFrame EncodeSaveParams(uint8_t node, uint8_t action);
 CanFrame EncodeParamStoreStatus(uint8_t node, const ParamStoreStatus& m);
 
@@ -136,6 +152,7 @@ CanFrame EncodeParamStoreStatus(uint8_t node, const ParamStoreStatus& m);
 [[nodiscard]] bool DecodeParamRequest(const CanFrame& f, ParamRequest* m);  // get or set
 [[nodiscard]] bool DecodeParamReply(const CanFrame& f, ParamReply* m);
 [[nodiscard]] bool DecodeDiagnostics(const CanFrame& f, Diagnostics* m);
+[[nodiscard]] bool DecodeDiagnostics2(const CanFrame& f, Diagnostics2* m);
 [[nodiscard]] bool DecodeSaveParams(const CanFrame& f, uint8_t* action);
 [[nodiscard]] bool DecodeParamStoreStatus(const CanFrame& f, ParamStoreStatus* m);
 [[nodiscard]] bool CheckLength(const CanFrame& f);

@@ -73,6 +73,7 @@ struct Counters {
   uint32_t rx_frames = 0;      // frames addressed to this node
   uint32_t rx_unknown = 0;     // ... with an unknown command
   uint32_t rx_bad_length = 0;  // ... with a wrong DLC
+  uint32_t rx_overruns = 0;    // receive-FIFO overruns reported by the HAL (frames lost)
   uint32_t tx_dropped = 0;
   uint32_t commands = 0;          // accepted motion commands
   uint32_t commands_limited = 0;  // motion commands scaled down to max_wheel_speed

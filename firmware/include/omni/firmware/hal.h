@@ -41,6 +41,9 @@ class Hal {
   virtual bool CanRead(CanFrame* frame) = 0;
   // Queues one frame; kBusy when every transmit mailbox is full.
   virtual FwStatus CanWrite(const CanFrame& frame) = 0;
+  // Receive-FIFO overruns since the last call (each: at least one frame the controller dropped
+  // because the FIFO was full); the call clears them. A board that cannot tell returns 0.
+  virtual uint32_t TakeCanRxOverruns() { return 0; }
   // True while the CAN controller is bus-off.
   virtual bool CanBusOff() = 0;
   // Status LED (GPIO): blinks while running, steady on fault.

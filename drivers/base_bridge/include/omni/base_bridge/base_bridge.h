@@ -124,6 +124,9 @@ struct Counters {
   int64_t firmware_rx_bad_length = 0;
   int64_t firmware_tx_dropped = 0;
   int64_t firmware_max_step_us = 0;
+  int64_t firmware_watchdog_trips = 0;  // from the firmware's second diagnostics frame
+  int64_t firmware_commands_limited = 0;
+  int64_t firmware_rx_overruns = 0;
 };
 
 class BaseBridge {

@@ -33,6 +33,7 @@ class BaseBridgeNode {
   BaseBridge bridge_;
   SlipMonitor slip_;
   bool slip_logged_ = false;  // for the log lines
+  int64_t fw_overruns_logged_ = 0;
   bus::Heartbeat heartbeat_;
   std::unique_ptr<can::CanBus> can_;
   int64_t last_open_try_us_ = 0;
