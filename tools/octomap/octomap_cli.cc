@@ -580,9 +580,7 @@ int main(int argc, char** argv) {
   }
   // End of log: whatever still waits for a pose can only be posed by what is there.
   if (use_file) feed.FeedRest(add_pose);
-  pipeline.Process(pipeline.newest_utime());
-  pipeline.Process(std::numeric_limits<int64_t>::max() / 2);
-  pipeline.FlushAwaitingColor();
+  pipeline.FinishInput();
   pipeline.FinishRepose();
   const auto& pc = pipeline.poser_counters();
   const auto& c = pipeline.counters();

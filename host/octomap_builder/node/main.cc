@@ -121,8 +121,9 @@ int main(int argc, char** argv) {
   node.Tick(omni::MonotonicMicros());
   const auto& pc = node.pipeline().poser_counters();
   const auto& c = node.pipeline().counters();
-  // Posed frames still waiting for a colour partner: insert them with what has come.
-  node.pipeline().FlushAwaitingColor();
+  // No more input: frames still waiting for a pose are counted as dropped without one (they
+  // used to vanish uncounted), those waiting for a colour partner go in with what has come.
+  node.pipeline().FinishInput();
   // A rebuild asked for or under way: the saved map is at the newest trajectory.
   node.pipeline().FinishRepose();
   omni::Status s = node.SaveOutputs();

@@ -309,9 +309,12 @@ io::Image RenderTop(const Tree& tree, const UpAxis& up, ColorOf color_of) {
     x1 = std::max(x1, p.u + half);
     y1 = std::max(y1, p.v + half);
   }
-  const int w = std::max(1, static_cast<int>(std::ceil((x1 - x0) / res - 1e-6)));
-  const int h = std::max(1, static_cast<int>(std::ceil((y1 - y0) / res - 1e-6)));
-  if (static_cast<double>(w) * h > 1e8) return io::Image::Make(1, 1, 3, 128);
+  // One pixel per leaf column, or per 2, 4, 8 ... of them when that would be too many pixels
+  // (a 1 cm tree over its whole key range is 65536 x 65536): a coarser view, never none.
+  double pix = res;
+  while (std::ceil((x1 - x0) / pix) * std::ceil((y1 - y0) / pix) > kMaxTopViewPixels) pix *= 2;
+  const int w = std::max(1, static_cast<int>(std::ceil((x1 - x0) / pix - 1e-6)));
+  const int h = std::max(1, static_cast<int>(std::ceil((y1 - y0) / pix - 1e-6)));
   std::vector<float> top(static_cast<size_t>(w) * h, -std::numeric_limits<float>::infinity());
   std::vector<uint8_t> known(static_cast<size_t>(w) * h, 0);
   std::vector<uint32_t> top_rgb(static_cast<size_t>(w) * h, 0);  // colour of the top voxel
@@ -320,10 +323,10 @@ io::Image RenderTop(const Tree& tree, const UpAxis& up, ColorOf color_of) {
     const double half = it.getSize() / 2;
     const bool occ = tree.isNodeOccupied(*it);
     const Planar p = ToPlanar(it.getX(), it.getY(), it.getZ(), up);
-    const int c0 = std::max(0, static_cast<int>(std::floor((p.u - half - x0) / res + 1e-6)));
-    const int c1 = std::min(w, static_cast<int>(std::ceil((p.u + half - x0) / res - 1e-6)));
-    const int r0 = std::max(0, static_cast<int>(std::floor((p.v - half - y0) / res + 1e-6)));
-    const int r1 = std::min(h, static_cast<int>(std::ceil((p.v + half - y0) / res - 1e-6)));
+    const int c0 = std::max(0, static_cast<int>(std::floor((p.u - half - x0) / pix + 1e-6)));
+    const int c1 = std::min(w, static_cast<int>(std::ceil((p.u + half - x0) / pix - 1e-6)));
+    const int r0 = std::max(0, static_cast<int>(std::floor((p.v - half - y0) / pix + 1e-6)));
+    const int r1 = std::min(h, static_cast<int>(std::ceil((p.v + half - y0) / pix - 1e-6)));
     const float ztop = static_cast<float>(p.h + half);
     if (occ) {
       zmin = std::min(zmin, p.h);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "omni/common/log.h"
 
@@ -379,6 +380,13 @@ int OctomapPipeline::Process(int64_t now_utime) {
 }
 
 int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime(), true); }
+
+int OctomapPipeline::FinishInput() {
+  int n = Process(newest_utime());
+  n += Process(std::numeric_limits<int64_t>::max() / 2);  // every wait has expired
+  n += FlushAwaitingColor();
+  return n;
+}
 
 int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
   const OctomapBuilderOptions& o = builder_->options();

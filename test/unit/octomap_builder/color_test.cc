@@ -466,6 +466,22 @@ TEST(OctomapPipeline, AFutureDepthFrameDoesNotExpireTheWaitingOnes) {
   EXPECT_EQ(p.poser_counters().frames_dropped_no_pose, 0);
 }
 
+// The end of the input: a frame that a pose taken can still pose goes in, one newer than every
+// pose is counted as dropped without a pose (the node used to exit with it uncounted).
+TEST(OctomapPipeline, FinishInputPosesWhatItCanAndCountsTheRest) {
+  DepthOnlyPipeline f;
+  auto& [p, t0, d] = f;
+  p.AddPose(t0, Pose2(0, 0, 0));
+  p.AddPose(t0 + 100000, Pose2(0.1, 0, 0));
+  d.utime = t0 + 50000;
+  p.AddDepth(d);
+  d.utime = t0 + 150000;
+  p.AddDepth(d);
+  EXPECT_EQ(p.FinishInput(), 1);
+  EXPECT_EQ(p.counters().frames_inserted, 1);
+  EXPECT_EQ(p.poser_counters().frames_dropped_no_pose, 1);
+}
+
 // Pipeline pairing: poses every 100 ms, depth frames at 50 ms offsets.
 TEST(ColorOctomap, PipelinePairsNearestColorAndCountsTheRest) {
   OctomapBuilderOptions opt = ColorOptions();

@@ -293,6 +293,25 @@ TEST(MapOutput, Geb079LoadsAndProjectsToAFloorPlan) {
   EXPECT_GT(view.width, 100);
 }
 
+// A map too wide for one pixel per leaf is drawn coarser, not as one grey pixel (it was, above
+// 1e8 pixels): two 1 cm voxels 100 m x 50 m apart.
+TEST(TopView, AHugeMapIsDrawnCoarserNotDropped) {
+  octomap::OcTree t(0.01);
+  t.updateNode(octomap::point3d(0.005f, 0.005f, 0.005f), true);
+  t.updateNode(octomap::point3d(100.005f, 50.005f, 0.005f), true);
+  const io::Image view = RenderTopView(t);
+  EXPECT_EQ(view.width, 5001);  // 2 cm pixels over 100.01 m
+  EXPECT_EQ(view.height, 2501);
+  EXPECT_LE(static_cast<double>(view.width) * view.height, kMaxTopViewPixels);
+  auto blue = [&](int c, int r) {
+    return view.at(c, r, 0) < 60 && view.at(c, r, 1) < 60 && view.at(c, r, 2) > 200;  // low
+  };
+  EXPECT_TRUE(blue(0, view.height - 1));  // the voxel at the origin: south-west corner
+  EXPECT_TRUE(blue(view.width - 1, 0));   // the far one: north-east
+  EXPECT_EQ(view.at(2500, 1250, 0), 40);  // nothing known in between
+  EXPECT_EQ(view.at(2500, 1250, 2), 40);
+}
+
 TEST(DepthIo, PcdAndPngWriters) {
   const std::string dir = testing::TempDir();
   std::vector<Eigen::Vector3f> pts = {{1, 2, 3}, {-1.5f, 0, 0.25f}};

@@ -65,6 +65,9 @@ Result<io::GridMap> ProjectToGrid(const octomap::OcTree& tree,
 
 // Top view of the occupied voxels, one pixel per leaf column, coloured by the height of the
 // highest occupied voxel (blue low .. red high), light grey where only free space is known.
+// A map wider than kMaxTopViewPixels at one pixel per leaf is drawn with pixels of 2, 4, 8 ...
+// leaves (the highest voxel under each); an empty tree is one grey pixel.
+inline constexpr double kMaxTopViewPixels = 16e6;
 io::Image RenderTopView(const octomap::OcTree& tree, const UpAxis& up = {});
 // The same view with each pixel in the colour of its highest occupied voxel (by height where
 // that voxel has no colour).

@@ -169,6 +169,11 @@ class OctomapPipeline {
   // Inserts the posed frames still waiting for a colour partner with the best one buffered (or
   // uncoloured), e.g. on exit. Returns the number inserted.
   int FlushAwaitingColor();
+  // The end of the input (a log's end, the process's exit): no pose or colour frame will come.
+  // Poses what the poses taken can pose, counts the frames still waiting for a newer pose as
+  // dropped without pose, and inserts those waiting for a colour partner. Returns the number
+  // inserted.
+  int FinishInput();
   // Newest time of any pose or frame taken so far (the default `now`); it moves back when a
   // stream's future-stamped message is dropped (stamp_order.h), so one such message cannot
   // expire every frame's latency.
