@@ -7,16 +7,23 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
+#include <set>
 #include <string>
 
 #include "omni/bus/bus.h"
+#include "omni/bus/channels.h"
 #include "omni/bus/map_save.h"
 #include "omni/common/cli.h"
 #include "omni/common/time.h"
+#include "omni/heartbeat_t.hpp"
 #include "omni/map_save_reply_t.hpp"
 #include "omni/map_save_request_t.hpp"
 
 namespace {
+
+// Heartbeats come once a second: after this long every running mapper has been heard.
+constexpr double kListenS = 1.2;
 
 void Usage(std::FILE* f) {
   std::fprintf(
@@ -25,11 +32,15 @@ void Usage(std::FILE* f) {
       "  Asks the running mappers (rbpf_mapper, pose_graph_mapper, odom_mapper, map_fusion,\n"
       "  octomap_builder) to write their maps now, without stopping, and prints each answer.\n"
       "  --process NAME  only this process (default: every mapper on the bus)\n"
-      "  --dir DIR       where, on the mappers' machine (default: each one's --out folder;\n"
-      "                  for every mapper, DIR/<process>)\n"
+      "  --dir DIR       where (default: each one's --out folder; for every mapper,\n"
+      "                  DIR/<process>). A relative DIR is taken from this shell's folder;\n"
+      "                  give an absolute one when the mappers run on another machine\n"
       "  --wait S        how long to wait for answers (default 10); stops early when the named\n"
-      "                  process answered, or 2 s after the last answer from every mapper\n"
-      "  Exit status: 0 all answers ok, 1 a mapper could not write, 3 nobody answered.\n");
+      "                  process answered, or when every mapper whose heartbeat was heard in\n"
+      "                  the first %.1f s answered\n"
+      "  Exit status: 0 all answers ok, 1 a mapper could not write or did not answer,\n"
+      "  3 nobody answered.\n",
+      kListenS);
 }
 
 }  // namespace
@@ -56,6 +67,18 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-save-map: %s\n", bus.error().message.c_str());
     return 1;
   }
+  if (!dir.empty() && dir.front() != '/') {
+    // The mappers' working folders are theirs (the supervisor's, a service's): a relative
+    // folder means this shell's.
+    std::error_code ec;
+    const std::filesystem::path abs = std::filesystem::absolute(dir, ec);
+    if (ec) {
+      std::fprintf(stderr, "omni-save-map: cannot resolve --dir '%s': %s\n", dir.c_str(),
+                   ec.message().c_str());
+      return 1;
+    }
+    dir = abs.lexically_normal().string();
+  }
   omni::map_save_request_t req{};
   req.utime = omni::SystemClock().NowUtime();
   // Answers to another sender's request carry its number, not ours.
@@ -63,35 +86,67 @@ int main(int argc, char** argv) {
   req.process = process;
   req.directory = dir;
   int answers = 0, failures = 0;
-  const auto hard_deadline = std::chrono::steady_clock::now() +
-                             std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                 std::chrono::duration<double>(wait_s));
-  auto deadline = hard_deadline;
+  // The processes that serve map saves (their heartbeat carries maps_saved), heard while we wait,
+  // and those that answered.
+  std::set<std::string> serving, answered;
+  (*bus)->Subscribe<omni::heartbeat_t>(
+      omni::channels::kHeartbeat, [&](const omni::heartbeat_t& h, int64_t) {
+        if (h.state == omni::heartbeat_t::STATE_STOPPING) return;
+        if (!process.empty() && h.process != process) return;
+        if (std::find(h.counter_names.begin(), h.counter_names.end(), "maps_saved") !=
+            h.counter_names.end())
+          serving.insert(h.process);
+      });
+  const auto start = std::chrono::steady_clock::now();
+  const auto listened = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                    std::chrono::duration<double>(kListenS));
+  const auto deadline = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                    std::chrono::duration<double>(wait_s));
+  // Without any heartbeat (none on this bus, or a mapper too busy to send one), the old rule:
+  // 2 s without a new answer ends the wait.
+  auto quiet_deadline = deadline;
   (*bus)->Subscribe<omni::map_save_reply_t>(
       omni::bus::kMapSaveReplyChannel, [&](const omni::map_save_reply_t& m, int64_t) {
         if (m.seq != req.seq) return;
         ++answers;
         failures += !m.ok;
+        answered.insert(m.process);
         std::printf("%s: %s: %s\n", m.process.c_str(), m.ok ? "saved" : "FAILED",
                     m.message.c_str());
-        // Every mapper answers within a loop round (seconds at most, during a global
-        // optimisation): 2 s without a new answer ends the wait.
-        deadline =
-            std::min(hard_deadline, std::chrono::steady_clock::now() + std::chrono::seconds(2));
+        quiet_deadline =
+            std::min(deadline, std::chrono::steady_clock::now() + std::chrono::seconds(2));
       });
   if (!(*bus)->Publish(omni::bus::kMapSaveChannel, req)) {
     std::fprintf(stderr, "omni-save-map: publishing on %s failed\n", omni::bus::kMapSaveChannel);
     return 1;
   }
-  while (std::chrono::steady_clock::now() < deadline && !(!process.empty() && answers > 0)) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-        deadline - std::chrono::steady_clock::now());
-    if ((*bus)->HandleTimeout(static_cast<int>(std::max<int64_t>(1, left.count()))) < 0) break;
+  auto done = [&] {
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= deadline) return true;
+    if (!process.empty()) return answers > 0;
+    if (now < listened) return false;
+    if (serving.empty()) return answers > 0 && now >= quiet_deadline;
+    for (const std::string& p : serving)
+      if (answered.count(p) == 0) return false;
+    return true;
+  };
+  while (!done()) {
+    const auto now = std::chrono::steady_clock::now();
+    const auto next = now < listened ? std::min(listened, deadline) : deadline;
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(next - now);
+    if ((*bus)->HandleTimeout(static_cast<int>(std::clamp<int64_t>(left.count(), 1, 100))) < 0)
+      break;
   }
   if (answers == 0) {
     std::fprintf(stderr, "omni-save-map: no %s answered within %g s\n",
                  process.empty() ? "mapper" : process.c_str(), wait_s);
     return 3;
   }
-  return failures > 0 ? 1 : 0;
+  int silent = 0;
+  for (const std::string& p : serving) {
+    if (answered.count(p) != 0) continue;
+    std::printf("%s: NO ANSWER within %g s (its heartbeat was heard)\n", p.c_str(), wait_s);
+    ++silent;
+  }
+  return failures > 0 || silent > 0 ? 1 : 0;
 }

@@ -227,7 +227,7 @@ TEST(SimPipeline, DriveBusTakesBaseCmdFromAnotherProcess) {
 // Map saving on request: while the simulator's log is replayed into the mappers over UDP (in a
 // private network namespace), `omni-save-map` asks every mapper for its maps; each answers and
 // its files are there while it keeps mapping, and it still writes its own at the end. A request
-// for a process that is not there gets no answer (exit 3).
+// for a process that is not there gets no answer (exit 3); a relative --dir is the caller's.
 TEST(SimPipeline, MappersSaveTheirMapsOnRequestWhileMapping) {
   if (testing::Run("unshare -n true").exit_code != 0)
     GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
@@ -250,12 +250,20 @@ TEST(SimPipeline, MappersSaveTheirMapsOnRequestWhileMapping) {
       << "sleep 3\n"
       << testing::Bin("omni-save-map") << " --dir " << dir << "/mid --wait 20; echo \"all: $?\"\n"
       << testing::Bin("omni-save-map") << " --process nobody --wait 0.5; echo \"nobody: $?\"\n"
+      << "(cd " << dir << " && " << testing::Bin("omni-save-map")
+      << " --process odom_mapper --dir rel --wait 20); echo \"relative: $?\"\n"
       << "wait\n";
   }
   const auto r = testing::Run("timeout 120 unshare -n bash " + dir + "/run.sh");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("all: 0"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("nobody: 3"), std::string::npos) << r.output;
+  // A relative folder is this shell's, not the mapper's working folder.
+  EXPECT_NE(r.output.find("relative: 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("odom_mapper: saved: maps written to " +
+                          std::filesystem::canonical(dir).string() + "/rel"),
+            std::string::npos)
+      << r.output;
   for (const char* p : {"rbpf_mapper", "pose_graph_mapper", "odom_mapper"})
     EXPECT_NE(r.output.find(std::string(p) + ": saved: maps written to " + dir + "/mid/" + p),
               std::string::npos)
