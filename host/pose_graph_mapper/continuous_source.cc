@@ -42,15 +42,33 @@ void OdometrySource::SetNoiseScale(double scale) {
             b.theta_var_per_rad * scale, b.xy_var_per_s * scale,   b.theta_var_per_s * scale};
 }
 
+namespace {
+bool Same(const Pose2& a, const Pose2& b) { return a.x == b.x && a.y == b.y && a.theta == b.theta; }
+}  // namespace
+
 bool OdometrySource::AddSample(int64_t utime, const Pose2& pose) {
   if (!samples_.empty() && utime < samples_.back().first) return false;
   if (!samples_.empty() && utime == samples_.back().first) {
     samples_.back().second = pose;
     return true;
   }
+  const size_t n = samples_.size();
+  if (n >= 2 && Same(samples_[n - 1].second, pose) && Same(samples_[n - 2].second, pose)) {
+    // Standing still: the middle sample says nothing the two around it do not. Its step's
+    // covariance is linear in the time (and isotropic in x, y), so one longer step equals two.
+    samples_.back().first = utime;
+    return true;
+  }
   samples_.emplace_back(utime, pose);
   while (samples_.size() > capacity_) samples_.pop_front();
   return true;
+}
+
+size_t OdometrySource::SamplesAfter(int64_t utime) const {
+  const auto it =
+      std::upper_bound(samples_.begin(), samples_.end(), utime,
+                       [](int64_t v, const std::pair<int64_t, Pose2>& s) { return v < s.first; });
+  return static_cast<size_t>(samples_.end() - it);
 }
 
 Pose2 OdometrySource::At(size_t upper, int64_t utime) const {

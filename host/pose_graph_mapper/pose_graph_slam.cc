@@ -149,7 +149,7 @@ PoseGraphSlam::PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOpt
     : o_(options),
       batch_(batch),
       clock_(clock),
-      odom_(options.odometry_noise),
+      odom_(options.odometry_noise, std::max<size_t>(options.odometry_buffer_samples, 16)),
       calibrator_(options.odometry_calibration),
       gyro_(options.gyro_noise, options.gyro_bias_rad_s),
       gyro_bias_(options.gyro_bias, options.gyro_bias_rad_s),
@@ -411,8 +411,14 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
   const bool fix_waiting =
       !absolute_queue_.empty() && absolute_queue_.begin()->first <= t &&
       static_cast<double>(su - absolute_queue_.begin()->first) >= o_.absolute_max_wait_s * 1e6;
-  const bool make_kf = moved || fix_waiting;
-  if (make_kf && !moved) ++c_.keyframes_for_absolute;
+  // The odometry buffer is about to drop the newest keyframe's time: every later scan would need
+  // motion from a time no longer covered, and none could be mapped again (a base creeping or
+  // jittering in place for ~15 min at 100 Hz odometry). A keyframe here keeps the chain.
+  const bool buffer_ending =
+      !keyframes_.empty() && odom_.SamplesAfter(keyframes_.back().utime) >=
+                                 odom_.capacity() - std::max<size_t>(odom_.capacity() / 10, 1);
+  const bool make_kf = moved || fix_waiting || buffer_ending;
+  if (make_kf && !moved) ++(fix_waiting ? c_.keyframes_for_absolute : c_.keyframes_for_odometry);
   last_scan_motion_covariance_ = make_kf ? Eigen::Matrix3d::Zero() : motion.covariance;
   if (make_kf) {
     NewKeyframe(scan, t, motion, std::move(points));

@@ -133,6 +133,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("absolute_queued", [&c] { return c.absolute_queued; });
   heartbeat_.AddCounter("absolute_rejected", [&c] { return c.absolute_rejected; });
   heartbeat_.AddCounter("keyframes_for_absolute", [&c] { return c.keyframes_for_absolute; });
+  heartbeat_.AddCounter("keyframes_for_odometry", [&c] { return c.keyframes_for_odometry; });
   heartbeat_.AddCounter("absolute_invalid", [&c] { return c.absolute_invalid; });
   heartbeat_.AddCounter("absolute_bad_covariance", [this] { return absolute_bad_covariance_; });
   heartbeat_.AddCounter("absolute_wrong_frame", [this] { return absolute_wrong_frame_; });

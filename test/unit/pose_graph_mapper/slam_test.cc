@@ -771,6 +771,52 @@ TEST(PoseGraphSlam, AParkedRobotsFixIsPlacedAfterItsTimeWindow) {
   }
 }
 
+// A base that stands in one place for a long time: with its odometry exactly still, the buffer
+// does not grow; with the odometry jittering by a tick, the buffer would drop the last keyframe's
+// time (at 100 Hz after ~1000 s by default; 500 samples here), after which no scan could be
+// mapped again, even after the base drives off. A keyframe is made before that happens.
+TEST(PoseGraphSlam, ALongStayInOnePlaceDoesNotRunTheOdometryOut) {
+  for (const bool jitter : {false, true}) {
+    PoseGraphSlamOptions o;
+    o.odometry_buffer_samples = 500;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    Drive(&slam, 0, 20);
+    const Pose2 parked = DriveTruth(20);
+    // 60 s parked: odometry at 100 Hz, scans at 10 Hz.
+    int scan = 21;
+    int64_t t = DriveTime(20);
+    for (int k = 1; k <= 6000; ++k) {
+      t += 10000;
+      Pose2 odom = parked;
+      if (jitter && k % 2 == 1) odom.x += 1e-5;  // an encoder tick back and forth
+      slam.AddOdometry(t, odom);
+      if (k % 10 == 0) {
+        EXPECT_TRUE(slam.AddScan(scan++, BoxScan(t, parked))) << k;
+      }
+    }
+    // Then it drives off, 1 m along x.
+    for (int k = 1; k <= 20; ++k) {
+      t += 100000;
+      const Pose2 p(parked.x + 0.05 * k, parked.y, parked.theta);
+      slam.AddOdometry(t, p);
+      EXPECT_TRUE(slam.AddScan(scan++, BoxScan(t, p))) << "driving " << k;
+    }
+    const SlamCounters& c = slam.counters();
+    EXPECT_EQ(c.scans_no_odom, 0) << "jitter " << jitter;
+    EXPECT_EQ(c.scans_used, scan);
+    if (jitter) {
+      EXPECT_GE(c.keyframes_for_odometry, 10);  // one per ~450 samples of 6000
+    } else {
+      EXPECT_EQ(c.keyframes_for_odometry, 0);
+    }
+    const auto traj = slam.Trajectory();
+    ASSERT_EQ(traj.size(), static_cast<size_t>(scan));
+    const Pose2 end = DriveTruth(0).Between(Pose2(parked.x + 1.0, parked.y, parked.theta));
+    EXPECT_NEAR(traj.back().pose.x, end.x, 0.05);
+    EXPECT_NEAR(traj.back().pose.y, end.y, 0.05);
+  }
+}
+
 // (c) Each way an absolute pose can go is counted once: at a keyframe's time (attached), newer
 // than the newest pose (queued, then spliced when the next keyframe covers it), older than the
 // window (rejected), a bad information matrix (invalid).

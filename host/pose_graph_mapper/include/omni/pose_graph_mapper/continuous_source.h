@@ -71,8 +71,15 @@ class OdometrySource final : public ContinuousPoseSource {
   explicit OdometrySource(OdometryNoise noise = {}, size_t capacity = 100000)
       : base_noise_(noise), noise_(noise), capacity_(capacity) {}
   std::string name() const override { return "odometry"; }
-  // False (to be counted by the caller) when utime is older than the newest sample.
+  // False (to be counted by the caller) when utime is older than the newest sample. A pose equal
+  // to the two before it (a base standing still) moves the newest sample's time instead of
+  // adding one: interpolation and Between() give exactly the same, and a parked robot does not
+  // run the buffer out.
   bool AddSample(int64_t utime, const Pose2& odom_pose);
+  // Samples held, how many at most, and how many are stamped after `utime`.
+  size_t size() const { return samples_.size(); }
+  size_t capacity() const { return capacity_; }
+  size_t SamplesAfter(int64_t utime) const;
   std::optional<RelativeMotion> Between(int64_t t0_us, int64_t t1_us) const override;
   // The odometry poses at t0, at every sample strictly inside (t0, t1) and at t1 (interpolated
   // at the ends): the steps Between() composes. nullopt when [t0, t1] is not covered.

@@ -76,6 +76,9 @@ struct PoseGraphSlamOptions {
   // Odometry factor covariance growth: 10x the source's defaults on distance and rotation, so
   // the scan matches dominate (intel-raw: ATE 0.21 m with the defaults, 0.10 m with these).
   OdometryNoise odometry_noise{1e-2, 1e-4, 1e-3, 1e-2, 1e-6, 1e-6};
+  // Odometry samples held for the factors (not a config key): 1000 s at 100 Hz while the base
+  // moves; a base standing still adds none (OdometrySource::AddSample).
+  size_t odometry_buffer_samples = 100000;
   double scan_match_information_scale = 1.0;  // scales the keyframe matcher's information
   // The IMU as a continuous source (gyro_source.h): with `use_gyro`, every odometry factor
   // carries the gyro's heading fused step by step (AddImuYawRate feeds it).
@@ -191,6 +194,8 @@ struct SlamCounters {
   int64_t absolute_in = 0, absolute_attached = 0, absolute_spliced = 0, absolute_queued = 0;
   int64_t absolute_rejected = 0, absolute_invalid = 0;
   int64_t keyframes_for_absolute = 0;  // keyframes made only because a fix waited too long
+  int64_t keyframes_for_odometry = 0;  // ... because the odometry buffer would have dropped the
+                                       // newest keyframe's time (a long stay in one place)
 };
 
 enum class AbsoluteOutcome { kAttached, kSpliced, kQueued, kRejected, kInvalid };
