@@ -94,6 +94,7 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
   std::string line;
   int64_t lineno = 0;
   std::unordered_set<int> ids2, ids3;
+  std::vector<int64_t> fix_lines;  // the line of each FIX id
   while (std::getline(in, line)) {
     ++lineno;
     Fields ss(line);
@@ -172,12 +173,27 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
       }
       e.measurement.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
       e.information = UpperTriangular<6>(info);
+      if (!quat) {
+        // TORO's information is over (x, y, z, roll, pitch, yaw) errors; ours (and g2o's
+        // EDGE_SE3:QUAT) over the translation and the error quaternion's vector part, which is
+        // half the rotation for small errors: J^T Omega J with J = diag(1, 1, 1, 2, 2, 2).
+        e.information.bottomRightCorner<3, 3>() *= 4.0;
+        e.information.topRightCorner<3, 3>() *= 2.0;
+        e.information.bottomLeftCorner<3, 3>() *= 2.0;
+      }
       if (!PositiveDefinite<6>(e.information))
         return bad("information matrix is not positive definite");
       g.edges3.push_back(e);
     } else if (tag == "FIX") {
-      int id;
-      while (ss.Number(&id)) g.fixed.push_back(id);
+      std::string_view f;
+      while (ss.Next(&f)) {
+        int id = 0;
+        const auto [ptr, ec] = std::from_chars(f.data(), f.data() + f.size(), id);
+        if (ec != std::errc() || ptr != f.data() + f.size())
+          return bad("'" + std::string(f) + "' is not a vertex id");
+        g.fixed.push_back(id);
+        fix_lines.push_back(lineno);
+      }
     } else {
       return MakeError(ErrorCode::kParse, name + ":" + std::to_string(lineno) + ": unknown tag '" +
                                               std::string(tag) + "'");
@@ -208,6 +224,12 @@ Result<PoseGraph> ParsePoseGraph(std::istream& in, const std::string& name) {
                                               std::to_string(e.from) + " -> " +
                                               std::to_string(e.to) +
                                               " refers to a vertex that does not exist");
+  }
+  for (size_t i = 0; i < g.fixed.size(); ++i) {
+    if (!ids2.count(g.fixed[i]) && !ids3.count(g.fixed[i]))
+      return MakeError(ErrorCode::kParse, name + ":" + std::to_string(fix_lines[i]) +
+                                              ": FIX: vertex " + std::to_string(g.fixed[i]) +
+                                              " does not exist");
   }
   for (const auto& e : g.edges3) {
     if (!ids3.count(e.from) || !ids3.count(e.to))

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <memory>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "omni/pose_graph_mapper/chi2.h"
@@ -91,7 +92,20 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
   const auto t_init = std::chrono::steady_clock::now();
   Initialization init = o.initialization;
   if (g->vertices_implicit && init == Initialization::kNone) init = Initialization::kSpanningTree;
+  // Every FIX vertex stays where the file puts it: the initialisation places the graph from the
+  // root (the first of them), so the others get their poses back before the solve holds them.
+  const std::unordered_set<int> fixed_ids(g->fixed.begin(), g->fixed.end());
+  std::unordered_map<int, Pose2> fixed2;
+  std::unordered_map<int, Eigen::Isometry3d> fixed3;
+  for (const auto& v : g->vertices2)
+    if (fixed_ids.count(v.id)) fixed2[v.id] = v.pose;
+  for (const auto& v : g->vertices3)
+    if (fixed_ids.count(v.id)) fixed3[v.id] = v.pose;
   if (Status s = Initialize(g, init, res.root_id); !s.ok()) return s.error();
+  for (auto& v : g->vertices2)
+    if (const auto it = fixed2.find(v.id); it != fixed2.end()) v.pose = it->second;
+  for (auto& v : g->vertices3)
+    if (const auto it = fixed3.find(v.id); it != fixed3.end()) v.pose = it->second;
   res.init_s = SecondsSince(t_init);
   chi2 = ComputeChi2(*g);
   if (!chi2.ok()) return chi2.error();
@@ -151,6 +165,11 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
   }
   if (problem.HasParameterBlock(block.at(res.root_id)))
     problem.SetParameterBlockConstant(block.at(res.root_id));
+  for (int id : g->fixed) {
+    const auto it = block.find(id);
+    if (it != block.end() && problem.HasParameterBlock(it->second))
+      problem.SetParameterBlockConstant(it->second);
+  }
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;

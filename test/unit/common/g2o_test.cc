@@ -84,5 +84,44 @@ TEST(G2o, ToroAndRoundTrip) {
   EXPECT_NEAR(back->vertices2[1].pose.theta, 0.1, 1e-12);
 }
 
+// A FIX line holds vertex ids only, and only ids of vertices in the file (the optimiser holds each
+// one; an unknown or misspelled id used to be dropped without a word).
+TEST(G2o, FixIdsMustBeVertices) {
+  std::istringstream ok("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nFIX 0 1\n");
+  auto g = ParsePoseGraph(ok, "graph.g2o");
+  ASSERT_TRUE(g.ok()) << g.error().message;
+  EXPECT_EQ(g->fixed, (std::vector<int>{0, 1}));
+  std::istringstream junk("VERTEX_SE2 0 0 0 0\nFIX 0 abc\n");
+  g = ParsePoseGraph(junk, "graph.g2o");
+  ASSERT_FALSE(g.ok());
+  EXPECT_NE(g.error().message.find("graph.g2o:2"), std::string::npos) << g.error().message;
+  EXPECT_NE(g.error().message.find("'abc'"), std::string::npos) << g.error().message;
+  std::istringstream missing("VERTEX_SE2 0 0 0 0\nFIX 7\n");
+  g = ParsePoseGraph(missing, "graph.g2o");
+  ASSERT_FALSE(g.ok());
+  EXPECT_NE(g.error().message.find("graph.g2o:2: FIX: vertex 7 does not exist"), std::string::npos)
+      << g.error().message;
+}
+
+// TORO's EDGE3 information is over (x, y, z, roll, pitch, yaw); the residual it weights here is
+// the translation and the error quaternion's vector part (half the angle): rotation terms x4,
+// cross terms x2 — the same weighting as the equivalent EDGE_SE3:QUAT line.
+TEST(G2o, Toro3DInformationIsConvertedToTheQuaternionResidual) {
+  std::string info;
+  for (int r = 0; r < 6; ++r)
+    for (int c = r; c < 6; ++c) info += r == c ? " 10" : (r == 0 && c == 3 ? " 1" : " 0");
+  std::istringstream in("VERTEX3 0 0 0 0 0 0 0\nVERTEX3 1 1 0 0 0 0 0\nEDGE3 0 1 1 0 0 0 0 0" +
+                        info + "\n");
+  auto g = ParsePoseGraph(in, "toro3.graph");
+  ASSERT_TRUE(g.ok()) << g.error().message;
+  const auto& m = g->edges3[0].information;
+  EXPECT_DOUBLE_EQ(m(0, 0), 10);
+  EXPECT_DOUBLE_EQ(m(2, 2), 10);
+  EXPECT_DOUBLE_EQ(m(3, 3), 40);
+  EXPECT_DOUBLE_EQ(m(5, 5), 40);
+  EXPECT_DOUBLE_EQ(m(0, 3), 2);
+  EXPECT_DOUBLE_EQ(m(3, 0), 2);
+}
+
 }  // namespace
 }  // namespace omni::io

@@ -102,6 +102,27 @@ TEST(PoseGraphInitialization, RootIsTheFixedVertexElseTheSmallestId) {
   EXPECT_FALSE(ParseInitialization("chordial").ok());
 }
 
+// Every FIX vertex is held where the file puts it, not only the first: a chain 0 -> 1 -> 2 of 1 m
+// steps with vertex 2 fixed at x = 5 keeps it there (g2o's meaning), and vertex 1 settles
+// between; before, vertex 2 was re-placed by the initialisation and moved by the solve.
+TEST(PoseGraphBatchOptimizer, HoldsEveryFixedVertex) {
+  for (const Initialization init :
+       {Initialization::kNone, Initialization::kSpanningTree, Initialization::kChordal}) {
+    std::istringstream in(
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 5 0 0\n"
+        "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\nFIX 0 2\n");
+    auto g = io::ParsePoseGraph(in, "fix.g2o");
+    ASSERT_TRUE(g.ok()) << g.error().message;
+    BatchOptions o;
+    o.initialization = init;
+    auto r = OptimizeGraph(&*g, o);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_DOUBLE_EQ(g->vertices2[0].pose.x, 0.0);
+    EXPECT_DOUBLE_EQ(g->vertices2[2].pose.x, 5.0);
+    EXPECT_NEAR(g->vertices2[1].pose.x, 2.5, 1e-3);
+  }
+}
+
 TEST(PoseGraphBatchOptimizer, RecoversANoisy2DGraph) {
   std::vector<Pose2> truth;
   io::PoseGraph g = SyntheticGraph2(150, &truth);

@@ -1,6 +1,8 @@
 // Pose-graph files: g2o (VERTEX_SE2/EDGE_SE2, VERTEX_SE3:QUAT/EDGE_SE3:QUAT, FIX) and TORO
-// (VERTEX2/EDGE2, VERTEX3/EDGE3). Unknown tags, edges to missing vertices and information
-// matrices that are not positive definite are errors naming the file and line. A file with
+// (VERTEX2/EDGE2, VERTEX3/EDGE3; an EDGE3's information over x y z roll pitch yaw is converted
+// to the EDGE_SE3:QUAT residual's). Unknown tags, edges to missing vertices, FIX ids that are
+// not vertices and information matrices that are not positive definite are errors naming the
+// file and line. A file with
 // edges but no vertex lines at all is accepted with implicit vertices (see vertices_implicit).
 #pragma once
 
@@ -43,7 +45,7 @@ struct PoseGraph {
   std::vector<Edge2> edges2;
   std::vector<Vertex3> vertices3;
   std::vector<Edge3> edges3;
-  std::vector<int> fixed;  // FIX ids
+  std::vector<int> fixed;  // FIX ids (each an existing vertex): held where the file puts them
   // True for edge-only files (e.g. CSAIL.g2o in the datasets): the vertices were created from
   // the edge ids with identity poses, so the optimiser must initialise them (spanning tree).
   bool vertices_implicit = false;
