@@ -1,4 +1,6 @@
 // omni-replay: publishes an LCM log onto the bus with its original timing (scaled).
+#include <algorithm>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -16,6 +18,16 @@ namespace {
 volatile std::sig_atomic_t g_stop = 0;
 void OnSignal(int) { g_stop = 1; }
 
+// Sleeps until the monotonic time `until_us`, in slices, so a signal stops a long wait at once
+// (sleep_for restarts itself after a signal). False when stopped.
+bool SleepUntil(int64_t until_us) {
+  for (int64_t now = omni::MonotonicMicros(); now < until_us && !g_stop;
+       now = omni::MonotonicMicros())
+    std::this_thread::sleep_for(
+        std::chrono::microseconds(std::min<int64_t>(until_us - now, 50000)));
+  return !g_stop;
+}
+
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
@@ -27,7 +39,10 @@ void Usage(std::FILE* f) {
       "  --min-gap-us spaces consecutive events by at least N microseconds (default 200) so\n"
       "  bursts of equal timestamps do not overflow UDP receive buffers.\n"
       "  A corrupt log stops the replay with the byte offset, unless --resync skips to\n"
-      "  the next intact event.\n");
+      "  the next intact event.\n"
+      "  --max-gap S: a jump forward of the log's time by more than S seconds (default 5; two\n"
+      "  recordings joined, a clock set forward) is replayed as S; a jump back (a clock set\n"
+      "  back) as no gap. Both are counted and said at the end.\n");
 }
 
 }  // namespace
@@ -36,6 +51,7 @@ int main(int argc, char** argv) {
   std::string path, url, channels;
   double speed = 1.0;
   int64_t min_gap_us = 200;
+  double max_gap_s = 5.0;
   bool resync = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -53,8 +69,16 @@ int main(int argc, char** argv) {
       char* end = nullptr;
       const char* v = need("--speed");
       speed = std::strtod(v, &end);
-      if (*end != '\0' || !(speed >= 0)) {
-        std::fprintf(stderr, "omni replay: --speed '%s' must be a number >= 0\n", v);
+      if (*end != '\0' || !(speed == 0 || (speed >= 1e-3 && speed <= 1e6))) {
+        std::fprintf(stderr, "omni replay: --speed '%s' must be 0 or in [0.001, 1e6]\n", v);
+        return 2;
+      }
+    } else if (a == "--max-gap") {
+      char* end = nullptr;
+      const char* v = need("--max-gap");
+      max_gap_s = std::strtod(v, &end);
+      if (*end != '\0' || !(max_gap_s >= 0 && max_gap_s <= 86400)) {
+        std::fprintf(stderr, "omni replay: --max-gap '%s' must be seconds in [0, 86400]\n", v);
         return 2;
       }
     } else if (a == "--min-gap-us") {
@@ -107,7 +131,12 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   omni::io::LcmLogEvent ev;
-  int64_t first_log = 0, first_wall = 0, published = 0, skipped = 0, last_pub = 0;
+  int64_t published = 0, skipped = 0, last_pub = 0;
+  // The schedule: the log time `anchor_log` is due at the monotonic time `anchor_wall`; each
+  // event is due after it by its log time's distance / speed. A jump of the log's time (back,
+  // or forward by more than --max-gap) moves the anchor instead of the schedule following it.
+  int64_t anchor_log = 0, anchor_wall = 0, prev_log = 0, jumps_back = 0, gaps_cut = 0;
+  const int64_t max_gap_us = static_cast<int64_t>(max_gap_s * 1e6);
   while (!g_stop) {
     auto more = reader->Next(&ev, resync);
     if (!more.ok()) {
@@ -123,18 +152,36 @@ int main(int argc, char** argv) {
     if (speed > 0) {
       const int64_t now = omni::MonotonicMicros();
       if (published == 0) {
-        first_log = ev.utime;
-        first_wall = now;
-      } else {
-        const int64_t due =
-            first_wall + static_cast<int64_t>(static_cast<double>(ev.utime - first_log) / speed);
-        if (due > now) std::this_thread::sleep_for(std::chrono::microseconds(due - now));
+        anchor_log = ev.utime;
+        anchor_wall = now;
+      } else if (ev.utime < prev_log) {
+        if (jumps_back++ == 0)
+          std::fprintf(stderr, "omni replay: the log's time goes back by %.3f s at event %lld\n",
+                       1e-6 * static_cast<double>(prev_log - ev.utime),
+                       static_cast<long long>(published));
+        anchor_log = ev.utime;
+        anchor_wall = std::max(now, anchor_wall);
+      } else if (ev.utime - prev_log > max_gap_us) {
+        if (gaps_cut++ == 0)
+          std::fprintf(stderr,
+                       "omni replay: the log's time jumps forward by %.3f s at event %lld: "
+                       "replayed as %g s (--max-gap)\n",
+                       1e-6 * static_cast<double>(ev.utime - prev_log),
+                       static_cast<long long>(published), max_gap_s);
+        // Due max_gap after the previous event.
+        anchor_wall += static_cast<int64_t>(static_cast<double>(prev_log - anchor_log) / speed) +
+                       static_cast<int64_t>(static_cast<double>(max_gap_us) / speed);
+        anchor_log = ev.utime;
       }
+      const int64_t due =
+          anchor_wall + static_cast<int64_t>(static_cast<double>(ev.utime - anchor_log) / speed);
+      if (!SleepUntil(due)) break;
     }
+    prev_log = ev.utime;
     if (min_gap_us > 0 && published > 0) {
       const int64_t next = last_pub + min_gap_us;
       const int64_t now = omni::MonotonicMicros();
-      if (next > now) std::this_thread::sleep_for(std::chrono::microseconds(next - now));
+      if (next > now && !SleepUntil(next)) break;
     }
     last_pub = omni::MonotonicMicros();
     if (!(*bus)->PublishRaw(ev.channel, ev.data.data(), static_cast<int>(ev.data.size()))) {
@@ -147,5 +194,8 @@ int main(int argc, char** argv) {
               static_cast<long long>(published), path.c_str(), static_cast<long long>(skipped),
               static_cast<unsigned long long>(reader->skipped_bytes()),
               g_stop ? " [interrupted]" : "");
+  if (jumps_back + gaps_cut > 0)
+    std::printf("  log time: %lld jumps back, %lld gaps over %g s shortened\n",
+                static_cast<long long>(jumps_back), static_cast<long long>(gaps_cut), max_gap_s);
   return g_stop ? 130 : 0;
 }

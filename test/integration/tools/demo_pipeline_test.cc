@@ -1,5 +1,6 @@
 // Two processes on the bus: omni-replay publishes an imported log over UDP multicast inside a
 // private network namespace; odom_mapper maps it. Nothing leaves the machine.
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 
@@ -7,6 +8,7 @@
 
 #include "../../unit/common/test_paths.h"
 #include "omni/io/grid.h"
+#include "omni/io/lcm_log.h"
 #include "run.h"
 
 namespace omni {
@@ -48,6 +50,48 @@ TEST(DemoPipeline, ReplayThroughBusIntoOdomMapperLosesNothing) {
   }
   EXPECT_GT(occupied, 10000u);
   EXPECT_GT(free_cells, 10 * occupied);
+}
+
+// A log whose time jumps (two recordings joined, a clock set forward, then back): the forward
+// jump is replayed as --max-gap, the step back as no gap, both said; and Ctrl-C stops a replay
+// that is waiting out a long gap at once (it used to sleep through the whole gap, deaf to
+// SIGINT and SIGTERM).
+TEST(DemoPipeline, ReplayKeepsItsPaceAcrossLogTimeJumpsAndStopsOnSignal) {
+  const std::string dir = testing::TempDir() + "/replay_jumps";
+  std::filesystem::create_directories(dir);
+  {
+    auto w = io::LcmLogWriter::Open(dir + "/jumps.lcmlog");
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const char payload[4] = {1, 2, 3, 4};
+    int64_t t = 1'700'000'000'000'000;
+    auto run = [&](int n) {
+      for (int i = 0; i < n; ++i, t += 10'000) ASSERT_TRUE(w->Write(t, "X", payload, 4).ok());
+    };
+    run(20);
+    t += 3600'000'000LL;  // an hour forward
+    run(20);
+    t -= 2'000'000;  // two seconds back
+    run(20);
+    ASSERT_TRUE(w->Close().ok());
+  }
+  const std::string replay =
+      testing::Bin("omni-replay") + " " + dir + "/jumps.lcmlog --url memq://";
+  const auto t0 = std::chrono::steady_clock::now();
+  auto r = testing::Run(replay + " --max-gap 0.5 2>&1");
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("replayed 60 events"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("1 jumps back, 1 gaps over 0.5 s shortened"), std::string::npos)
+      << r.output;
+  EXPECT_NE(r.output.find("jumps forward by 3600.010 s"), std::string::npos) << r.output;
+  EXPECT_GT(took, 0.9);  // 0.57 s of events plus the 0.5 s gap
+  EXPECT_LT(took, 5.0);
+  const auto t1 = std::chrono::steady_clock::now();
+  r = testing::Run("timeout --preserve-status -s INT 1 " + replay + " --max-gap 3600; echo rc=$?");
+  const double stop = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  EXPECT_NE(r.output.find("[interrupted]"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("rc=130"), std::string::npos) << r.output;
+  EXPECT_LT(stop, 3.0);
 }
 
 TEST(DemoPipeline, LogReplayThroughLcmFileProvider) {
