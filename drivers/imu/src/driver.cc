@@ -155,13 +155,29 @@ void FrameCycle::Reset() {
   types_.clear();
   learned_ = false;
   prev_ = -1;
+  period_ = 0;
+  candidates_.clear();
 }
 
 int FrameCycle::Add(uint8_t type) {
   int idx = IndexOf(type);
+  if (idx < 0 && !learned_) {
+    // A new type while learning: part of the first period, in its ascending place.
+    types_.insert(std::upper_bound(types_.begin(), types_.end(), type), type);
+    prev_ = IndexOf(type);
+    return 0;
+  }
   if (idx < 0) {
-    // A new type: while learning, part of the first period; later, a type whose frame was lost
-    // while learning. Either way it joins the cycle in its ascending place.
+    // A type the learned cycle lacks: its frame was lost while learning, or a stray frame that
+    // passed the parser. Only the first comes back every period; it joins when seen in two
+    // consecutive ones. Until then it neither counts as a drop nor moves the position.
+    const auto it = candidates_.find(type);
+    if (it == candidates_.end() || it->second < period_ - 1) {
+      candidates_[type] = period_;
+      return 0;
+    }
+    if (it->second == period_) return 0;  // twice in one period: not the device's cycle
+    candidates_.erase(it);
     types_.insert(std::upper_bound(types_.begin(), types_.end(), type), type);
     prev_ = IndexOf(type);
     return 0;
@@ -171,10 +187,47 @@ int FrameCycle::Add(uint8_t type) {
     prev_ = idx;
     return 0;
   }
+  if (prev_ >= 0 && idx <= prev_) {
+    ++period_;  // back to a lower type: a new period
+    // Candidates not seen in the period that just ended are forgotten.
+    for (auto it = candidates_.begin(); it != candidates_.end();) {
+      it = it->second < period_ - 1 ? candidates_.erase(it) : std::next(it);
+    }
+  }
   const int n = static_cast<int>(types_.size());
   const int expected = prev_ < 0 ? idx : (prev_ + 1) % n;
   prev_ = idx;
   return (idx - expected + n) % n;
+}
+
+bool SampleBuilder::Learn(const Frame& f) {
+  dropped_ += cycle_.Add(f.type);
+  return cycle_.learned();
+}
+
+bool SampleBuilder::Assemble(const Frame& f, ImuSample* out) {
+  const uint8_t want = fixed_ ? fixed_ : cycle_.last_type();
+  if (want != trigger_) {
+    // First period learned, or a type beyond the old last one joined the cycle (its frame was
+    // lost while learning): start over at the next period with the right closing frame.
+    past_incomplete_ += assembler_.incomplete();
+    assembler_ = SampleAssembler(want);
+    trigger_ = want;
+    aligned_ = false;
+  }
+  if (!aligned_) {
+    if (f.type != cycle_.types().front()) return false;
+    aligned_ = true;
+  }
+  return assembler_.Add(f, out);
+}
+
+void SampleBuilder::Reset() {
+  cycle_.Reset();
+  past_incomplete_ += assembler_.incomplete();
+  assembler_ = SampleAssembler();
+  trigger_ = 0;
+  aligned_ = false;
 }
 
 Utime SampleStamper::Stamp(Utime read_utime, size_t i, size_t n) {
@@ -187,7 +240,13 @@ Utime SampleStamper::Stamp(Utime read_utime, size_t i, size_t n) {
     }
   }
   Utime t = read_utime - static_cast<Utime>(n - 1 - i) * step_;
-  if (t <= last_) t = last_ + 1;
+  if (t <= last_) {
+    if (last_ - t > kClockStepBackUs) {
+      ++steps_back_;  // the clock was set back: follow it (see the class comment)
+    } else {
+      t = last_ + 1;  // jitter or a small step: keep the stamps increasing
+    }
+  }
   last_ = t;
   return t;
 }
@@ -196,6 +255,7 @@ Utime SampleStamper::Stamp(Utime read_utime, size_t i, size_t n) {
 ImuDriver::ImuDriver(DriverOptions options, const Clock* clock)
     : options_(std::move(options)),
       clock_(clock),
+      builder_(TriggerType(options_.trigger)),
       stamper_(options_.rate_hz),
       config_pending_(options_.configure.enabled) {}
 
@@ -222,6 +282,7 @@ FrameCounters ImuDriver::frame_counters() const {
   c.checksum_errors += now.checksum_errors;
   c.resyncs += now.resyncs;
   c.bytes_skipped += now.bytes_skipped;
+  c.unconfirmed += now.unconfirmed;
   return c;
 }
 
@@ -251,11 +312,31 @@ Status ImuDriver::Open() {
 
 void ImuDriver::ResetStream() {
   past_ = frame_counters();
+  // A frame the old parser still held back cannot be confirmed any more: it is dropped.
   parser_ = FrameParser();
-  cycle_.Reset();
-  if (assembler_) past_incomplete_ += assembler_->incomplete();
-  assembler_.reset();
-  trigger_ = 0;
+  builder_.Reset();
+  held_group_ = 0;
+}
+
+void ImuDriver::Relearn(int64_t now_us) {
+  std::ostringstream why;
+  why << "frames but no complete sample for " << static_cast<double>(now_us - last_sample_us_) / 1e6
+      << " s (cycle";
+  for (uint8_t t : builder_.cycle().types()) why << " 0x" << std::hex << int{t} << std::dec;
+  why << ", closing frame 0x" << std::hex << int{builder_.trigger()} << std::dec
+      << "); learning the frame cycle again";
+  relearn_reason_ = why.str();
+  LOG_WARN << "IMU on " << options_.port << ": " << relearn_reason_;
+  builder_.Reset();
+  held_group_ = 0;
+  ++counters_.cycle_relearns;
+  degraded_ = true;
+  last_sample_us_ = now_us;
+  // Learning and one whole period take up to about three periods, and a period is shorter than
+  // data_timeout_s while frames keep coming: doubling up to 8 x data_timeout_s always leaves a
+  // re-learn the time it needs, however the two compare.
+  no_sample_limit_us_ =
+      std::min(2 * no_sample_limit_us_, 8 * SecondsToUtime(options_.data_timeout_s));
 }
 
 void ImuDriver::FailOpening(const std::string& why) {
@@ -319,8 +400,17 @@ Status ImuDriver::Connect() {
 
 void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample>* out) {
   frames_.clear();
+  const bool was_holding = parser_.held_type() != 0;
   parser_.Feed(data, size, &frames_);
-  if (frames_.empty()) return;
+  if (frames_.empty()) {
+    // No frame confirmed, but this read may have completed the one now held back (bytes that
+    // trickle in at 9600 baud): its sample's time is this read's.
+    if (!was_holding && parser_.held_type() != 0) {
+      held_read_utime_ = clock_->NowUtime();
+      held_group_ = builder_.trigger() != 0 && parser_.held_type() == builder_.trigger() ? 1 : 0;
+    }
+    return;
+  }
   last_data_us_ = MonotonicMicros();
   if (state_ == DriverState::kOpening) {
     if (ever_connected_ && !reopened_by_config_) ++counters_.reconnects;
@@ -331,38 +421,54 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
     LOG_INFO << "IMU " << status_;
     rate_window_start_us_ = 0;
     rate_checked_ = false;
+    last_sample_us_ = last_data_us_;
+    no_sample_limit_us_ = SecondsToUtime(options_.data_timeout_s);
     if (config_pending_) {
       Configure();
       return;
     }
   }
   const Utime read_utime = clock_->NowUtime();
-  const uint8_t fixed = TriggerType(options_.trigger);
-  std::vector<ImuSample> done;
+  struct Done {
+    ImuSample sample;
+    bool held;  // closed by a frame that came with an earlier read
+  };
+  std::vector<Done> done;
   for (const Frame& f : frames_) {
-    counters_.dropped_frames += cycle_.Add(f.type);
-    if (!cycle_.learned()) continue;  // one period at most, after each (re)connection
+    const bool learned = builder_.Learn(f);
+    counters_.dropped_frames = builder_.dropped_frames();
+    if (!learned) continue;  // one period at most, after each (re)connection
     if (config_verifying_ && !VerifyConfiguration()) return;  // written again
-    const uint8_t want = fixed ? fixed : cycle_.last_type();
-    if (want != trigger_) {
-      // First period learned, or a type beyond the old last one showed up (its frame was lost
-      // while learning): start over at the next period with the right closing frame.
-      if (assembler_) past_incomplete_ += assembler_->incomplete();
-      assembler_ = std::make_unique<SampleAssembler>(want);
-      trigger_ = want;
-      aligned_ = false;
-    }
-    if (!aligned_) {
-      if (f.type != cycle_.types().front()) continue;
-      aligned_ = true;
-    }
     ImuSample s;
-    if (assembler_->Add(f, &s)) done.push_back(s);
+    if (builder_.Assemble(f, &s)) done.push_back({s, f.held});
   }
-  counters_.incomplete_samples = past_incomplete_ + (assembler_ ? assembler_->incomplete() : 0);
-  for (size_t i = 0; i < done.size(); ++i) {
-    out->push_back({stamper_.Stamp(read_utime, i, done.size()), done[i]});
+  counters_.incomplete_samples = builder_.incomplete();
+  // Stamps: a sample closed by a frame that was held back since the previous read gets that
+  // read's time, as one of the group it arrived with; the others are this read's, and the
+  // closing frame the parser now holds back counts in this read's group.
+  const bool closing_held = builder_.trigger() != 0 && parser_.held_type() == builder_.trigger();
+  size_t group = closing_held ? 1 : 0;
+  for (const Done& d : done) group += d.held ? 0 : 1;
+  size_t i = 0;
+  for (const Done& d : done) {
+    Utime t;
+    if (!d.held) {
+      t = stamper_.Stamp(read_utime, i++, group);
+    } else if (held_group_ > 0) {
+      t = stamper_.Stamp(held_read_utime_, held_group_ - 1, held_group_);
+    } else {
+      t = stamper_.Stamp(held_read_utime_ > 0 ? held_read_utime_ : read_utime, 0, 1);
+    }
+    out->push_back({t, d.sample});
     ++counters_.samples;
+  }
+  held_read_utime_ = read_utime;  // the time of the frame held now, if any
+  held_group_ = closing_held ? group : 0;
+  counters_.clock_steps_back = stamper_.steps_back();
+  if (!done.empty()) {
+    last_sample_us_ = last_data_us_;
+    no_sample_limit_us_ = SecondsToUtime(options_.data_timeout_s);
+    degraded_ = false;
   }
   MeasureRate(done.size());
 }
@@ -391,8 +497,10 @@ bool ImuDriver::Write(uint8_t reg, uint16_t value) {
     return false;
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(options_.configure.command_gap_ms));
-  // The device was busy with the writes, not silent: the data timeout starts again.
+  // The device was busy with the writes, not silent: the data timeout starts again, and so
+  // does the wait for a sample.
   last_data_us_ = MonotonicMicros();
+  last_sample_us_ = last_data_us_;
   return true;
 }
 
@@ -457,7 +565,8 @@ void ImuDriver::Configure() {
 bool ImuDriver::VerifyConfiguration() {
   config_verifying_ = false;
   const std::vector<uint8_t>& want = options_.configure.outputs;
-  if (!want.empty() && cycle_.types() != want) {
+  const FrameCycle& cycle = builder_.cycle();
+  if (!want.empty() && cycle.types() != want) {
     auto names = [](const std::vector<uint8_t>& v) {
       std::ostringstream o;
       for (size_t i = 0; i < v.size(); ++i) o << (i ? " " : "") << "0x" << std::hex << int{v[i]};
@@ -466,7 +575,7 @@ bool ImuDriver::VerifyConfiguration() {
     ++counters_.config_failures;
     const bool again = config_attempts_ < options_.configure.max_attempts;
     LOG_WARN << "IMU on " << options_.port << ": asked for frames " << names(want)
-             << ", the device sends " << names(cycle_.types())
+             << ", the device sends " << names(cycle.types())
              << (again ? "; writing the settings again" : "; giving up, streaming as it is set");
     if (again) {
       Configure();
@@ -557,6 +666,10 @@ void ImuDriver::Step(int timeout_ms, std::vector<StampedSample>* out) {
   } else if (state_ == DriverState::kStreaming && now - last_data_us_ > limit) {
     ++counters_.timeouts;
     Lose("no frame for " + Seconds(options_.data_timeout_s));
+  } else if (state_ == DriverState::kStreaming && now - last_sample_us_ > no_sample_limit_us_) {
+    // Frames keep the data timeout away, yet no sample closes: with trigger auto, a stray type
+    // learned into the cycle above its last type would close no sample ever again.
+    Relearn(now);
   }
 }
 

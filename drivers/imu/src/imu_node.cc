@@ -51,6 +51,7 @@ ImuNode::ImuNode(bus::Bus* bus, ImuDriver* driver, NodeOptions options, const Cl
   heartbeat_.AddCounter("checksum_errors", [d] { return d->frame_counters().checksum_errors; });
   heartbeat_.AddCounter("resyncs", [d] { return d->frame_counters().resyncs; });
   heartbeat_.AddCounter("bytes_skipped", [d] { return d->frame_counters().bytes_skipped; });
+  heartbeat_.AddCounter("unconfirmed", [d] { return d->frame_counters().unconfirmed; });
   heartbeat_.AddCounter("reconnects", [d] { return d->counters().reconnects; });
   heartbeat_.AddCounter("connect_failures", [d] { return d->counters().connect_failures; });
   heartbeat_.AddCounter("timeouts", [d] { return d->counters().timeouts; });
@@ -59,6 +60,8 @@ ImuNode::ImuNode(bus::Bus* bus, ImuDriver* driver, NodeOptions options, const Cl
   heartbeat_.AddCounter("configurations", [d] { return d->counters().configurations; });
   heartbeat_.AddCounter("config_failures", [d] { return d->counters().config_failures; });
   heartbeat_.AddCounter("rate_mismatches", [d] { return d->counters().rate_mismatches; });
+  heartbeat_.AddCounter("cycle_relearns", [d] { return d->counters().cycle_relearns; });
+  heartbeat_.AddCounter("clock_steps_back", [d] { return d->counters().clock_steps_back; });
   heartbeat_.AddCounter("measured_rate_hz",
                         [d] { return static_cast<int64_t>(std::lround(d->measured_rate_hz())); });
 }
@@ -70,13 +73,18 @@ void ImuNode::RunOnce(int timeout_ms) {
     bus_->Publish(options_.channel, MakeImuMessage(s, seq_, options_));
     ++seq_;
   }
-  if (driver_->state() == DriverState::kStreaming) {
-    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, driver_->status_text());
-  } else {
+  // DEGRADED while no sample closes after a re-learn of the frame cycle, and in at least one
+  // heartbeat after each re-learn, however soon the samples come back.
+  const int64_t relearns = driver_->counters().cycle_relearns;
+  if (driver_->state() != DriverState::kStreaming) {
     heartbeat_.SetState(omni::heartbeat_t::STATE_ERROR,
                         "device lost, retrying: " + driver_->status_text());
+  } else if (driver_->degraded() || relearns != relearns_published_) {
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, driver_->relearn_reason());
+  } else {
+    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, driver_->status_text());
   }
-  heartbeat_.Tick();
+  if (heartbeat_.Tick()) relearns_published_ = relearns;
 }
 
 void ImuNode::Run(const std::atomic<bool>* stop, double max_s) {

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <poll.h>
+#include <sys/file.h>
 #include <sys/ioctl.h>
 #include <termios.h>
 #include <unistd.h>
@@ -18,6 +19,11 @@ std::string Errno() { return std::strerror(errno); }
 
 bool IsGoneErrno(int e) { return e == EIO || e == ENXIO || e == ENODEV || e == EBADF; }
 
+Error InUse(const std::string& path) {
+  return MakeError(ErrorCode::kUnavailable,
+                   "serial port " + path + " is in use by another process");
+}
+
 }  // namespace
 
 Result<std::unique_ptr<SerialPort>> SerialPort::Open(const std::string& path, int baud) {
@@ -26,7 +32,25 @@ Result<std::unique_ptr<SerialPort>> SerialPort::Open(const std::string& path, in
     const int e = errno;
     const ErrorCode code =
         (e == ENOENT || e == ENXIO || e == ENODEV) ? ErrorCode::kNotFound : ErrorCode::kIo;
+    if (e == EBUSY) return InUse(path);  // another process holds it exclusively (TIOCEXCL)
     return MakeError(code, "serial port " + path + ": cannot open: " + std::strerror(e));
+  }
+  // Two readers of one port would each get part of the bytes and both see damaged frames, and
+  // the second open would reset the first one's line settings; so the port is locked before it
+  // is configured. flock() holds between any two opens (root, or one process, included);
+  // TIOCEXCL also keeps out programs that do not flock (their open fails with EBUSY) unless they
+  // run with CAP_SYS_ADMIN. A file that is not a terminal (ENOTTY) is left to ConfigureRaw.
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int e = errno;
+    ::close(fd);
+    if (e == EWOULDBLOCK) return InUse(path);
+    return MakeError(ErrorCode::kIo, "serial port " + path + ": cannot lock: " + std::strerror(e));
+  }
+  if (::ioctl(fd, TIOCEXCL) != 0 && errno != ENOTTY) {
+    const int e = errno;
+    ::close(fd);
+    return MakeError(ErrorCode::kIo,
+                     "serial port " + path + ": cannot open exclusively: " + std::strerror(e));
   }
   Status st = ConfigureRaw(fd, baud, "serial port " + path);
   if (!st.ok()) {
@@ -38,7 +62,12 @@ Result<std::unique_ptr<SerialPort>> SerialPort::Open(const std::string& path, in
 }
 
 SerialPort::~SerialPort() {
-  if (fd_ >= 0) ::close(fd_);
+  if (fd_ < 0) return;
+  // The exclusive flag belongs to the tty, not to this descriptor: it outlives the close while
+  // another descriptor keeps the tty open (a pty whose emulator holds the slave), and would
+  // refuse the next open of the port, ours included.
+  ::ioctl(fd_, TIOCNXCL);
+  ::close(fd_);
 }
 
 Result<size_t> SerialPort::Read(uint8_t* data, size_t size, int timeout_ms) {

@@ -101,6 +101,36 @@ TEST(SerialPort, VanishedDeviceIsUnavailable) {
   EXPECT_EQ(again.error().code, ErrorCode::kNotFound);
 }
 
+// Two readers of one port would split its bytes between them: a second open, through the same
+// path or another (the symlink and the pty itself), fails with a message saying so and leaves
+// the first one working; once the first is closed the port opens again.
+TEST(SerialPort, ASecondOpenOfAPortInUseFails) {
+  const std::string link = TempLink("excl");
+  auto pty = Pty::Create(link);
+  ASSERT_TRUE(pty.ok()) << pty.error().message;
+  auto first = SerialPort::Open(link, 115200);
+  ASSERT_TRUE(first.ok()) << first.error().message;
+  for (const std::string& path : {link, (*pty)->slave_path()}) {
+    auto second = SerialPort::Open(path, 9600);
+    ASSERT_FALSE(second.ok()) << path;
+    EXPECT_EQ(second.error().code, ErrorCode::kUnavailable);
+    EXPECT_NE(second.error().message.find(path + " is in use by another process"),
+              std::string::npos)
+        << second.error().message;
+  }
+  EXPECT_EQ(LineBaud((*pty)->master_fd()), 115200) << "the refused open changed the line";
+  const uint8_t b = 0x42;
+  ASSERT_EQ(write((*pty)->master_fd(), &b, 1), 1);
+  uint8_t got = 0;
+  auto r = (*first)->Read(&got, 1, 1000);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(*r, 1u);
+  EXPECT_EQ(got, 0x42);
+  first->reset();
+  auto again = SerialPort::Open(link, 115200);
+  EXPECT_TRUE(again.ok()) << again.error().message;
+}
+
 // Drain's wait: a queue that empties returns as soon as it does; one that never does (a wedged
 // USB adapter) is an error after the timeout, never a hang; the queue's own error is passed on.
 TEST(SerialPort, DrainWaitsForTheQueueButNotForever) {

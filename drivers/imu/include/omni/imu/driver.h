@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -72,6 +73,10 @@ uint8_t OutputType(const std::string& name);
 // The WT901 sends its output registers in ascending type order every period (0x50 time, 0x51,
 // 0x52, 0x53, 0x54, ..., 0x59 quaternion; which ones is configurable on the device). This learns
 // the cycle from the stream (the types seen until one repeats) and counts frames missing from it.
+// Once learned, a new type joins only when it is seen in two consecutive periods (its frame was
+// lost while learning): one stray frame that passed the parser (noise) must not join, because
+// with trigger auto a type above the last one would become the closing frame and no sample
+// would close again.
 class FrameCycle {
  public:
   // Notes a decoded frame; returns how many frames of the cycle were missing before it.
@@ -87,22 +92,60 @@ class FrameCycle {
   int IndexOf(uint8_t type) const;
   std::vector<uint8_t> types_;
   bool learned_ = false;
-  int prev_ = -1;  // index in types_ of the previous frame, -1 when unknown
+  int prev_ = -1;       // index in types_ of the previous frame, -1 when unknown
+  int64_t period_ = 0;  // periods since learned (counted when the type index wraps)
+  std::map<uint8_t, int64_t> candidates_;  // types not in the cycle -> period last seen in
+};
+
+// The frames of one connection into samples: learns the cycle, closes a sample on the trigger
+// frame (a fixed type, or with trigger auto the cycle's last type), from the first type of a
+// period on so that a sample never mixes two periods.
+class SampleBuilder {
+ public:
+  explicit SampleBuilder(uint8_t fixed_trigger = 0) : fixed_(fixed_trigger) {}
+  // Notes `f` in the cycle (counting frames missing from it); false while the cycle is being
+  // learned, and then `f` is not to be assembled.
+  bool Learn(const Frame& f);
+  // Assembles `f` (after Learn returned true); true with `*out` filled when it closed a sample.
+  bool Assemble(const Frame& f, ImuSample* out);
+  // Forgets the cycle and the sample being assembled (a new connection, or a re-learn); the
+  // counts are kept.
+  void Reset();
+  const FrameCycle& cycle() const { return cycle_; }
+  uint8_t trigger() const { return trigger_; }  // 0 until the cycle is learned
+  int64_t dropped_frames() const { return dropped_; }
+  int64_t incomplete() const { return past_incomplete_ + assembler_.incomplete(); }
+
+ private:
+  uint8_t fixed_;
+  FrameCycle cycle_;
+  SampleAssembler assembler_;
+  uint8_t trigger_ = 0;
+  bool aligned_ = false;  // assembling from the first type of a period on
+  int64_t dropped_ = 0;
+  int64_t past_incomplete_ = 0;  // of assemblers replaced by a new one
 };
 
 // Sample times: the read time, with the samples that arrived in one read spread back by the
-// output period (at most evenly over the time since the previous stamp), strictly increasing.
+// output period (at most evenly over the time since the previous stamp), strictly increasing
+// across small steps of the clock back (jitter, NTP slewing). A step back of more than
+// kClockStepBackUs is a clock that was set back: the stamps follow it (counted), so that
+// consumers that detect such a step and re-base (GyroRateHistory) see it, instead of every
+// sample for that long being stamped 1 us after the previous one.
 class SampleStamper {
  public:
+  static constexpr Utime kClockStepBackUs = 1'000'000;
   explicit SampleStamper(double rate_hz)
       : period_us_(rate_hz > 0 ? SecondsToUtime(1.0 / rate_hz) : 0) {}
   // Stamp of sample `i` of `n` completed by the bytes read at `read_utime` (i = 0, 1, .. n-1).
   Utime Stamp(Utime read_utime, size_t i, size_t n);
+  int64_t steps_back() const { return steps_back_; }
 
  private:
   Utime period_us_;
   Utime step_ = 0;  // spacing of the current read's samples
   Utime last_ = 0;
+  int64_t steps_back_ = 0;
 };
 
 struct StampedSample {
@@ -120,6 +163,8 @@ struct DriverCounters {
   int64_t configurations = 0;      // settings written and confirmed by the device's stream
   int64_t config_failures = 0;     // written, but no frames or other frame types came back
   int64_t rate_mismatches = 0;     // connections whose measured rate is > 20 % off rate_hz
+  int64_t cycle_relearns = 0;      // frames came but no sample closed for a while: re-learned
+  int64_t clock_steps_back = 0;    // stamps that followed the clock set back by more than 1 s
 };
 
 enum class DriverState { kDisconnected, kOpening, kStreaming };
@@ -143,12 +188,16 @@ class ImuDriver {
   // Parser counters over all connections (frames, checksum errors, resyncs, bytes skipped).
   FrameCounters frame_counters() const;
   const DriverOptions& options() const { return options_; }
-  const FrameCycle& cycle() const { return cycle_; }
+  const FrameCycle& cycle() const { return builder_.cycle(); }
   int baud() const { return port_ ? port_->baud() : 0; }
   // Settings still to be written, or written and not yet confirmed by the stream.
   bool configuring() const { return config_pending_ || config_verifying_; }
   // Samples per second over the last whole 2 s window while streaming; 0 before the first.
   double measured_rate_hz() const { return measured_rate_hz_; }
+  // Streaming, but no sample has closed since the frame cycle was last re-learned (the reason
+  // is relearn_reason()); the heartbeat is then DEGRADED.
+  bool degraded() const { return degraded_; }
+  const std::string& relearn_reason() const { return relearn_reason_; }
 
  private:
   Status Open();
@@ -164,18 +213,29 @@ class ImuDriver {
   bool Write(uint8_t reg, uint16_t value);  // one register write and the gap after it
   void ResetStream();
   void MeasureRate(size_t samples);
+  // Frames keep coming but no sample closes (a stray type joined the cycle while it was learned,
+  // a device without gyro frames): learns the cycle again and says so.
+  void Relearn(int64_t now_us);
 
   DriverOptions options_;
   const Clock* clock_;
   std::unique_ptr<serial::SerialPort> port_;
   FrameParser parser_;
   FrameCounters past_;  // parser counters of earlier connections
-  std::unique_ptr<SampleAssembler> assembler_;
-  int64_t past_incomplete_ = 0;  // of assemblers replaced by a new one
-  uint8_t trigger_ = 0;
-  bool aligned_ = false;  // assembling from the first type of a period on
-  FrameCycle cycle_;
+  SampleBuilder builder_;
   SampleStamper stamper_;
+  // The read that completed the frame now held back by the parser: its time, and when that
+  // frame closes a sample, how many samples that read completed with it (the group it is
+  // stamped in; 0 otherwise).
+  Utime held_read_utime_ = 0;
+  size_t held_group_ = 0;
+  // Samples closing: the last one (monotonic; also reset at each streaming start and by the
+  // time spent writing settings), how long without one starts a re-learn (doubled after each
+  // re-learn that brought none, so a slow device is never re-learned for ever), and why.
+  int64_t last_sample_us_ = 0;
+  int64_t no_sample_limit_us_ = 0;
+  bool degraded_ = false;
+  std::string relearn_reason_;
   DriverState state_ = DriverState::kDisconnected;
   std::string status_ = "starting";
   DriverCounters counters_;

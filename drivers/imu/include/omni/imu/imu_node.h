@@ -1,7 +1,8 @@
 // Bus side of the IMU driver: publishes each sample as omni.imu_t (channel IMU by default) and a
 // heartbeat with the driver's counters (messages, frames, checksum errors, resyncs, bytes
-// skipped, reconnects, connect failures, timeouts, dropped frames, incomplete samples, settings
-// written and confirmed / failed, rate mismatches, the measured rate rounded to 1 Hz).
+// skipped, unconfirmed frames, reconnects, connect failures, timeouts, dropped frames, incomplete
+// samples, settings written and confirmed / failed, rate mismatches, cycle re-learns, clock
+// steps back, the measured rate rounded to 1 Hz).
 #pragma once
 
 #include <atomic>
@@ -34,6 +35,7 @@ class ImuNode {
   NodeOptions options_;
   bus::Heartbeat heartbeat_;
   int64_t seq_ = 0;
+  int64_t relearns_published_ = 0;  // cycle_relearns when the last heartbeat went out
 };
 
 }  // namespace omni::imu

@@ -66,6 +66,9 @@ struct Frame {
   uint8_t type = 0;
   std::array<int16_t, 4> v{};
   std::array<uint8_t, 8> raw{};  // the 8 payload bytes (0x50 time frames are bytes, not int16)
+  // Its bytes had all arrived before the Feed() that returned it: it was held back until the
+  // bytes after it came (the driver stamps its sample with the earlier read's time).
+  bool held = false;
 };
 
 std::array<uint8_t, kFrameSize> EncodeFrame(uint8_t type, const std::array<int16_t, 4>& v);
@@ -76,18 +79,31 @@ struct FrameCounters {
   int64_t checksum_errors = 0;  // header and type right, checksum wrong, while aligned
   int64_t resyncs = 0;          // times alignment was lost and found again
   int64_t bytes_skipped = 0;
+  // Windows that check out but are not followed by a frame: a frame that lost a byte (its
+  // other bytes and the next frame's header pass the checksum about once in 256), or a chance
+  // match in noise. Dropped, never decoded.
+  int64_t unconfirmed = 0;
 };
 
 // Streaming frame decoder: finds 0x55 + a known type + a matching checksum; never trusts
-// alignment, so garbage costs only the frames it corrupted.
+// alignment, so garbage costs only the frames it corrupted. A frame is returned only once the
+// bytes after it confirm it: the next frame's header and type, or (in sync) line noise with no
+// frame starting inside it. The last frame of a read is therefore held until the next read
+// (at the device's rate, the closing frame of a period waits for the next period); when the
+// stream ends (the port is closed) a held frame is dropped, as it cannot be confirmed.
 class FrameParser {
  public:
   void Feed(const uint8_t* data, size_t size, std::vector<Frame>* out);
   void Reset();
   const FrameCounters& counters() const { return counters_; }
+  // The type of the frame held back for confirmation, 0 when there is none.
+  uint8_t held_type() const;
 
  private:
+  enum class Check { kYes, kNo, kWait };
   bool FrameAt(size_t at) const;
+  // Whether the bytes after the window at `at` (which checks out) confirm it as a frame.
+  Check Confirm(size_t at) const;
   std::vector<uint8_t> buf_;
   size_t pos_ = 0;
   bool in_sync_ = false;

@@ -17,7 +17,9 @@ namespace omni::serial {
 
 class SerialPort {
  public:
-  // Opens `path` raw at `baud`. kNotFound when the path does not exist, kIo otherwise.
+  // Opens `path` raw at `baud`, for this process alone (flock, and TIOCEXCL until closed).
+  // kNotFound when the path does not exist; kUnavailable with "<path> is in use by another
+  // process" when another open holds it; kIo otherwise.
   static Result<std::unique_ptr<SerialPort>> Open(const std::string& path, int baud);
   ~SerialPort();
   SerialPort(const SerialPort&) = delete;
