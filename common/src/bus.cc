@@ -1,5 +1,6 @@
 #include "omni/bus/bus.h"
 
+#include <cstdint>
 #include <cstdlib>
 #include <filesystem>
 
@@ -58,7 +59,10 @@ Result<std::unique_ptr<Bus>> Bus::Create(const std::string& url) {
     if (Status s = io::CheckLcmLogFraming(path); !s.ok()) {
       LOG_WARN << s.message()
                << ": LCM's file reader stops or skips there, so events of this log are lost "
-                  "(`omni replay --resync` reads past it)";
+                  "(counted as log_framing_errors; `omni replay --resync` reads past it)";
+      auto bus = std::unique_ptr<Bus>(new Bus(std::move(lcm), url));
+      bus->counters_.log_framing_errors = 1;
+      return bus;
     }
   }
   return std::unique_ptr<Bus>(new Bus(std::move(lcm), url));
@@ -89,9 +93,16 @@ int Bus::fd() { return lcm_->getFileno(); }
 void Bus::NoteDecodeError(const std::string& channel, int size) {
   ++counters_.decode_errors;
   std::lock_guard<std::mutex> lock(mu_);
-  if (last_decode_error_ != channel) {
+  // Logged per channel at the 1st, 10th, 100th ... failure: a stale publisher on two channels
+  // used to log a line at every switch between them (hundreds a second).
+  int64_t& n = decode_errors_by_channel_[channel];
+  ++n;
+  int64_t p = 1;
+  while (p < n && p <= INT64_MAX / 10) p *= 10;
+  if (p == n) {
     LOG_WARN << "undecodable message on channel " << channel << " (" << size
-             << " bytes): wrong type or truncated; counted in decode_errors";
+             << " bytes): wrong type or truncated; " << n
+             << (n == 1 ? " so far" : " on this channel so far") << ", counted in decode_errors";
   }
   last_decode_error_ = channel;
 }

@@ -85,6 +85,10 @@ bool Heartbeat::Tick(bool force) {
   }
   hb.counter_names.push_back("publish_errors");
   hb.counter_values.push_back(c.publish_errors);
+  if (c.log_framing_errors > 0) {  // only a process reading a corrupt log (file://)
+    hb.counter_names.push_back("log_framing_errors");
+    hb.counter_values.push_back(c.log_framing_errors);
+  }
   hb.num_counters = static_cast<int32_t>(hb.counter_names.size());
   last_utime_ = now;
   if (!bus_->Publish("HEARTBEAT", hb)) return false;

@@ -73,14 +73,34 @@ LcmLogReader::~LcmLogReader() {
 }
 
 Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
+  auto where = [&](uint64_t off) { return path_ + ": byte offset " + std::to_string(off) + ": "; };
+  // Resync: from `from`, forward to the next sync word; the bytes from `start` on are counted as
+  // skipped. False at the end of the file.
+  auto scan_from = [&](uint64_t start, uint64_t from) {
+    offset_ = from;
+    if (std::fseek(f_, static_cast<long>(from), SEEK_SET) != 0) return false;
+    uint32_t window = 0;
+    int c;
+    int have = 0;
+    while ((c = std::fgetc(f_)) != EOF) {
+      window = (window << 8) | static_cast<uint32_t>(c);
+      ++offset_;
+      if (++have >= 4 && window == kSync) break;
+    }
+    if (c == EOF) {
+      skipped_bytes_ += offset_ - start;
+      return false;
+    }
+    offset_ -= 4;
+    skipped_bytes_ += offset_ - start;
+    std::fseek(f_, static_cast<long>(offset_), SEEK_SET);
+    return true;
+  };
   for (;;) {
     const uint64_t start = offset_;
     uint8_t hdr[28];
     const size_t n = std::fread(hdr, 1, sizeof(hdr), f_);
     if (n == 0) return false;
-    auto where = [&](uint64_t off) {
-      return path_ + ": byte offset " + std::to_string(off) + ": ";
-    };
     if (n < sizeof(hdr)) {
       return MakeError(ErrorCode::kParse, where(start) + "truncated event header (" +
                                               std::to_string(n) + " of 28 bytes)");
@@ -89,24 +109,7 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     const std::string problem = CheckHeader(hdr, &chan_len, &data_len);
     if (!problem.empty()) {
       if (!resync) return MakeError(ErrorCode::kParse, where(start) + problem);
-      // Scan forward byte by byte for the next sync word.
-      if (std::fseek(f_, static_cast<long>(start + 1), SEEK_SET) != 0) return false;
-      offset_ = start + 1;
-      uint32_t window = 0;
-      int c;
-      int have = 0;
-      while ((c = std::fgetc(f_)) != EOF) {
-        window = (window << 8) | static_cast<uint32_t>(c);
-        ++offset_;
-        if (++have >= 4 && window == kSync) break;
-      }
-      if (c == EOF) {
-        skipped_bytes_ += offset_ - start;
-        return false;
-      }
-      offset_ -= 4;
-      skipped_bytes_ += offset_ - start;
-      std::fseek(f_, static_cast<long>(offset_), SEEK_SET);
+      if (!scan_from(start, start + 1)) return false;
       continue;
     }
     ev->event_number = static_cast<int64_t>(Be(hdr + 4, 8));
@@ -130,15 +133,39 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
       }
       return true;
     };
+    const std::string announced = "channel " + std::to_string(chan_len) + " + data " +
+                                  std::to_string(data_len) + " bytes announced";
     if (std::fread(ev->channel.data(), 1, ev->channel.size(), f_) != ev->channel.size() ||
         !read_data()) {
-      return MakeError(ErrorCode::kParse, where(start) + "event truncated: channel " +
-                                              std::to_string(chan_len) + " + data " +
-                                              std::to_string(data_len) + " bytes announced");
+      // Past the end of the file: a truncated last event, or a corrupt length with intact
+      // events after it, which a resync finds.
+      if (resync && scan_from(start, start + 1)) continue;
+      return MakeError(ErrorCode::kParse, where(start) + "event truncated: " + announced);
     }
     offset_ =
         start + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);
-    return true;
+    // An event is intact only if the next event or the end of the file follows it. A length
+    // corrupted to a value still inside the file would otherwise swallow the events after it
+    // as its data.
+    uint8_t next[4];
+    const size_t got = std::fread(next, 1, sizeof(next), f_);
+    if (got > 0 && std::fseek(f_, -static_cast<long>(got), SEEK_CUR) != 0)
+      return MakeError(ErrorCode::kIo, where(offset_) + "cannot seek back");
+    if (got < sizeof(next) || Be(next, 4) == kSync) return true;
+    // Not followed by an event. When the data holds a sync word, the length is the likely
+    // culprit (it swallowed the events after it): an error naming this event, or with resync a
+    // search restarting inside it. Otherwise the event stands and the bytes after it are the
+    // damage, which the next call reports (or skips).
+    static constexpr uint8_t kSyncBytes[4] = {0xED, 0xA1, 0xDA, 0x01};
+    if (std::search(ev->data.begin(), ev->data.end(), kSyncBytes, kSyncBytes + 4) == ev->data.end())
+      return true;
+    if (!resync) {
+      return MakeError(ErrorCode::kParse,
+                       where(start) + "event on '" + ev->channel + "' (" + announced +
+                           ") holds event headers and is not followed by another event: its "
+                           "length is corrupt");
+    }
+    if (!scan_from(start, start + 1)) return false;
   }
 }
 
@@ -208,6 +235,8 @@ Status CheckLcmLogFraming(const std::string& path) {
     return MakeError(ErrorCode::kParse,
                      path + ": byte offset " + std::to_string(off) + ": " + what);
   };
+  uint64_t prev = 0;
+  bool have_prev = false;
   while (off < size) {
     uint8_t hdr[28];
     if (size - off < sizeof(hdr)) return bad("truncated event header");
@@ -215,11 +244,24 @@ Status CheckLcmLogFraming(const std::string& path) {
         std::fread(hdr, 1, sizeof(hdr), f.get()) != sizeof(hdr))
       return MakeError(ErrorCode::kIo, "cannot read '" + path + "'");
     int32_t chan_len = 0, data_len = 0;
-    if (const std::string problem = CheckHeader(hdr, &chan_len, &data_len); !problem.empty())
-      return bad(problem);
+    if (const std::string problem = CheckHeader(hdr, &chan_len, &data_len); !problem.empty()) {
+      if (!have_prev) return bad(problem);
+      // The event before ended here by its lengths, and no event starts here: those lengths
+      // are the likely damage (or these bytes are).
+      return MakeError(ErrorCode::kParse,
+                       path + ": byte offset " + std::to_string(prev) +
+                           ": the event there is not followed by another event (at byte offset " +
+                           std::to_string(off) + ": " + problem +
+                           "): its length is corrupt, or the bytes after it are");
+    }
     const uint64_t next =
         off + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);
-    if (next > size) return bad("event truncated at the end of the file");
+    if (next > size)
+      return bad("event runs past the end of the file (" + std::to_string(chan_len) + " + " +
+                 std::to_string(data_len) +
+                 " bytes announced): the file is truncated, or the length is corrupt");
+    prev = off;
+    have_prev = true;
     off = next;
   }
   return Status::Ok();

@@ -79,6 +79,32 @@ TEST(Bus, UndecodableMessagesAreCountedNotDelivered) {
   EXPECT_EQ((*bus)->last_decode_error(), "POSE");
 }
 
+// A process that reads a log whose framing is broken (file://) loses events where LCM's reader
+// stops: counted (log_framing_errors), not only warned about once at the start.
+TEST(Bus, ACorruptLogReadThroughFileIsCounted) {
+  const std::string dir = ::testing::TempDir() + "/bus_corrupt_log";
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/c.lcmlog";
+  {
+    auto w = io::LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok());
+    const std::string data(40, 'x');
+    for (int i = 0; i < 4; ++i) ASSERT_TRUE(w->Write(1000 + i, "X", data.data(), 40).ok());
+    ASSERT_TRUE(w->Close().ok());
+  }
+  auto clean = Bus::Create("file://" + path + "?speed=0");
+  ASSERT_TRUE(clean.ok());
+  EXPECT_EQ((*clean)->counters().log_framing_errors, 0);
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(207);  // the fourth event's sync word (LCM refuses a log whose second is bad)
+    f.put('\x00');
+  }
+  auto bus = Bus::Create("file://" + path + "?speed=0");
+  ASSERT_TRUE(bus.ok());
+  EXPECT_EQ((*bus)->counters().log_framing_errors, 1);
+}
+
 TEST(Bus, HeartbeatCarriesCounters) {
   auto bus = Bus::Create("memq://");
   ASSERT_TRUE(bus.ok());

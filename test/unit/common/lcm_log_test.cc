@@ -1,5 +1,6 @@
 #include "omni/io/lcm_log.h"
 
+#include <filesystem>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -102,6 +103,70 @@ TEST(LcmLog, FramingCheckNamesTheFirstBrokenEvent) {
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.message().find("byte offset 34: bad sync"), std::string::npos) << s.message();
   EXPECT_FALSE(CheckLcmLogFraming(path + ".none").ok());
+}
+
+// A length corrupted to a value still inside the file (one bit flipped): the event swallows the
+// ones after it. The reader names that event, and a resync loses only it; a length corrupted
+// past the end of the file with intact events after it is read past too. (Before, --resync
+// silently dropped every swallowed event and counted a few skipped bytes.)
+TEST(LcmLog, ACorruptLengthLosesOnlyItsEvent) {
+  const std::string dir = omni::testing::TempDir() + "/lcm_len";
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/len.lcmlog";
+  std::vector<uint64_t> offsets;
+  {
+    auto w = LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok());
+    const std::string payload(100, 'x');
+    uint64_t off = 0;
+    for (int i = 0; i < 50; ++i) {
+      offsets.push_back(off);
+      ASSERT_TRUE(w->Write(1000 + i, "CH", payload.data(), payload.size()).ok());
+      off += 28 + 2 + 100;
+    }
+    ASSERT_TRUE(w->Close().ok());
+  }
+  std::ifstream in(path, std::ios::binary);
+  const std::string good((std::istreambuf_iterator<char>(in)), {});
+  auto corrupt = [&](uint32_t data_len) {
+    std::string bytes = good;
+    const uint64_t at = offsets[10] + 24;  // event 10's data length
+    for (int k = 0; k < 4; ++k)
+      bytes[at + k] = static_cast<char>((data_len >> (24 - 8 * k)) & 0xFF);
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  };
+  auto read_all = [&](bool resync, std::vector<int64_t>* stamps) -> Status {
+    auto r = LcmLogReader::Open(path);
+    if (!r.ok()) return r.error();
+    LcmLogEvent ev;
+    for (;;) {
+      auto more = r->Next(&ev, resync);
+      if (!more.ok()) return more.error();
+      if (!*more) return Status::Ok();
+      stamps->push_back(ev.utime);
+    }
+  };
+  for (const uint32_t len : {100u + 130u * 20u + 50u, 100u + (1u << 20)}) {  // inside, past the end
+    corrupt(len);
+    std::vector<int64_t> stamps;
+    Status s = read_all(false, &stamps);
+    ASSERT_FALSE(s.ok()) << len;
+    EXPECT_NE(s.message().find("byte offset " + std::to_string(offsets[10])), std::string::npos)
+        << s.message();
+    EXPECT_EQ(stamps.size(), 10u) << "the events before it are read";
+    stamps.clear();
+    s = read_all(true, &stamps);
+    ASSERT_TRUE(s.ok()) << len << ": " << s.message();
+    ASSERT_EQ(stamps.size(), 49u) << len;
+    EXPECT_EQ(stamps[9], 1009);
+    EXPECT_EQ(stamps[10], 1011);
+    Status framing = CheckLcmLogFraming(path);
+    ASSERT_FALSE(framing.ok());
+    EXPECT_NE(framing.message().find("byte offset " + std::to_string(offsets[10])),
+              std::string::npos)
+        << framing.message();
+  }
 }
 
 TEST(LcmLog, TruncationIsAnError) {

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <exception>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -27,6 +28,9 @@ struct BusCounters {
   std::atomic<int64_t> decode_errors{0};   // received but undecodable
   std::atomic<int64_t> publish_errors{0};  // lcm publish returned an error
   std::atomic<int64_t> drops{0};           // discarded by the process (invalid, late, queue full)
+  // file:// only: 1 when the log's framing is broken (LCM's reader stops or skips there, so
+  // events are lost); in the heartbeat as log_framing_errors.
+  std::atomic<int64_t> log_framing_errors{0};
 };
 
 class Bus {
@@ -82,6 +86,7 @@ class Bus {
   std::vector<std::unique_ptr<SubscriptionBase>> subs_;
   mutable std::mutex mu_;
   std::string last_decode_error_;
+  std::map<std::string, int64_t> decode_errors_by_channel_;  // for the log's rate limit
 };
 
 // Decodes an LCM message; -1 when it does not decode. lcm-gen's decoders size arrays from the
