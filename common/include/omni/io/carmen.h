@@ -22,7 +22,8 @@ struct CarmenLaser {
   double timestamp_s = 0;   // ipc timestamp, seconds
   float angle_min_rad = 0;  // beam 0, CCW from the laser's forward axis
   float angle_increment_rad = 0;
-  float max_range_m = 0;  // readings >= this are "no return" (CARMEN writes max range)
+  float max_range_m = 0;  // readings >= this are "no return" (CARMEN writes max range); for
+                          // FLASER/RLASER the log's (CarmenLog::max_range_m), not the line's
   std::vector<float> ranges_m;
   Pose2 laser_pose;  // pose of the laser in the odometry frame (from the line)
   Pose2 robot_pose;  // odometry pose of the robot base (from the line)
@@ -48,6 +49,9 @@ struct CarmenLog {
   size_t num_lasers = 0;
   size_t num_odometry = 0;
   std::map<std::string, size_t> skipped;  // other message types, by tag
+  // FLASER/RLASER: the sensor's range, which the lines do not carry: the largest reading most
+  // lines share (a beam without a return is written as it), else the log's largest reading.
+  std::map<std::string, float> max_range_m;
 };
 
 // Reads a (possibly gzip-compressed) CARMEN log. Any malformed FLASER/RLASER/ROBOTLASER1/ODOM
