@@ -305,8 +305,6 @@ int main(int argc, char** argv) {
       inbox.push_back(omni::base_bridge::FromMessage(m));
       ++commands_in;
     });
-    std::signal(SIGINT, OnSignal);
-    std::signal(SIGTERM, OnSignal);
     sim.set_command_source([&](int64_t utime, std::vector<omni::base_bridge::Command>* cmds) {
       const double sim_s = static_cast<double>(utime - opt.start_utime) * 1e-6;
       std::this_thread::sleep_until(wall_start + std::chrono::duration<double>(sim_s / speed));
@@ -317,6 +315,11 @@ int main(int argc, char** argv) {
       return !g_stop;
     });
   }
+  // Ctrl-C or a supervisor's SIGTERM ends the run at the next step; the log is closed and the
+  // truth written for what was simulated (the process used to die with neither).
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  sim.set_stop_flag(&g_stop);
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {
         truth.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(utime), p));

@@ -162,7 +162,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
     utime = o_.start_utime + static_cast<int64_t>(std::llround(t * 1e6));
     if (o_.max_duration_s > 0 && t > o_.max_duration_s) break;
     arrived.clear();
-    if (external && !command_source_(utime, &arrived)) {
+    if ((stop_ != nullptr && stop_->load()) || (external && !command_source_(utime, &arrived))) {
       st.stopped = true;
       break;
     }

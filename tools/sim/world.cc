@@ -59,6 +59,8 @@ Result<World> World::Load(const std::string& path) {
   }
   if (!root.IsMap()) return MakeError(ErrorCode::kParse, path + ": expected a map with 'boxes'");
   for (const auto& kv : root) {
+    if (!kv.first.IsScalar())
+      return MakeError(ErrorCode::kInvalidArgument, path + ": a key that is not a name");
     const std::string key = kv.first.as<std::string>();
     if (key != "boxes")
       return MakeError(ErrorCode::kInvalidArgument,
@@ -88,6 +90,20 @@ Result<World> World::Load(const std::string& path) {
                        where + " needs x0 < x1, y0 < y1 and 0 <= z0 < z1");
     boxes.push_back({v[0], v[1], v[2], v[3], v[4], v[5]});
   }
+  // The ground-truth map is drawn at 5 cm in the mappers' (turned) frame: a world wider and
+  // deeper than 800 m together would be over 2^28 cells (a box 4 km out asked for 6.4 GB).
+  double x0 = boxes[0].x0, y0 = boxes[0].y0, x1 = boxes[0].x1, y1 = boxes[0].y1;
+  for (const Box& b : boxes) {
+    x0 = std::min(x0, b.x0);
+    y0 = std::min(y0, b.y0);
+    x1 = std::max(x1, b.x1);
+    y1 = std::max(y1, b.y1);
+  }
+  if ((x1 - x0) + (y1 - y0) > kMaxWorldSpanM)
+    return MakeError(ErrorCode::kInvalidArgument,
+                     path + ": the boxes span " + std::to_string(x1 - x0) + " x " +
+                         std::to_string(y1 - y0) + " m; width + depth must be at most " +
+                         std::to_string(static_cast<int>(kMaxWorldSpanM)) + " m");
   return World(std::move(boxes));
 }
 

@@ -513,6 +513,14 @@ TEST(SimWorld, WorldFilesAreCheckedEntryByEntry) {
   auto nan_entry = load("boxes:\n  - [0, 0, 1, 1, 0, .nan]\n");
   ASSERT_FALSE(nan_entry.ok());
   EXPECT_FALSE(World::Load(dir + "/no-such-world.yaml").ok());
+  // A key that is not a name used to throw out of Load (the process terminated).
+  auto odd_key = load("? [1]\n: 2\nboxes:\n  - [0, 0, 1, 1, 0, 2]\n");
+  ASSERT_FALSE(odd_key.ok());
+  EXPECT_NE(odd_key.error().message.find("not a name"), std::string::npos);
+  // A box 4 km out: its ground-truth map would have been 80,000^2 cells.
+  auto far = load("boxes:\n  - [0, 0, 1, 1, 0, 2]\n  - [4000, 0, 4001, 1, 0, 2]\n");
+  ASSERT_FALSE(far.ok());
+  EXPECT_NE(far.error().message.find("at most 800 m"), std::string::npos) << far.error().message;
 }
 
 }  // namespace

@@ -26,6 +26,7 @@
 // Everything random comes from `seed`: the same options give the same bytes.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -101,7 +102,7 @@ struct SimStats {
   int64_t scans = 0, odometry = 0, imu = 0, depth_frames = 0;
   double duration_s = 0, distance_m = 0, rotation_rad = 0;
   bool tour_finished = false;
-  bool stopped = false;  // the command source ended the run
+  bool stopped = false;  // the command source or the stop flag ended the run
   // Commands from the command source, and those the base refused (unknown mode, non-finite).
   int64_t commands = 0, commands_rejected = 0;
   // Firmware base only: what crossed the simulated CAN bus, the other bridge messages, and
@@ -132,6 +133,8 @@ class Simulator {
   using CommandSource =
       std::function<bool(int64_t utime, std::vector<base_bridge::Command>* commands)>;
   void set_command_source(CommandSource source) { command_source_ = std::move(source); }
+  // When set and true at a step, the run ends there (a signal): what was simulated is kept.
+  void set_stop_flag(const std::atomic<bool>* stop) { stop_ = stop; }
 
   // Runs to the end of the tour (or max_duration_s, or until the command source ends it), handing
   // every message to `sink` in time order; `truth` gets the true base pose at every scan (scan
@@ -151,6 +154,7 @@ class Simulator {
   SimOptions o_;
   std::vector<Pose2> tour_;
   CommandSource command_source_;
+  const std::atomic<bool>* stop_ = nullptr;
   std::mt19937_64 rng_;
   double measured_gyro_ = 0;  // last gyro z reading, rad/s
 };

@@ -29,7 +29,9 @@ class World {
   // around it, alcoves, pillars, cabinets, and boxes 0.12 m tall beside the corridor.
   static World BuiltIn();
   // The same form from YAML: `boxes: [[x0, y0, x1, y1, z0, z1], ...]`; errors name the entry.
+  // The boxes' footprint may span at most kMaxWorldSpanM (width + depth).
   static Result<World> Load(const std::string& path);
+  static constexpr double kMaxWorldSpanM = 800.0;
 
   // Distance t >= 0 along o + t * d (d need not be unit length: t is in units of |d|) to the
   // first box face or the floor, or a negative value when nothing is hit before t_max.
