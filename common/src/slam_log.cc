@@ -29,6 +29,17 @@ void ReportSlamLogProblems(const char* program, const std::string& input, const 
                  "%s: warning: %llu corrupt bytes of %s skipped (the events in them are lost; "
                  "stats.json skipped_bytes)\n",
                  program, static_cast<unsigned long long>(r.skipped_bytes), input.c_str());
+  for (const auto& [channel, n] : r.decode_errors_by_channel)
+    std::fprintf(stderr,
+                 "%s: warning: %lld messages on %s did not decode (another message type, or "
+                 "truncated) and were skipped (stats.json decode_errors)\n",
+                 program, static_cast<long long>(n), channel.c_str());
+  if (r.scans_repeated > 0)
+    std::fprintf(stderr, "%s: %lld repeated scans (same seq and stamp) used once\n", program,
+                 static_cast<long long>(r.scans_repeated));
+  if (r.scans_lost > 0)
+    std::fprintf(stderr, "%s: warning: %lld scans missing from the log (gaps in seq)\n", program,
+                 static_cast<long long>(r.scans_lost));
 }
 
 namespace {
@@ -39,6 +50,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
   if (!reader.ok()) return reader.error();
   SlamLogResult out;
   io::LcmLogEvent ev;
+  int64_t last_seq = -1, last_utime = 0;
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
     if (!more.ok()) {
@@ -51,8 +63,16 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       omni::laser_scan_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
+        ++out.decode_errors_by_channel[ev.channel];
         continue;
       }
+      if (last_seq >= 0 && m.seq == last_seq && m.utime == last_utime) {
+        ++out.scans_repeated;
+        continue;
+      }
+      if (last_seq >= 0 && m.seq > last_seq + 1) out.scans_lost += m.seq - last_seq - 1;
+      if (m.seq >= 0) last_seq = m.seq;
+      last_utime = m.utime;
       SlamScan s;
       s.utime = m.utime;
       s.sensor_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
@@ -67,6 +87,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       omni::odometry_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
+        ++out.decode_errors_by_channel[ev.channel];
         continue;
       }
       handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
@@ -74,6 +95,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       omni::imu_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
         ++out.decode_errors;
+        ++out.decode_errors_by_channel[ev.channel];
         continue;
       }
       handlers.imu(m.utime, m.angular_velocity_rad_s[2]);

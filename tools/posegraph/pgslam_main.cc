@@ -165,6 +165,9 @@ int main(int argc, char** argv) {
   info.input = input;
   info.decode_errors = read->decode_errors;
   info.extra.emplace_back("skipped_bytes", static_cast<int64_t>(read->skipped_bytes));
+  info.extra.emplace_back("stopped_early", read->stopped_early.empty() ? 0 : 1);
+  info.extra.emplace_back("scans_repeated", read->scans_repeated);
+  info.extra.emplace_back("scans_lost_in_log", read->scans_lost);
   info.window_size = opt.window_size;
   info.wall_s = static_cast<double>(omni::MonotonicMicros() - t_start) * 1e-6;
   omni::Status written = omni::pgm::WriteSlamOutputs(slam, out_dir, info);

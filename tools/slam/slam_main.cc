@@ -236,10 +236,11 @@ int main(int argc, char** argv) {
   if (traj.empty() || map.width == 0) {
     std::fprintf(stderr,
                  "omni-slam: no scan could be used (scans %lld, no odometry %lld, too few beams "
-                 "%lld, time backwards %lld)\n",
+                 "%lld, time backwards %lld, undecodable messages %lld)\n",
                  static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_no_odom),
                  static_cast<long long>(c.scans_too_few_beams),
-                 static_cast<long long>(c.scans_time_backwards));
+                 static_cast<long long>(c.scans_time_backwards),
+                 static_cast<long long>(decode_errors));
     return 1;
   }
   std::vector<omni::io::TrajectoryEntry> entries;
@@ -281,7 +282,8 @@ int main(int argc, char** argv) {
       "%lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
       "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld, "
-      "\"skipped_bytes\": %llu",
+      "\"skipped_bytes\": %llu, \"stopped_early\": %s, \"scans_repeated\": %lld, "
+      "\"scans_lost_in_log\": %lld",
       input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_processed),
       static_cast<long long>(c.scans_gated), static_cast<long long>(c.scans_too_few_beams),
@@ -294,7 +296,9 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
       slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
       static_cast<long long>(c.sweeps_uncorrected),
-      static_cast<unsigned long long>(read->skipped_bytes));
+      static_cast<unsigned long long>(read->skipped_bytes),
+      read->stopped_early.empty() ? "false" : "true", static_cast<long long>(read->scans_repeated),
+      static_cast<long long>(read->scans_lost));
   std::fprintf(f,
                ", \"imu_in\": %lld, \"imu_invalid\": %lld, \"imu_bias_samples\": %lld, "
                "\"imu_bias_refused\": %lld, \"imu_bias_rad_s\": %.7f",

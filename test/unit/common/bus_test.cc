@@ -403,6 +403,47 @@ TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {
   EXPECT_TRUE(r->stopped_early.empty());
 }
 
+// The offline runners read scans as the live mappers take them: a repeated scan (same seq and
+// stamp) once, gaps in seq counted, undecodable messages counted per channel.
+TEST(SlamLog, RepeatedAndMissingScansAndBadMessagesAreCounted) {
+  const std::string path = ::testing::TempDir() + "/slam_seq.lcmlog";
+  {
+    auto w = io::LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok());
+    auto scan = [&](int64_t seq, int64_t utime) {
+      omni::laser_scan_t m{};
+      m.utime = utime;
+      m.seq = seq;
+      m.num_ranges = 3;
+      m.ranges_m = {1.f, 2.f, 3.f};
+      std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+      m.encode(buf.data(), 0, static_cast<int>(buf.size()));
+      ASSERT_TRUE(w->Write(utime, "LIDAR_SCAN", buf.data(), buf.size()).ok());
+    };
+    scan(0, 1000000);
+    scan(1, 1100000);
+    scan(1, 1100000);  // the same scan again
+    scan(4, 1400000);  // 2 and 3 missing
+    const char junk[5] = {1, 2, 3, 4, 5};
+    ASSERT_TRUE(w->Write(1500000, "LIDAR_SCAN", junk, 5).ok());
+    ASSERT_TRUE(w->Close().ok());
+  }
+  std::vector<int64_t> stamps;
+  SlamLogHandlers h;
+  h.scan = [&](const SlamScan& s) {
+    stamps.push_back(s.utime);
+    return true;
+  };
+  h.odom = [](int64_t, const Pose2&) {};
+  auto r = ReadSlamLog(path, SlamLogChannels{}, h);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(stamps, (std::vector<int64_t>{1000000, 1100000, 1400000}));
+  EXPECT_EQ(r->scans_repeated, 1);
+  EXPECT_EQ(r->scans_lost, 2);
+  EXPECT_EQ(r->decode_errors, 1);
+  EXPECT_EQ(r->decode_errors_by_channel.at("LIDAR_SCAN"), 1);
+}
+
 // A real map: the ACES building from its corrected log, 5 cm cells.
 io::GridMap AcesMap() {
   const std::string path = ::omni::testing::Dataset("carmen-corrected/aces-corrected.log.gz");

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -39,9 +40,14 @@ struct SlamLogHandlers {
 };
 
 struct SlamLogResult {
-  int64_t decode_errors = 0;   // LCM events on a SLAM channel that did not decode (skipped)
+  int64_t decode_errors = 0;  // LCM events on a SLAM channel that did not decode (skipped)
+  std::map<std::string, int64_t> decode_errors_by_channel;
   std::string stopped_early;   // a truncated LCM log: where and why the reading stopped
   uint64_t skipped_bytes = 0;  // corrupt LCM log bytes skipped to the next event's sync word
+  // LCM logs: a scan with the seq and stamp of the one before (a repeating driver or bridge) is
+  // passed on once, as the live mappers do; gaps in seq count scans lost before the log.
+  int64_t scans_repeated = 0;
+  int64_t scans_lost = 0;
 };
 
 bool IsLcmLogFile(const std::string& path);
