@@ -146,6 +146,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_future_dropped", [this] { return scans_future_dropped_; });
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
+  heartbeat_.AddCounter("grid_render_ms", [this] { return last_grid_render_us_ / 1000; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });
   heartbeat_.AddCounter("max_scans_queued", [this] { return max_queued_scans_; });
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
@@ -297,12 +298,14 @@ void PoseGraphNode::PublishLastPose() {
 }
 
 void PoseGraphNode::PublishGrid() {
+  const int64_t t0 = MonotonicMicros();
   io::LogOddsOptions g;
   g.resolution_m = o_.grid_resolution_m;
   const io::GridMap map = slam_.RenderMap(g);
   if (map.width == 0) return;
   if (bus::PublishGrid(*bus_, o_.grid_channel, map, clock_->NowUtime(), "posegraph"))
     ++grids_published_;
+  last_grid_render_us_ = MonotonicMicros() - t0;
 }
 
 void PoseGraphNode::PublishTrajectory() {
@@ -319,16 +322,17 @@ void PoseGraphNode::Tick() {
                  "mapping");
   heartbeat_.Tick();
   const int64_t used = slam_.counters().scans_used;
-  auto due = [&](double interval_s, int64_t last_wall, int64_t used_then) {
-    return interval_s > 0 && used > used_then &&
-           PeriodDue(now, last_wall, static_cast<int64_t>(interval_s * 1e6));
+  auto due = [&](double interval_s, int64_t last_wall, int64_t used_then, int64_t interval_us) {
+    return interval_s > 0 && used > used_then && PeriodDue(now, last_wall, interval_us);
   };
-  if (due(o_.trajectory_publish_interval_s, last_traj_wall_, used_at_last_traj_)) {
+  if (due(o_.trajectory_publish_interval_s, last_traj_wall_, used_at_last_traj_,
+          static_cast<int64_t>(o_.trajectory_publish_interval_s * 1e6))) {
     PublishTrajectory();
     last_traj_wall_ = now;
     used_at_last_traj_ = used;
   }
-  if (due(o_.grid_publish_interval_s, last_grid_wall_, used_at_last_grid_)) {
+  if (due(o_.grid_publish_interval_s, last_grid_wall_, used_at_last_grid_,
+          GridIntervalUs(o_.grid_publish_interval_s, last_grid_render_us_))) {
     PublishGrid();
     last_grid_wall_ = now;
     used_at_last_grid_ = used;

@@ -191,6 +191,11 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
   RecordProperty("max_sigma_theta_rad", std::to_string(max_sigma_theta));
   EXPECT_GE(trajs, 10);
   EXPECT_GE(grids, 5);
+  // Rendering is timed, and a slow render stretches the wait to the next grid (at least ten
+  // times the render), so a long run's growing map cannot take the node's time.
+  EXPECT_GT(node.last_grid_render_us(), 0);
+  EXPECT_EQ(pgm::PoseGraphNode::GridIntervalUs(1.0, 20000), 1000000);
+  EXPECT_EQ(pgm::PoseGraphNode::GridIntervalUs(5.0, 2000000), 20000000);
   EXPECT_GE(heartbeats, 5);
   EXPECT_TRUE(heartbeat_counts);
   EXPECT_EQ(b.counters().decode_errors.load(), 60);

@@ -24,6 +24,7 @@
 // keyframe composed with the odometry since it).
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <deque>
 #include <optional>
@@ -73,6 +74,15 @@ class PoseGraphNode {
   int64_t absolute_wrong_frame() const { return absolute_wrong_frame_; }
 
   static constexpr size_t kMaxQueued = 3000;  // scans
+  // The grid is rendered from every keyframe, so its cost grows with the run (about 2 s per
+  // render after an 8 h shift): the wait between grid messages is at least this many times the
+  // last render's duration, which keeps rendering to a tenth of the node's time.
+  static constexpr double kGridRenderShare = 10.0;
+  static int64_t GridIntervalUs(double configured_s, int64_t last_render_us) {
+    return std::max(static_cast<int64_t>(configured_s * 1e6),
+                    static_cast<int64_t>(kGridRenderShare * static_cast<double>(last_render_us)));
+  }
+  int64_t last_grid_render_us() const { return last_grid_render_us_; }
 
  private:
   enum class Kind { kOdometry, kScan, kAbsolute };
@@ -115,6 +125,7 @@ class PoseGraphNode {
   int64_t pose_seq_ = 0;
   int64_t absolute_bad_covariance_ = 0, absolute_wrong_frame_ = 0;
   int64_t last_grid_wall_ = 0, last_traj_wall_ = 0;
+  int64_t last_grid_render_us_ = 0;  // monotonic time the last grid took to render and send
   int64_t used_at_last_grid_ = 0, used_at_last_traj_ = 0;
   bool deferred_ = false;
 };
