@@ -1,12 +1,22 @@
 #include "omni/kinect/kinect_driver.h"
 
 #include <cmath>
+#include <sstream>
 #include <utility>
 
 #include "omni/common/config.h"
 #include "omni/common/log.h"
 
 namespace omni::kinect {
+namespace {
+
+std::string Seconds(double s) {
+  std::ostringstream o;
+  o << s << " s";
+  return o.str();
+}
+
+}  // namespace
 
 bool ParseDepthEncoding(const std::string& name, DepthEncoding* out) {
   if (name == "RAW") {
@@ -63,10 +73,10 @@ int64_t GapCounter::Add(int64_t frame_index, int64_t timestamp_us) {
 }
 
 KinectDriver::KinectDriver(KinectDriverOptions options, std::unique_ptr<DepthSource> source,
-                           const Clock* clock)
+                           MonotonicNow now_us)
     : options_(std::move(options)),
       source_(std::move(source)),
-      clock_(clock),
+      now_us_(std::move(now_us)),
       gaps_(options_.fps) {}
 
 KinectDriver::~KinectDriver() { Shutdown(); }
@@ -75,58 +85,94 @@ Status KinectDriver::Connect() {
   Status st = source_->Open();
   if (!st.ok()) {
     ++counters_.connect_failures;
+    state_ = KinectState::kDisconnected;
     status_ = st.error().message;
-    next_attempt_ = clock_->NowUtime() + SecondsToUtime(options_.reconnect_interval_s);
+    next_attempt_us_ = now_us_() + SecondsToUtime(options_.reconnect_interval_s);
     return st;
   }
-  if (ever_connected_) ++counters_.reconnects;
-  ever_connected_ = true;
-  state_ = KinectState::kStreaming;
-  status_ = "streaming from " + source_->Describe();
-  last_data_ = clock_->NowUtime();
+  warning_ = source_->Warning();
+  if (!warning_.empty()) {
+    LOG_WARN << source_->Describe() << ": " << warning_;
+  }
+  // Not streaming yet: a device can open and then send nothing (see KinectState).
+  state_ = KinectState::kOpening;
+  status_ = "opened " + source_->Describe() + ", no depth frame yet";
+  opened_us_ = now_us_();
+  last_bad_frame_.clear();
   gaps_.Reset();
   return Status::Ok();
 }
 
-void KinectDriver::Lose(const std::string& why) {
-  ++counters_.device_errors;
+void KinectDriver::Retry(const std::string& why) {
   source_->Close();
   state_ = KinectState::kDisconnected;
   status_ = why;
-  next_attempt_ = clock_->NowUtime() + SecondsToUtime(options_.reconnect_interval_s);
-  LOG_WARN << why << "; retrying every " << options_.reconnect_interval_s << " s";
+  next_attempt_us_ = now_us_() + SecondsToUtime(options_.reconnect_interval_s);
+  LOG_WARN << why << "; retrying every " << Seconds(options_.reconnect_interval_s);
+}
+
+void KinectDriver::Lose(const std::string& why) {
+  ++counters_.device_errors;
+  Retry(why);
+}
+
+void KinectDriver::FailOpening(const std::string& why) {
+  ++counters_.connect_failures;
+  Retry(why);
 }
 
 void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
   out->has_depth = false;
   out->has_color = false;
   if (state_ == KinectState::kDisconnected) {
-    const Utime now = clock_->NowUtime();
-    // A wait longer than the whole interval means the clock was set back: wait one from now.
-    const Utime interval = SecondsToUtime(options_.reconnect_interval_s);
-    if (next_attempt_ - now > interval) next_attempt_ = now + interval;
-    if (now < next_attempt_) return;
+    if (now_us_() < next_attempt_us_) return;
     Status st = Connect();
     if (!st.ok()) return;
-    LOG_INFO << "reconnected: " << status_;
+    LOG_INFO << status_;
   }
   Status st = source_->Read(timeout_ms, out);
   if (!st.ok()) {
     out->has_depth = out->has_color = false;
-    Lose("device lost: " + st.error().message);
-    return;
+    if (st.error().code != ErrorCode::kParse) {
+      if (state_ == KinectState::kOpening) {
+        FailOpening("lost before its first depth frame: " + st.error().message);
+      } else {
+        Lose("device lost: " + st.error().message);
+      }
+      return;
+    }
+    // One unusable frame (short, wrong pixel format) says nothing about the device: skip it.
+    // A device sending only such frames still runs into the data timeout below.
+    ++counters_.bad_frames;
+    last_bad_frame_ = st.error().message;
+    if ((counters_.bad_frames & (counters_.bad_frames - 1)) == 0) {  // 1, 2, 4, 8, ...
+      LOG_WARN << "frame skipped (" << counters_.bad_frames << " so far): " << last_bad_frame_;
+    }
   }
-  const Utime now = clock_->NowUtime();
+  const int64_t now = now_us_();
+  const int64_t limit = SecondsToUtime(options_.data_timeout_s);
+  const auto silent_for = [this] {
+    return Seconds(options_.data_timeout_s) +
+           (last_bad_frame_.empty() ? "" : " (last frame skipped: " + last_bad_frame_ + ")");
+  };
   if (out->has_color) ++counters_.color_frames;
   if (out->has_depth) {
     ++counters_.depth_frames;
     counters_.dropped_frames += gaps_.Add(out->depth.frame_index, out->depth.device_timestamp_us);
-    last_data_ = now;
-  } else if (now < last_data_) {
-    last_data_ = now;  // the clock set back: the silence is counted from now
-  } else if (now - last_data_ > SecondsToUtime(options_.data_timeout_s)) {
-    Lose("no depth frame from " + source_->Describe() + " for " +
-         std::to_string(options_.data_timeout_s) + " s");
+    last_data_us_ = now;
+    last_bad_frame_.clear();
+    if (state_ == KinectState::kOpening) {
+      if (ever_streamed_) ++counters_.reconnects;
+      ever_streamed_ = true;
+      state_ = KinectState::kStreaming;
+      status_ = "streaming from " + source_->Describe();
+      if (!warning_.empty()) status_ += "; " + warning_;
+      LOG_INFO << status_;
+    }
+  } else if (state_ == KinectState::kOpening && now - opened_us_ > limit) {
+    FailOpening("opened " + source_->Describe() + " but no depth frame within " + silent_for());
+  } else if (state_ == KinectState::kStreaming && now - last_data_us_ > limit) {
+    Lose("no depth frame from " + source_->Describe() + " for " + silent_for());
   }
 }
 

@@ -64,9 +64,10 @@ int main(int argc, char** argv) {
   const double kDeg = 3.14159265358979323846 / 180.0;
   oopt.fallback_hfov_rad = dopt.fallback_hfov_deg * kDeg;
   oopt.fallback_vfov_rad = dopt.fallback_vfov_deg * kDeg;
+  // The driver times its data timeout and retries on the monotonic clock (its default), so an
+  // NTP step neither fakes a silent device nor hides one; the wall clock stamps the messages.
   omni::SystemClock clock;
-  omni::kinect::KinectDriver driver(dopt, std::make_unique<omni::kinect::OpenNI2DepthSource>(oopt),
-                                    &clock);
+  omni::kinect::KinectDriver driver(dopt, std::make_unique<omni::kinect::OpenNI2DepthSource>(oopt));
   st = driver.Connect();
   if (!st.ok()) {
     LOG_ERROR << st.error().ToString() << " (uri: '" << dopt.uri << "')";

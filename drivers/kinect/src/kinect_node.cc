@@ -65,6 +65,7 @@ KinectNode::KinectNode(bus::Bus* bus, KinectDriver* driver, KinectNodeOptions op
   heartbeat_.AddCounter("frames", [d] { return d->counters().depth_frames; });
   heartbeat_.AddCounter("color_frames", [d] { return d->counters().color_frames; });
   heartbeat_.AddCounter("dropped_frames", [d] { return d->counters().dropped_frames; });
+  heartbeat_.AddCounter("bad_frames", [d] { return d->counters().bad_frames; });
   heartbeat_.AddCounter("encode_errors", [this] { return encode_errors_; });
   heartbeat_.AddCounter("reconnects", [d] { return d->counters().reconnects; });
   heartbeat_.AddCounter("connect_failures", [d] { return d->counters().connect_failures; });
@@ -92,11 +93,24 @@ void KinectNode::RunOnce(int timeout_ms) {
                   MakeColorMessage(frames.color, now, color_seq_, options_.color_frame));
     ++color_seq_;
   }
-  if (driver_->state() == KinectState::kStreaming) {
-    heartbeat_.SetState(omni::heartbeat_t::STATE_OK, driver_->status_text());
-  } else {
-    heartbeat_.SetState(omni::heartbeat_t::STATE_ERROR,
-                        "device lost, retrying: " + driver_->status_text());
+  switch (driver_->state()) {
+    case KinectState::kStreaming:
+      // A warning (colour off although configured) is a degraded stream, not a healthy one.
+      heartbeat_.SetState(driver_->warning().empty() ? omni::heartbeat_t::STATE_OK
+                                                     : omni::heartbeat_t::STATE_DEGRADED,
+                          driver_->status_text());
+      break;
+    case KinectState::kOpening:
+      // Starting while the first open since start-up waits for its first frame; once an
+      // opening has failed or the device has streamed before, this is a device not streaming.
+      heartbeat_.SetState(driver_->ever_streamed() || driver_->counters().connect_failures > 0
+                              ? omni::heartbeat_t::STATE_ERROR
+                              : omni::heartbeat_t::STATE_STARTING,
+                          driver_->status_text());
+      break;
+    case KinectState::kDisconnected:
+      heartbeat_.SetState(omni::heartbeat_t::STATE_ERROR, "retrying: " + driver_->status_text());
+      break;
   }
   heartbeat_.Tick();
 }
@@ -106,7 +120,7 @@ void KinectNode::Run(const std::atomic<bool>* stop, double max_s) {
   while (!stop->load()) {
     if (max_s > 0 && MonotonicMicros() - start > SecondsToUtime(max_s)) break;
     RunOnce(100);
-    if (driver_->state() != KinectState::kStreaming) {
+    if (driver_->state() == KinectState::kDisconnected) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));  // between reopen attempts
     }
   }

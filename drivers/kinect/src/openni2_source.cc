@@ -71,6 +71,7 @@ struct OpenNI2DepthSource::Impl {
   bool open = false;
   bool color_open = false;
   bool registered = false;
+  std::string warning;  // see DepthSource::Warning()
   openni::Device device;
   openni::VideoStream depth;
   openni::VideoStream color;
@@ -91,6 +92,8 @@ std::string OpenNI2DepthSource::Describe() const {
   return options_.uri.empty() ? std::string("first OpenNI2 device")
                               : "OpenNI2 device '" + options_.uri + "'";
 }
+
+std::string OpenNI2DepthSource::Warning() const { return impl_->warning; }
 
 bool OpenNI2DepthSource::color_open() const { return impl_->color_open; }
 bool OpenNI2DepthSource::registered() const { return impl_->registered; }
@@ -117,19 +120,44 @@ Status OpenNI2DepthSource::Open() {
     Close();
     return MakeError(ErrorCode::kUnavailable, e);
   }
+  // setVideoMode's status is not trusted either way: the mode is read back and judged.
   openni::VideoMode mode = m.depth.getVideoMode();
   if (mode.getPixelFormat() != openni::PIXEL_FORMAT_DEPTH_1_MM) {
     mode.setPixelFormat(openni::PIXEL_FORMAT_DEPTH_1_MM);
-    (void)m.depth.setVideoMode(mode);  // devices that refuse keep theirs; checked per frame
+    (void)m.depth.setVideoMode(mode);
   }
-  if (options_.color && m.device.hasSensor(openni::SENSOR_COLOR)) {
-    if (m.color.create(m.device, openni::SENSOR_COLOR) == openni::STATUS_OK) {
+  const openni::PixelFormat depth_format = m.depth.getVideoMode().getPixelFormat();
+  if (depth_format != openni::PIXEL_FORMAT_DEPTH_1_MM &&
+      depth_format != openni::PIXEL_FORMAT_DEPTH_100_UM) {
+    // Every frame would be unusable: fail the open (retried) rather than stream nothing.
+    const std::string e = Describe() + ": depth pixel format " +
+                          std::to_string(static_cast<int>(depth_format)) +
+                          " is not 16-bit depth and the device refuses DEPTH_1_MM";
+    Close();
+    return MakeError(ErrorCode::kUnavailable, e);
+  }
+  if (options_.color) {
+    // Colour that cannot be had leaves depth running, with a warning (DepthSource::Warning).
+    if (!m.device.hasSensor(openni::SENSOR_COLOR)) {
+      m.warning = "colour off: the device has no colour sensor";
+    } else if (m.color.create(m.device, openni::SENSOR_COLOR) != openni::STATUS_OK) {
+      m.warning = OniError("colour off: cannot create the colour stream");
+    } else {
       openni::VideoMode cm = m.color.getVideoMode();
       if (cm.getPixelFormat() != openni::PIXEL_FORMAT_RGB888) {
         cm.setPixelFormat(openni::PIXEL_FORMAT_RGB888);
         (void)m.color.setVideoMode(cm);
       }
-      m.color_open = m.color.start() == openni::STATUS_OK;
+      const openni::PixelFormat color_format = m.color.getVideoMode().getPixelFormat();
+      if (color_format != openni::PIXEL_FORMAT_RGB888) {
+        // Every colour frame would be skipped as unusable; better not to open the stream.
+        m.warning = "colour off: the device gives pixel format " +
+                    std::to_string(static_cast<int>(color_format)) + " and refuses RGB888";
+      } else if (m.color.start() != openni::STATUS_OK) {
+        m.warning = OniError("colour off: cannot start the colour stream");
+      } else {
+        m.color_open = true;
+      }
       if (!m.color_open) m.color.destroy();
     }
   }
@@ -158,6 +186,7 @@ void OpenNI2DepthSource::Close() {
   if (m.color.isValid()) m.color.destroy();
   m.color_open = false;
   m.registered = false;
+  m.warning.clear();
   if (m.open) {
     m.device.close();
     m.open = false;

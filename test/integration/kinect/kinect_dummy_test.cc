@@ -46,6 +46,9 @@ TEST(KinectDummy, OpenNI2SourceStreamsDepthAndColour) {
   }
   EXPECT_GE(depth, 5);
   EXPECT_GE(color, 2);
+  // The Dummy device accepts RGB888: colour is on and nothing is reported as missing.
+  EXPECT_TRUE(src.color_open());
+  EXPECT_EQ(src.Warning(), "");
   src.Close();
 }
 
@@ -106,7 +109,7 @@ TEST(KinectDummy, DriverPublishesDecodableDepthColourAndHeartbeatToALog) {
   auto reader = io::LcmLogReader::Open(log);
   ASSERT_TRUE(reader.ok()) << reader.error().message;
   io::LcmLogEvent ev;
-  int depth = 0, color = 0, heartbeats = 0;
+  int depth = 0, color = 0, heartbeats = 0, ok_heartbeats = 0;
   omni::heartbeat_t last_hb;
   while (true) {
     auto more = reader->Next(&ev);
@@ -133,11 +136,18 @@ TEST(KinectDummy, DriverPublishesDecodableDepthColourAndHeartbeatToALog) {
     } else if (ev.channel == "HEARTBEAT") {
       ASSERT_GT(last_hb.decode(ev.data.data(), 0, static_cast<int>(ev.data.size())), 0);
       ++heartbeats;
+      // STARTING until the first depth frame, then OK (DEGRADED would mean colour off).
+      EXPECT_TRUE(last_hb.state == omni::heartbeat_t::STATE_STARTING ||
+                  last_hb.state == omni::heartbeat_t::STATE_OK ||
+                  last_hb.state == omni::heartbeat_t::STATE_STOPPING)
+          << int{last_hb.state} << ": " << last_hb.status_text;
+      if (last_hb.state == omni::heartbeat_t::STATE_OK) ++ok_heartbeats;
     }
   }
   EXPECT_GE(depth, 20);  // 30 Hz for 1.5 s
   EXPECT_GE(color, 10);
   ASSERT_GE(heartbeats, 2);
+  EXPECT_GE(ok_heartbeats, 1);
   EXPECT_EQ(last_hb.process, "kinect_driver");
   EXPECT_EQ(last_hb.state, omni::heartbeat_t::STATE_STOPPING);
   EXPECT_EQ(Counter(last_hb, "depth_messages"), depth);
@@ -145,6 +155,8 @@ TEST(KinectDummy, DriverPublishesDecodableDepthColourAndHeartbeatToALog) {
   EXPECT_EQ(Counter(last_hb, "encode_errors"), 0);
   EXPECT_EQ(Counter(last_hb, "reconnects"), 0);
   EXPECT_EQ(Counter(last_hb, "device_errors"), 0);
+  EXPECT_EQ(Counter(last_hb, "connect_failures"), 0);
+  EXPECT_EQ(Counter(last_hb, "bad_frames"), 0);
   EXPECT_GE(Counter(last_hb, "dropped_frames"), 0);
 }
 

@@ -53,8 +53,13 @@ class DepthSource {
   virtual ~DepthSource() = default;
   // Opens the device and starts its streams. The error names the device (URI).
   virtual Status Open() = 0;
-  // Waits at most `timeout_ms` for frames. Nothing ready is not an error (out has neither);
-  // an error means the device is gone or broken: the caller closes and reopens it later.
+  // After a successful Open(): what could not be set up as configured although depth works
+  // (e.g. colour left off because the device will not give RGB888); empty when nothing.
+  virtual std::string Warning() const { return {}; }
+  // Waits at most `timeout_ms` for frames. Nothing ready is not an error (out has neither).
+  // ErrorCode::kParse means one frame could not be used (short, wrong pixel format): it is
+  // skipped and the device stays open. Any other error means the device is gone or broken:
+  // the caller closes and reopens it later.
   virtual Status Read(int timeout_ms, SourceFrames* out) = 0;
   virtual void Close() = 0;
   // The device's name for messages ("Dummy", "freenect2://0", "first OpenNI2 device").

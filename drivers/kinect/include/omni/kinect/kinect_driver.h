@@ -1,10 +1,13 @@
-// The Kinect driver state machine (no bus): opens a DepthSource, reads its frames, counts
-// frames lost on the way (gaps in the device's frame index or timestamps), and when the device
-// vanishes (read error, or no depth for `data_timeout_s`) closes it and reopens it every
-// `reconnect_interval_s` until it streams again; the process never has to restart.
+// The Kinect driver state machine (no bus): opens a DepthSource, waits for its first depth
+// frame before calling it streaming, reads its frames, counts frames lost on the way (gaps in
+// the device's frame index or timestamps) and frames it could not use, and when the device
+// vanishes (read error, or no depth for `data_timeout_s`) or opens without ever sending depth
+// closes it and reopens it every `reconnect_interval_s` until it streams again; the process
+// never has to restart.
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -53,12 +56,21 @@ struct KinectCounters {
   int64_t depth_frames = 0;
   int64_t color_frames = 0;
   int64_t dropped_frames = 0;    // depth frames missing from the index/timestamp sequence
-  int64_t reconnects = 0;        // successful reopenings after a loss
-  int64_t connect_failures = 0;  // open attempts that failed
-  int64_t device_errors = 0;     // read errors and data timeouts that lost the device
+  int64_t bad_frames = 0;        // frames the source could not use (kParse): skipped
+  int64_t reconnects = 0;        // first depth frames after a loss (the device streams again)
+  int64_t connect_failures = 0;  // open attempts that failed, or gave no depth frame in time
+  int64_t device_errors = 0;     // read errors and data timeouts that lost a streaming device
 };
 
-enum class KinectState { kDisconnected, kStreaming };
+// kOpening: the source opened but has not sent a depth frame yet. Some devices open and then
+// never send (reported for the Kinect v1 on some USB 3 ports), so only the first depth frame
+// means streaming.
+enum class KinectState { kDisconnected, kOpening, kStreaming };
+
+// Microseconds on a clock that never steps (std::chrono::steady_clock by default). The data
+// timeout and the retry delay are measured on it: a wall clock stepped forward by NTP would
+// look like a silent device, one stepped back would postpone the timeout.
+using MonotonicNow = std::function<int64_t()>;
 
 // Counts frames missing between consecutive depth frames: by frame index when the device
 // numbers its frames, else by timestamp gaps longer than 1.5 nominal periods.
@@ -77,11 +89,13 @@ class GapCounter {
 
 class KinectDriver {
  public:
-  // `clock` times the reconnect attempts and data timeouts (a ManualClock in tests).
+  // `now_us` times the data timeouts and reconnect delays (tests pass a ManualClock's time).
+  // The driver reads no wall clock: the node stamps the messages.
   KinectDriver(KinectDriverOptions options, std::unique_ptr<DepthSource> source,
-               const Clock* clock);
+               MonotonicNow now_us = MonotonicMicros);
   ~KinectDriver();
-  // First open; the error names the device (URI) when it is absent.
+  // Opens the source (state kOpening until its first depth frame); the error names the
+  // device (URI) when it is absent.
   Status Connect();
   // Reads for at most `timeout_ms`; on loss closes the source and retries later.
   void Step(int timeout_ms, SourceFrames* out);
@@ -89,22 +103,31 @@ class KinectDriver {
 
   KinectState state() const { return state_; }
   const std::string& status_text() const { return status_; }
+  // The source's Warning() from the last open (colour off, ...); empty when none.
+  const std::string& warning() const { return warning_; }
+  // Whether any depth frame has arrived since the process started.
+  bool ever_streamed() const { return ever_streamed_; }
   const KinectCounters& counters() const { return counters_; }
   const KinectDriverOptions& options() const { return options_; }
 
  private:
   void Lose(const std::string& why);
+  void FailOpening(const std::string& why);
+  void Retry(const std::string& why);
 
   KinectDriverOptions options_;
   std::unique_ptr<DepthSource> source_;
-  const Clock* clock_;
+  MonotonicNow now_us_;
   KinectState state_ = KinectState::kDisconnected;
   std::string status_ = "starting";
+  std::string warning_;
+  std::string last_bad_frame_;  // why the last unusable frame was skipped, "" after good depth
   KinectCounters counters_;
   GapCounter gaps_;
-  bool ever_connected_ = false;
-  Utime last_data_ = 0;
-  Utime next_attempt_ = 0;
+  bool ever_streamed_ = false;
+  int64_t opened_us_ = 0;        // monotonic
+  int64_t last_data_us_ = 0;     // monotonic
+  int64_t next_attempt_us_ = 0;  // monotonic
 };
 
 }  // namespace omni::kinect

@@ -1,7 +1,9 @@
 // Bus side of the Kinect driver: each depth frame becomes omni.depth_image_t on DEPTH (encoded
 // with the depth codec: RAW, ZLIB or DELTA_ZLIB), each colour frame omni.color_image_t (RGB8)
-// on RGB, and HEARTBEAT carries the counters (depth/colour frames, messages, dropped frames,
-// encode errors, reconnects, connect failures, device errors).
+// on RGB, and HEARTBEAT carries the state (STARTING / ERROR until the first depth frame, OK
+// while streaming, DEGRADED when streaming with a warning such as colour off) and the counters
+// (depth/colour frames, messages, dropped and bad frames, encode errors, reconnects, connect
+// failures, device errors).
 #pragma once
 
 #include <atomic>
@@ -24,6 +26,8 @@ omni::color_image_t MakeColorMessage(const ColorFrame& f, Utime utime, int64_t s
 
 class KinectNode {
  public:
+  // `clock` (the wall clock in the field) stamps the messages and the heartbeat; the driver
+  // times its timeouts on its own monotonic clock.
   KinectNode(bus::Bus* bus, KinectDriver* driver, KinectNodeOptions options, const Clock* clock);
   KinectNode(const KinectNode&) = delete;  // the heartbeat's counters point into this object
   KinectNode& operator=(const KinectNode&) = delete;

@@ -26,6 +26,7 @@ class OpenNI2DepthSource final : public DepthSource {
   explicit OpenNI2DepthSource(OpenNI2Options options);
   ~OpenNI2DepthSource() override;
   Status Open() override;
+  std::string Warning() const override;
   Status Read(int timeout_ms, SourceFrames* out) override;
   void Close() override;
   std::string Describe() const override;
