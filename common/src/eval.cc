@@ -108,6 +108,7 @@ Result<AteResult> ComputeAte(const io::Trajectory& ref, const io::Trajectory& es
   AteResult r;
   r.ambiguous = assoc->ambiguous;
   r.matched = n;
+  r.reference_poses = ref.entries.size();
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   if (n >= 2) {
     const Eigen::MatrixXd m = Eigen::umeyama(src, dst, /*with_scaling=*/false);
@@ -150,6 +151,8 @@ Result<RpeResult> ComputeRpe(const io::Trajectory& ref, const io::Trajectory& es
   };
   RpeResult r;
   r.ambiguous = assoc->ambiguous;
+  r.matched = assoc->ref_index.size();
+  r.reference_poses = ref.entries.size();
   double t2 = 0, r2 = 0;
   const size_t n = assoc->ref_index.size();
   for (size_t k = 0; k + static_cast<size_t>(delta) < n; ++k) {

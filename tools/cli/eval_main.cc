@@ -48,6 +48,16 @@ void WarnAmbiguous(size_t ambiguous) {
                ambiguous);
 }
 
+// A trajectory that covers only part of the reference is scored on that part alone: said, so
+// that a run that stopped early does not pass for a good one.
+void WarnCoverage(size_t matched, size_t reference) {
+  if (matched < reference)
+    std::fprintf(stderr,
+                 "omni eval: warning: the estimate matches %zu of the reference's %zu poses; "
+                 "the other %zu are not scored\n",
+                 matched, reference, reference - matched);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -110,11 +120,13 @@ int main(int argc, char** argv) {
         return 1;
       }
       WarnAmbiguous(r->ambiguous);
+      WarnCoverage(r->matched, r->reference_poses);
       if (json)
         std::printf(
-            "{\"metric\": \"ate\", \"matched\": %zu, \"ate_rmse_m\": %.6f, \"ate_mean_m\": %.6f, "
-            "\"ate_max_m\": %.6f, \"rot_rmse_rad\": %.6f}\n",
-            r->matched, r->rmse_m, r->mean_m, r->max_m, r->rot_rmse_rad);
+            "{\"metric\": \"ate\", \"matched\": %zu, \"reference_poses\": %zu, "
+            "\"ate_rmse_m\": %.6f, \"ate_mean_m\": %.6f, \"ate_max_m\": %.6f, "
+            "\"rot_rmse_rad\": %.6f}\n",
+            r->matched, r->reference_poses, r->rmse_m, r->mean_m, r->max_m, r->rot_rmse_rad);
       else
         std::printf(
             "ATE (%s alignment) over %zu matched poses: RMSE %.4f m, mean %.4f m, max %.4f m, "
@@ -127,6 +139,7 @@ int main(int argc, char** argv) {
         return 1;
       }
       WarnAmbiguous(r->ambiguous);
+      WarnCoverage(r->matched, r->reference_poses);
       if (json)
         std::printf(
             "{\"metric\": \"rpe\", \"pairs\": %zu, \"rpe_trans_rmse_m\": %.6f, "

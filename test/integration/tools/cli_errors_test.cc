@@ -190,6 +190,19 @@ TEST(CliErrors, CorruptLcmLog) {
   EXPECT_NE(replay.output.find("byte offset"), std::string::npos) << replay.output;
 }
 
+// An estimate covering part of the reference is scored on that part, with a warning naming how
+// much is left out.
+TEST(CliErrors, EvalWarnsWhenTheEstimateCoversPartOfTheReference) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/ref.txt", "0 1.0 0 0 0\n1 2.0 1 0 0\n2 3.0 2 0 0\n3 4.0 3 0 0\n");
+  Write(dir + "/half.txt", "0 1.0 0 0 0\n1 2.0 1 0 0\n");
+  const auto r = testing::Run(Bin("omni-eval") + " ate " + dir + "/ref.txt " + dir + "/half.txt");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("matches 2 of the reference's 4 poses; the other 2 are not scored"),
+            std::string::npos)
+      << r.output;
+}
+
 TEST(CliErrors, EvalOnMissingAndMalformedFiles) {
   const std::string dir = testing::TempDir();
   Write(dir + "/t.txt", "0 1.0 0 0 0\n1 2.0 1 x 0\n");

@@ -38,6 +38,22 @@ TEST(Ate, RigidlyMovedCopyHasZeroError) {
   EXPECT_LT(rpe->trans_rmse_m, 1e-9);
 }
 
+// An estimate that stops halfway is scored on its half only; the result says how much of the
+// reference it covers, so a run that ended early cannot pass for a good one.
+TEST(Ate, CoverageOfTheReferenceIsReported) {
+  const io::Trajectory ref = Spiral(100);
+  io::Trajectory est = ref;
+  est.entries.resize(50);
+  auto r = ComputeAte(ref, est);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->matched, 50u);
+  EXPECT_EQ(r->reference_poses, 100u);
+  auto rpe = ComputeRpe(ref, est);
+  ASSERT_TRUE(rpe.ok());
+  EXPECT_EQ(rpe->matched, 50u);
+  EXPECT_EQ(rpe->reference_poses, 100u);
+}
+
 TEST(Ate, NoiseGivesExpectedError) {
   const io::Trajectory ref = Spiral(2000);
   io::Trajectory est = ref;

@@ -30,6 +30,7 @@ Result<Association> Associate(const io::Trajectory& ref, const io::Trajectory& e
 
 struct AteResult {
   size_t matched = 0;
+  size_t reference_poses = 0;  // the reference's poses: matched < this leaves some unscored
   double rmse_m = 0;
   double mean_m = 0;
   double max_m = 0;
@@ -44,6 +45,8 @@ Result<AteResult> ComputeAte(const io::Trajectory& ref, const io::Trajectory& es
 
 struct RpeResult {
   size_t pairs = 0;
+  size_t matched = 0;          // reference poses matched by the estimate
+  size_t reference_poses = 0;  // the reference's poses
   double trans_rmse_m = 0;
   double trans_max_m = 0;
   double rot_rmse_rad = 0;
