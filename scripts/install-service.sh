@@ -11,7 +11,8 @@
 #   --user USER    run as this user (default: the owner of the repository); it needs the
 #                  devices (dialout group for the serial ports) and write access to the maps
 #   --config FILE  supervisor config (default config/supervisor.yaml), relative to the repo
-#   --url URL      LCM_DEFAULT_URL for every process (default udpm://239.255.76.67:7667?ttl=0)
+#   --url URL      LCM_DEFAULT_URL for every process
+#                  (default udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304)
 #   --can IF       bring the SocketCAN interface up before the stack starts (as root) ...
 #   --bitrate BPS  ... at this bit rate (default 1000000, the firmware's)
 #   --build DIR    the build tree whose bin/supervisor runs (default build/)

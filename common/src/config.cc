@@ -1,6 +1,7 @@
 #include "omni/common/config.h"
 
 #include <fstream>
+#include <map>
 #include <sstream>
 
 namespace omni {
@@ -97,6 +98,19 @@ std::string ConfigReader::Dump(const YAML::Node& n) {
 
 void ConfigReader::CollectUnknown(const YAML::Node& n, const std::string& path) {
   if (!n.IsMap()) return;
+  // A key written twice: the reader takes the first, most YAML tools the last; either way one
+  // of the two settings is silently lost.
+  std::map<std::string, int> first_line;
+  for (const auto& kv : n) {
+    if (!kv.first.IsScalar()) continue;
+    const std::string key = kv.first.Scalar();
+    const int line = kv.first.Mark().line + 1;
+    auto [it, fresh] = first_line.emplace(key, line);
+    if (!fresh)
+      state_->errors.push_back(
+          Where(kv.first) + ": key '" + (path.empty() ? key : path + "." + key) +
+          "' is given twice (also on line " + std::to_string(it->second) + "): delete one");
+  }
   for (const auto& kv : n) {
     // YAML allows a list or a map as a key; no option has such a name.
     if (!kv.first.IsScalar()) {

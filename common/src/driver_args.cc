@@ -32,8 +32,9 @@ int ParseDriverArgs(int argc, char** argv, const std::string& device_flag, int (
     } else {
       char* end = nullptr;
       out->duration_s = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0') {
-        std::fprintf(stderr, "--duration-s: '%s' is not a number\n", v.c_str());
+      // NaN, infinities, negative and absurd values used to run the driver forever.
+      if (end == v.c_str() || *end != '\0' || !(out->duration_s > 0 && out->duration_s <= 1e9)) {
+        std::fprintf(stderr, "--duration-s: '%s' must be seconds in (0, 1e9]\n", v.c_str());
         return usage(2);
       }
     }

@@ -69,6 +69,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "supervisor: %s\n", bus_or.error().message.c_str());
     return 1;
   }
+  // The children run on the supervisor's bus: it hears their heartbeats only there (with --url
+  // on another bus than theirs, each would have been killed as hung after its grace time). A
+  // child's own --url in its command line still wins.
+  if (!url.empty()) setenv("LCM_DEFAULT_URL", url.c_str(), 1);
   auto& bus = **bus_or;
   omni::SystemClock clock;
   omni::supervisor::PosixLauncher launcher;

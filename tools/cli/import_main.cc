@@ -55,6 +55,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni import: %s\n", log.error().message.c_str());
     return 1;
   }
+  if (log->records.empty()) {
+    // A file of something else (a trajectory, a g2o graph) has no CARMEN lines: an empty log
+    // written and "imported" would only surface later as a mapper with nothing to map.
+    std::fprintf(stderr,
+                 "omni import: %s holds no FLASER, RLASER, ROBOTLASER1 or ODOM line: not a CARMEN "
+                 "log (nothing written)\n",
+                 in.c_str());
+    return 1;
+  }
   std::vector<size_t> order(log->records.size());
   std::iota(order.begin(), order.end(), 0);
   std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {

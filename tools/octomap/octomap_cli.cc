@@ -363,7 +363,8 @@ int main(int argc, char** argv) {
   if (!whole(stride, 1, 64)) return Fail("--stride must be a whole number in [1, 64]");
   if (!whole(threads, 1, 64)) return Fail("--threads must be a whole number in [1, 64]");
   if (!whole(subvoxel, 0, 16)) return Fail("--subvoxel must be in [0, 16]");
-  if (!(o.max_range_m > 0)) return Fail("--max-range must be > 0");
+  if (!(o.max_range_m != 0 && std::isfinite(o.max_range_m)))
+    return Fail("--max-range must be > 0, or < 0 for unlimited");
   if (!(o.voxel_filter_m == 0 || (o.voxel_filter_m >= 0.001 && o.voxel_filter_m <= 10)))
     return Fail("--voxel-filter must be 0 (off) or in [0.001, 10] m");
   o.depth.pixel_stride = static_cast<int>(stride);

@@ -174,6 +174,12 @@ int main(int argc, char** argv) {
                  particles == 0 ? "particles" : "threads");
     return 2;
   }
+  // The config's ranges (rbpf.cc): 100000 threads aborted, 4294967297 particles became 1.
+  if (particles > 1000 || threads > 256) {
+    std::fprintf(stderr, "omni-slam: --%s must be in [1, %d]\n",
+                 particles > 1000 ? "particles" : "threads", particles > 1000 ? 1000 : 256);
+    return 2;
+  }
   if (particles > 0) opt.particles = static_cast<int>(particles);
   if (threads > 0) opt.threads = static_cast<int>(threads);
   if (omni::Status s = opt.Validate(); !s.ok()) {

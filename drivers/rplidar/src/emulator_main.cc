@@ -69,11 +69,23 @@ int main(int argc, char** argv) {
         return 2;
       }
     } else if (a == "--hz") {
-      opt.scan_hz = std::atof(next().c_str());
+      const std::string v = next();
+      char* end = nullptr;
+      opt.scan_hz = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(opt.scan_hz >= 1 && opt.scan_hz <= 100)) {
+        std::fprintf(stderr, "--hz '%s' must be in [1, 100]\n", v.c_str());
+        return 2;
+      }
     } else if (a == "--capture") {
       capture = next();
     } else if (a == "--duration-s") {
-      duration_s = std::atof(next().c_str());
+      const std::string v = next();
+      char* end = nullptr;
+      duration_s = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(duration_s > 0 && duration_s <= 1e9)) {
+        std::fprintf(stderr, "--duration-s '%s' must be seconds in (0, 1e9]\n", v.c_str());
+        return 2;
+      }
     } else {
       std::fprintf(stderr, "unknown option %s\n", a.c_str());
       return Usage(2);

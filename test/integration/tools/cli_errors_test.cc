@@ -101,6 +101,41 @@ TEST(CliErrors, TruncatedCarmenLine) {
   EXPECT_FALSE(std::filesystem::exists(dir + "/out.lcmlog"));
 }
 
+// Found by the configuration review of 2026-12-06: values that ran forever, aborted or were
+// refused against the docs, and an import that wrote an empty log.
+TEST(CliErrors, ValuesTheDocsPromiseOrForbid) {
+  const std::string dir = testing::TempDir();
+  // A file of no CARMEN lines is not imported.
+  Write(dir + "/traj.txt", "0 1.0 0 0 0\n1 2.0 1 0 0\n");
+  auto r = testing::Run(Bin("omni-import") + " carmen " + dir + "/traj.txt " + dir + "/e.lcmlog");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("not a CARMEN log"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/e.lcmlog"));
+  // The drivers' --duration-s: NaN, negative, infinite ran forever.
+  for (const char* v : {"nan", "-5", "inf", "1e300"}) {
+    r = testing::Run("timeout 10 " + Bin("omni-rplidar-driver") +
+                     " --config " OMNI_SOURCE_DIR
+                     "/config/rplidar_driver.yaml --port /nonexistent --duration-s " +
+                     v);
+    EXPECT_EQ(r.exit_code, 2) << v << ": " << r.output;
+    EXPECT_NE(r.output.find("--duration-s"), std::string::npos) << r.output;
+  }
+  // omni-slam's --particles / --threads follow the config's ranges (100000 threads aborted).
+  for (const char* opt : {"--threads 100000", "--particles 4294967297", "--particles 5000"}) {
+    r = testing::Run(Bin("omni-slam") + " rbpf " + dir + "/traj.txt --out " + dir + "/s " + opt);
+    EXPECT_EQ(r.exit_code, 2) << opt << ": " << r.output;
+    EXPECT_NE(r.output.find("must be in [1, "), std::string::npos) << opt << ": " << r.output;
+  }
+  // omni-octomap build: --max-range < 0 is "unlimited", as its help and the config say; 0 is not.
+  r = testing::Run(Bin("omni-octomap") + " build /nonexistent.lcmlog --out " + dir +
+                   "/o --max-range -1");
+  EXPECT_EQ(r.output.find("--max-range"), std::string::npos) << r.output;
+  r = testing::Run(Bin("omni-octomap") + " build /nonexistent.lcmlog --out " + dir +
+                   "/o --max-range 0");
+  EXPECT_NE(r.output.find("--max-range must be > 0, or < 0 for unlimited"), std::string::npos)
+      << r.output;
+}
+
 TEST(CliErrors, G2oUnknownTag) {
   const std::string dir = testing::TempDir();
   Write(dir + "/g.g2o", "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_FOO 0 1\n");

@@ -59,6 +59,21 @@ TEST(Config, MisspelledKeyIsNamedWithLine) {
   EXPECT_NE(s.message().find("not a known option"), std::string::npos) << s.message();
 }
 
+// Found by the configuration review of 2026-12-06: a key given twice (the first one used to win
+// silently) and a key left without a value (the default used to be taken silently).
+TEST(Config, DuplicateAndEmptyKeysAreErrors) {
+  Options o;
+  Status s = Load("particles: 5\nsigma: 0.2\nparticles: 7\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("mapper.yaml:3: key 'particles' is given twice (also on line 1)"),
+            std::string::npos)
+      << s.message();
+  s = Load("particles: 5\nsigma:\n", &o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.message().find("'sigma'"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("has no value"), std::string::npos) << s.message();
+}
+
 TEST(Config, MisspelledNestedKeyIsNamed) {
   Options o;
   const Status s = Load("particles: 5\nmotion:\n  alpah: 1\n", &o);

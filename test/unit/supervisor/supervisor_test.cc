@@ -506,6 +506,25 @@ TEST(SupervisorProcess, RestartsRealChildrenAndGivesUp) {
   EXPECT_NE(bad.output.find("children.x.comand"), std::string::npos) << bad.output;
 }
 
+// The supervisor's --url is its children's bus too (LCM_DEFAULT_URL): on different buses it
+// would never hear their heartbeats and would kill each as hung.
+TEST(SupervisorProcess, ChildrenRunOnTheSupervisorsBus) {
+  const std::string dir = ::testing::TempDir() + "/supervisor_url";
+  std::filesystem::create_directories(dir);
+  std::filesystem::remove(dir + "/url.txt");
+  {
+    std::ofstream f(dir + "/sup.yaml");
+    f << "children:\n  tell:\n    command: [sh, -c, 'echo \"$LCM_DEFAULT_URL\" > " << dir
+      << "/url.txt']\n";
+  }
+  testing::Run("timeout 30 " + testing::Bin("supervisor") +
+               " --url 'memq://' --duration-s 2 --config " + dir + "/sup.yaml");
+  std::ifstream in(dir + "/url.txt");
+  std::string got;
+  std::getline(in, got);
+  EXPECT_EQ(got, "memq://");
+}
+
 TEST(SupervisorProcess, WatchesARealProcessHeartbeatOverUdpInANetns) {
   if (testing::Run("unshare -n true").exit_code != 0)
     GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";

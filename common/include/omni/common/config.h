@@ -110,8 +110,12 @@ class ConfigReader {
     const std::string full = FullKey(key);
     state_->used.insert(full);
     const YAML::Node n = node_.IsMap() ? node_[key] : YAML::Node();
-    if (!n.IsDefined() || n.IsNull()) {
+    if (!n.IsDefined()) {
       if (required) Fail(node_, full, "", "required key is missing");
+      return;
+    }
+    if (n.IsNull()) {  // `key:` with nothing after it: a value lost in editing, not "default"
+      Fail(n, full, "", "has no value (give one, or delete the key for the default)");
       return;
     }
     T value{};
