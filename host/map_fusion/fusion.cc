@@ -20,6 +20,11 @@ Status FusionOptions::ValidateForBus() const {
 Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   FusionOptions o;
   r.Get("grid_channels", &o.grid_channels, Optional());
+  // A channel listed twice would give one mapper two votes (and count toward min_maps twice).
+  for (size_t i = 0; i < o.grid_channels.size(); ++i)
+    for (size_t j = 0; j < i; ++j)
+      if (o.grid_channels[i] == o.grid_channels[j])
+        r.AddError("grid_channels", "lists " + o.grid_channels[i] + " twice");
   r.Get("fused_channel", &o.fused_channel, Optional(), NonEmpty());
   r.Get("frame", &o.frame, Optional());
   r.Get("fuse_interval_s", &o.fuse_interval_s, Optional(), InRange(0.05, 3600.0));

@@ -11,7 +11,7 @@ Result<OdomMapperOptions> OdomMapperOptions::Load(ConfigReader& r) {
   r.Get("resolution_m", &o.resolution_m, Optional(), InRange(0.005, 1.0));
   r.Get("max_pose_gap_s", &o.max_pose_gap_s, Optional(), InRange(0.0, 10.0));
   r.Get("min_valid_beams", &o.min_valid_beams, Optional(), InRange(1, 100000));
-  r.Get("max_hit_range_m", &o.max_hit_range_m, Optional(), Positive<double>());
+  r.Get("max_hit_range_m", &o.max_hit_range_m, Optional(), InRange(0.1, 1000.0));
   r.Get("publish_interval_s", &o.publish_interval_s, Optional(), InRange(0.05, 3600.0));
   r.Get("max_odom_jump_m", &o.max_odom_jump_m, Optional(), Positive<double>());
   r.Get("max_odom_jump_rad", &o.max_odom_jump_rad, Optional(), Positive<double>());

@@ -15,16 +15,17 @@ Result<BaseBridgeOptions> Load(Result<ConfigReader> reader) {
   r.Get("node_id", &o.node_id, Optional(), InRange(0, 63));
   ConfigReader g = r.Section("geometry");
   g.Get("alpha_rad", &o.alpha_rad, Optional(), InRange(0.1, 3.0));
-  g.Get("center_to_wheel_m", &o.center_to_wheel_m, Required(), Positive<double>());
-  g.Get("wheel_radius_m", &o.wheel_radius_m, Required(), Positive<double>());
-  g.Get("ticks_per_rev", &o.ticks_per_rev, Required(), Positive<double>());
+  g.Get("center_to_wheel_m", &o.center_to_wheel_m, Required(), InRange(0.01, 5.0));
+  g.Get("wheel_radius_m", &o.wheel_radius_m, Required(), InRange(0.005, 1.0));
+  g.Get("ticks_per_rev", &o.ticks_per_rev, Required(), InRange(1.0, 1e7));
   g.Get("feedback_period_s", &o.feedback_period_s, Optional(), InRange(0.001, 1.0));
   ConfigReader l = r.Section("limits");
-  l.Get("max_vx_m_s", &o.max_vx_m_s, Required(), Positive<double>());
-  l.Get("max_vy_m_s", &o.max_vy_m_s, Required(), Positive<double>());
-  l.Get("max_omega_rad_s", &o.max_omega_rad_s, Required(), Positive<double>());
-  l.Get("max_linear_accel_m_s2", &o.max_linear_accel_m_s2, Required(), Positive<double>());
-  l.Get("max_angular_accel_rad_s2", &o.max_angular_accel_rad_s2, Required(), Positive<double>());
+  // Upper bounds: a limit far beyond any base (1e12 m/s was accepted) is no limit at all.
+  l.Get("max_vx_m_s", &o.max_vx_m_s, Required(), InRange(1e-3, 10.0));
+  l.Get("max_vy_m_s", &o.max_vy_m_s, Required(), InRange(1e-3, 10.0));
+  l.Get("max_omega_rad_s", &o.max_omega_rad_s, Required(), InRange(1e-3, 50.0));
+  l.Get("max_linear_accel_m_s2", &o.max_linear_accel_m_s2, Required(), InRange(1e-3, 100.0));
+  l.Get("max_angular_accel_rad_s2", &o.max_angular_accel_rad_s2, Required(), InRange(1e-3, 500.0));
   ConfigReader t = r.Section("timing");
   t.Get("send_rate_hz", &o.send_rate_hz, Optional(), InRange(5.0, 1000.0));
   t.Get("command_timeout_s", &o.command_timeout_s, Optional(), InRange(0.01, 10.0));

@@ -29,7 +29,7 @@ Status LoadRplidarOptions(ConfigReader& r, DriverOptions* d, NodeOptions* n) {
   ConfigReader scan = r.Section("scan");
   scan.Get("beams", &d->scan.beams, Optional(), InRange(16, 16384));
   scan.Get("range_min_m", &d->scan.range_min_m, Optional(), NonNegative<double>());
-  scan.Get("range_max_m", &d->scan.range_max_m, Optional(), Positive<double>());
+  scan.Get("range_max_m", &d->scan.range_max_m, Optional(), InRange(0.1, 1000.0));
   scan.Get("angle_offset_rad", &d->scan.angle_offset_rad, Optional(), InRange(-7.0, 7.0));
   if (d->scan.range_min_m >= d->scan.range_max_m) {
     r.AddError("scan.range_min_m", "must be < scan.range_max_m");

@@ -74,8 +74,8 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   r.Get("threads", &o.threads, Optional(), InRange(1, 64));
 
   auto mount = r.Section("camera_mount");
-  mount.Get("x_m", &o.mount.x_m, Optional());
-  mount.Get("y_m", &o.mount.y_m, Optional());
+  mount.Get("x_m", &o.mount.x_m, Optional(), InRange(-10.0, 10.0));
+  mount.Get("y_m", &o.mount.y_m, Optional(), InRange(-10.0, 10.0));
   mount.Get("height_m", &o.mount.height_m, Required(), InRange(-1.0, 3.0));
   mount.Get("yaw_rad", &o.mount.yaw_rad, Optional(), InRange(-M_PI, M_PI));
   mount.Get("tilt_rad", &o.mount.tilt_rad, Optional(), InRange(-M_PI / 2, M_PI / 2));
@@ -96,7 +96,7 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   auto grid = r.Section("grid");
   grid.Get("min_z_m", &o.grid.min_z_m, Required());
   grid.Get("max_z_m", &o.grid.max_z_m, Required());
-  grid.Get("resolution_m", &o.grid.resolution_m, Optional(), NonNegative<double>());
+  grid.Get("resolution_m", &o.grid.resolution_m, Optional(), InRange(0.0, 10.0));
   std::string up = "z";
   grid.Get("up_axis", &up, Optional(), OneOf({"x", "y", "z", "-x", "-y", "-z"}));
   UpAxis::Parse(up, &o.grid.up);

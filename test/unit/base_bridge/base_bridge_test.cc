@@ -426,6 +426,18 @@ TEST(BaseBridgeConfigTest, MisspelledKeyRejected) {
   EXPECT_NE(o.error().message.find("wheel_radus_m"), std::string::npos);
 }
 
+// A limit far beyond any base is refused (1e12 m/s used to be accepted as the speed clamp).
+TEST(BaseBridgeConfigTest, AbsurdLimitsAndGeometryAreRefused) {
+  auto o = LoadBaseBridgeOptionsFromString(
+      "can: shm:x\ngeometry: {center_to_wheel_m: 1.0e12, wheel_radius_m: 0.05, ticks_per_rev: "
+      "1440}\nlimits: {max_vx_m_s: 1.0e12, max_vy_m_s: 1, max_omega_rad_s: 1,"
+      " max_linear_accel_m_s2: 1, max_angular_accel_rad_s2: 1}\n",
+      "inline");
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("center_to_wheel_m"), std::string::npos) << o.error().message;
+  EXPECT_NE(o.error().message.find("max_vx_m_s"), std::string::npos) << o.error().message;
+}
+
 // The node on memq:// and a user-space CAN bus: the link goes down, the bridge reports it and
 // reconnects when it comes back.
 TEST(BaseBridgeNodeTest, ReconnectsWhenCanComesBack) {

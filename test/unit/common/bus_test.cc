@@ -89,19 +89,19 @@ TEST(Bus, ACorruptLogReadThroughFileIsCounted) {
     auto w = io::LcmLogWriter::Open(path);
     ASSERT_TRUE(w.ok());
     const std::string data(40, 'x');
-    for (int i = 0; i < 4; ++i) ASSERT_TRUE(w->Write(1000 + i, "X", data.data(), 40).ok());
+    for (int i = 0; i < 20; ++i) ASSERT_TRUE(w->Write(1000 + i, "X", data.data(), 40).ok());
     ASSERT_TRUE(w->Close().ok());
   }
   auto clean = Bus::Create("file://" + path + "?speed=0");
-  ASSERT_TRUE(clean.ok());
+  ASSERT_TRUE(clean.ok()) << clean.error().message;
   EXPECT_EQ((*clean)->counters().log_framing_errors, 0);
   {
     std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(207);  // the fourth event's sync word (LCM refuses a log whose second is bad)
+    f.seekp(69 * 10);  // the eleventh event's sync word (LCM refuses a log whose second is bad)
     f.put('\x00');
   }
   auto bus = Bus::Create("file://" + path + "?speed=0");
-  ASSERT_TRUE(bus.ok());
+  ASSERT_TRUE(bus.ok()) << bus.error().message;
   EXPECT_EQ((*bus)->counters().log_framing_errors, 1);
 }
 

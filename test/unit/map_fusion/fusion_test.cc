@@ -378,6 +378,12 @@ TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
   const Status bus = n->ValidateForBus();
   ASSERT_FALSE(bus.ok());
   EXPECT_NE(bus.message().find("could never fuse"), std::string::npos) << bus.message();
+  // A channel listed twice would be two votes of one mapper.
+  auto twice = ConfigReader::FromString("grid_channels: [GRID_PG, GRID_PG]\n", "t.yaml");
+  ASSERT_TRUE(twice.ok());
+  auto t = FusionOptions::Load(*twice);
+  ASSERT_FALSE(t.ok());
+  EXPECT_NE(t.error().message.find("lists GRID_PG twice"), std::string::npos) << t.error().message;
 }
 
 omni::occupancy_grid_t GridMsg(const io::GridMap& m, int64_t utime, const std::string& source) {
