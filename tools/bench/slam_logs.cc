@@ -23,4 +23,11 @@ double SlamAteGoal(const std::string& name) {
   return 0.10;
 }
 
+bool CheckCoverage(size_t matched, size_t reference_poses, std::string* note) {
+  if (matched >= reference_poses) return true;
+  *note += (note->empty() ? "" : "; ") + std::string("covers ") + std::to_string(matched) + " of " +
+           std::to_string(reference_poses) + " reference poses";
+  return matched * 20 >= reference_poses * 19;
+}
+
 }  // namespace omni::bench

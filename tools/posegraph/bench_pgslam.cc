@@ -188,17 +188,9 @@ int main(int argc, char** argv) {
         rows.push_back(row);
         continue;
       }
-      row.ok = true;
+      row.ok = omni::bench::CheckCoverage(ate->matched, ate->reference_poses, &row.note);
       row.ate_rmse = ate->rmse_m;
       row.ate_max = ate->max_m;
-      // Scored on the poses it covers: a run that stopped early is not a result (under 95 % of
-      // the reference it fails; a few scans short is said).
-      if (ate->matched < ate->reference_poses) {
-        row.note += (row.note.empty() ? "" : "; ") + std::string("covers ") +
-                    std::to_string(ate->matched) + " of " + std::to_string(ate->reference_poses) +
-                    " reference poses";
-        if (ate->matched * 20 < ate->reference_poses * 19) row.ok = false;
-      }
       std::ifstream sf(dir + "/stats.json");
       std::stringstream ss;
       ss << sf.rdbuf();

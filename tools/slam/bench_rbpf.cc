@@ -165,14 +165,7 @@ void Score(Row* row, const std::string& reference, const std::string& traj) {
   row->ate_max = ate->max_m;
   row->matched = ate->matched;
   row->reference_poses = ate->reference_poses;
-  // A run that covers only part of the log (a crash, a parse error in the peer's log reader) is
-  // not a result: under 95 % of the reference it fails; a few scans short is said.
-  if (ate->matched < ate->reference_poses) {
-    const std::string cover = "covers " + std::to_string(ate->matched) + " of " +
-                              std::to_string(ate->reference_poses) + " reference poses";
-    row->note += (row->note.empty() ? "" : "; ") + cover;
-    if (ate->matched * 20 < ate->reference_poses * 19) row->ok = false;
-  }
+  if (!omni::bench::CheckCoverage(ate->matched, ate->reference_poses, &row->note)) row->ok = false;
 }
 
 bool ParseSeeds(const std::vector<std::string>& in, std::vector<int>* out) {

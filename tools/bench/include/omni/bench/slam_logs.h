@@ -3,6 +3,7 @@
 // Freiburg 079 (where the peer already reaches about 0.08 m).
 #pragma once
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -22,5 +23,10 @@ const std::vector<SlamLog>& SlamLogs();
 
 // The goal of the log called `name`; 0.10 m for a name that is not one of SlamLogs().
 double SlamAteGoal(const std::string& name);
+
+// A run scored on `matched` of the reference's `reference_poses` poses: appends "covers N of M
+// reference poses" to `note` when some are left out, and returns false (a failed row, not a
+// figure) below 95 % of the reference (a crash, or a peer whose log reader gave up).
+bool CheckCoverage(size_t matched, size_t reference_poses, std::string* note);
 
 }  // namespace omni::bench
