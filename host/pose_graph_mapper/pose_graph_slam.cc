@@ -78,6 +78,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   m.Get("min_score", &o.match.min_score, Optional(), InRange(0.0, 1.0));
   m.Get("min_inlier_fraction", &o.match.min_inlier_fraction, Optional(), InRange(0.0, 1.0));
   m.Get("fill_gap_m", &o.match.fill_gap_m, Optional(), NonNegative<double>());
+  m.Get("max_range_m", &o.match.max_range_m, Optional(), InRange(1.0, 1000.0));
   m.Get("reject_window_edge", &o.match.reject_window_edge, Optional());
   m.Get("field_resolution_m", &o.match.field.resolution_m, Optional(), InRange(0.01, 0.2));
   m.Get("cubic_polish", &o.match.window.cubic_polish, Optional());
@@ -91,6 +92,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   l.Get("window_growth_per_m", &o.loop.window_growth_per_m, Optional(), NonNegative<double>());
   l.Get("max_window_m", &o.loop.max_window_m, Optional(), Positive<double>());
   l.Get("fill_gap_m", &o.loop.fill_gap_m, Optional(), NonNegative<double>());
+  l.Get("max_range_m", &o.loop.max_range_m, Optional(), InRange(1.0, 1000.0));
   l.Get("submap_half_width", &o.loop.submap_half_width, Optional(), InRange(0, 1000));
   l.Get("max_candidates", &o.loop.max_candidates, Optional(), InRange(1, 100));
   l.Get("min_score", &o.loop.min_score, Optional(), InRange(0.0, 1.0));

@@ -116,9 +116,11 @@ struct PoseGraphSlamOptions {
   // The mapper's matchers differ from the plugins' defaults (docs/posegraph.md, "Sparse logs"):
   // submaps follow the surfaces between neighbouring beams, a keyframe match whose optimum is
   // on its window's edge is dropped, and the loop search covers 5 keyframes either side of the
-  // candidate in a window that grows with the path since the last loop.
+  // candidate in a window that grows with the path since the last loop. Keyframe matches use
+  // beams up to 16 m (the loop search keeps 20 m): docs/posegraph.md, "Match range".
   KeyframeMatchOptions match = [] {
     KeyframeMatchOptions m;
+    m.max_range_m = 16.0;
     m.fill_gap_m = 0.5;
     m.reject_window_edge = true;
     return m;
