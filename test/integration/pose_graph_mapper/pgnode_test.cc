@@ -8,6 +8,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -611,6 +612,32 @@ TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
   EXPECT_EQ(node.absolute_channel, "");
   EXPECT_FALSE(slam.use_gyro);
   EXPECT_EQ(node.imu_channel, "IMU");
+}
+
+// The matchers' beam cut-offs are keys: the shipped values are read (16 m keyframe matching,
+// 20 m loop search, docs/posegraph.md "Match range") and a value out of range is refused.
+TEST(PoseGraphMapperNode, MatchRangesAreReadAndChecked) {
+  const std::string path = std::string(OMNI_SOURCE_DIR) + "/config/pose_graph_mapper.yaml";
+  pgm::PoseGraphSlamOptions slam;
+  pgm::BatchOptions batch;
+  pgm::PoseGraphNodeOptions node;
+  slam.match.max_range_m = slam.loop.max_range_m = 0;
+  ASSERT_TRUE(pgm::LoadSlamConfigFile(path, &slam, &batch, &node).ok());
+  EXPECT_EQ(slam.match.max_range_m, 16.0);
+  EXPECT_EQ(slam.loop.max_range_m, 20.0);
+  EXPECT_EQ(pgm::PoseGraphSlamOptions{}.match.max_range_m, 16.0) << "built-in default drifted";
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string bad = text.str();
+  const auto at = bad.find("max_range_m: 16.0");
+  ASSERT_NE(at, std::string::npos);
+  bad.replace(at, 17, "max_range_m: 0.5");
+  const std::string dir = testing::TempDir();
+  std::ofstream(dir + "/bad.yaml") << bad;
+  const Status st = pgm::LoadSlamConfigFile(dir + "/bad.yaml", &slam, &batch, &node);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.error().message.find("max_range_m"), std::string::npos) << st.error().message;
 }
 
 }  // namespace
