@@ -54,7 +54,11 @@ Result<LcmLogReader> LcmLogReader::Open(const std::string& path) {
 }
 
 LcmLogReader::LcmLogReader(LcmLogReader&& o) noexcept
-    : f_(o.f_), path_(std::move(o.path_)), offset_(o.offset_), skipped_bytes_(o.skipped_bytes_) {
+    : f_(o.f_),
+      path_(std::move(o.path_)),
+      offset_(o.offset_),
+      skipped_bytes_(o.skipped_bytes_),
+      truncated_tail_(o.truncated_tail_) {
   o.f_ = nullptr;
 }
 LcmLogReader& LcmLogReader::operator=(LcmLogReader&& o) noexcept {
@@ -64,12 +68,24 @@ LcmLogReader& LcmLogReader::operator=(LcmLogReader&& o) noexcept {
     path_ = std::move(o.path_);
     offset_ = o.offset_;
     skipped_bytes_ = o.skipped_bytes_;
+    truncated_tail_ = o.truncated_tail_;
     o.f_ = nullptr;
   }
   return *this;
 }
 LcmLogReader::~LcmLogReader() {
   if (f_) std::fclose(f_);
+}
+
+bool LcmLogReader::SyncWordAfter(uint64_t from) {
+  if (std::fseek(f_, static_cast<long>(from), SEEK_SET) != 0) return false;
+  uint32_t window = 0;
+  int have = 0, c;
+  while ((c = std::fgetc(f_)) != EOF) {
+    window = (window << 8) | static_cast<uint32_t>(c);
+    if (++have >= 4 && window == kSync) return true;
+  }
+  return false;
 }
 
 Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
@@ -102,8 +118,11 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     const size_t n = std::fread(hdr, 1, sizeof(hdr), f_);
     if (n == 0) return false;
     if (n < sizeof(hdr)) {
+      truncated_tail_ = true;
       return MakeError(ErrorCode::kParse, where(start) + "truncated event header (" +
-                                              std::to_string(n) + " of 28 bytes)");
+                                              std::to_string(n) +
+                                              " of 28 bytes): the log ends "
+                                              "inside an event");
     }
     int32_t chan_len = 0, data_len = 0;
     const std::string problem = CheckHeader(hdr, &chan_len, &data_len);
@@ -140,7 +159,13 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
       // Past the end of the file: a truncated last event, or a corrupt length with intact
       // events after it, which a resync finds.
       if (resync && scan_from(start, start + 1)) continue;
-      return MakeError(ErrorCode::kParse, where(start) + "event truncated: " + announced);
+      if (resync || !SyncWordAfter(start + 1)) {
+        truncated_tail_ = true;
+        return MakeError(ErrorCode::kParse, where(start) + "event truncated: " + announced +
+                                                ": the log ends inside it");
+      }
+      return MakeError(ErrorCode::kParse, where(start) + "event truncated: " + announced +
+                                              "; events follow (its length is corrupt)");
     }
     offset_ =
         start + sizeof(hdr) + static_cast<uint64_t>(chan_len) + static_cast<uint64_t>(data_len);

@@ -39,7 +39,8 @@ void Usage(std::FILE* f) {
       "  --min-gap-us spaces consecutive events by at least N microseconds (default 200) so\n"
       "  bursts of equal timestamps do not overflow UDP receive buffers.\n"
       "  A corrupt log stops the replay with the byte offset, unless --resync skips to\n"
-      "  the next intact event.\n"
+      "  the next intact event. A log that ends inside an event (a recording cut short) is\n"
+      "  replayed up to it with a warning, exit status 0.\n"
       "  --max-gap S: a jump forward of the log's time by more than S seconds (default 5; two\n"
       "  recordings joined, a clock set forward) is replayed as S; a jump back (a clock set\n"
       "  back) as no gap. Both are counted and said at the end.\n");
@@ -132,6 +133,7 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   omni::io::LcmLogEvent ev;
   int64_t published = 0, skipped = 0, last_pub = 0;
+  bool truncated_tail = false;
   // The schedule: the log time `anchor_log` is due at the monotonic time `anchor_wall`; each
   // event is due after it by its log time's distance / speed. A jump of the log's time (back,
   // or forward by more than --max-gap) moves the anchor instead of the schedule following it.
@@ -142,6 +144,12 @@ int main(int argc, char** argv) {
     if (!more.ok()) {
       std::fprintf(stderr, "omni replay: %s (after %lld events)\n", more.error().message.c_str(),
                    static_cast<long long>(published));
+      // A log cut short while recording: every complete event is replayed, the partial last
+      // one cannot be; a warning, not a failed replay.
+      if (reader->truncated_tail()) {
+        truncated_tail = true;
+        break;
+      }
       return 1;
     }
     if (!*more) break;
@@ -194,6 +202,10 @@ int main(int argc, char** argv) {
               static_cast<long long>(published), path.c_str(), static_cast<long long>(skipped),
               static_cast<unsigned long long>(reader->skipped_bytes()),
               g_stop ? " [interrupted]" : "");
+  if (truncated_tail)
+    std::printf(
+        "  the log ends inside an event (cut while recording?): that partial event is "
+        "not replayed\n");
   if (jumps_back + gaps_cut > 0)
     std::printf("  log time: %lld jumps back, %lld gaps over %g s shortened\n",
                 static_cast<long long>(jumps_back), static_cast<long long>(gaps_cut), max_gap_s);

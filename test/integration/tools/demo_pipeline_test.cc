@@ -94,6 +94,42 @@ TEST(DemoPipeline, ReplayKeepsItsPaceAcrossLogTimeJumpsAndStopsOnSignal) {
   EXPECT_LT(stop, 3.0);
 }
 
+// A recording cut short (the robot lost power while logging) replays up to its partial last
+// event with a warning and exit status 0; a length corrupted past the end with events after it
+// is still an error (it used to be the same error as the cut, exit 1 for both).
+TEST(DemoPipeline, ACutRecordingReplaysToItsEndAndACorruptOneFails) {
+  const std::string dir = testing::TempDir() + "/replay_cut";
+  std::filesystem::create_directories(dir);
+  const std::string log = dir + "/cut.lcmlog";
+  {
+    auto w = io::LcmLogWriter::Open(log);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const char payload[8] = {1, 2, 3, 4, 5, 6, 7, 8};
+    for (int i = 0; i < 30; ++i) ASSERT_TRUE(w->Write(1000 + i, "X", payload, 8).ok());
+    ASSERT_TRUE(w->Close().ok());
+  }
+  const auto size = std::filesystem::file_size(log);  // 30 events of 28 + 1 + 8 bytes
+  ASSERT_EQ(size, 30u * 37u);
+  std::filesystem::resize_file(log, size - 5);
+  const std::string replay = testing::Bin("omni-replay") + " " + log + " --speed 0 --url memq://";
+  auto r = testing::Run(replay + " 2>&1");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("replayed 29 events"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("the log ends inside an event"), std::string::npos) << r.output;
+  // Event 10's data length 8 -> 4104: past the end, with 19 intact events after it.
+  {
+    std::fstream f(log, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(10 * 37 + 26);
+    f.put(static_cast<char>(0x10));
+  }
+  r = testing::Run(replay + " 2>&1");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("events follow"), std::string::npos) << r.output;
+  r = testing::Run(replay + " --resync 2>&1");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("replayed 28 events"), std::string::npos) << r.output;
+}
+
 TEST(DemoPipeline, LogReplayThroughLcmFileProvider) {
   OMNI_REQUIRE_DATASET(clf, "intel-raw/intel.clf");
   const std::string dir = testing::TempDir();

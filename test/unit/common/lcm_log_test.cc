@@ -184,6 +184,47 @@ TEST(LcmLog, TruncationIsAnError) {
   auto bad = r->Next(&ev);
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.error().message.find("truncated"), std::string::npos) << bad.error().message;
+  EXPECT_TRUE(r->truncated_tail()) << "a log cut inside its last event";
+  // Cut inside the last event's header: a tail too.
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(all.data(), static_cast<std::streamsize>(all.size() - 34 + 10));
+  }
+  for (const bool resync : {false, true}) {
+    auto h = LcmLogReader::Open(path);
+    ASSERT_TRUE(*h->Next(&ev, resync));
+    ASSERT_TRUE(*h->Next(&ev, resync));
+    EXPECT_FALSE(h->Next(&ev, resync).ok());
+    EXPECT_TRUE(h->truncated_tail()) << resync;
+  }
+}
+
+// A length running past the end of the file with an intact event after it is corruption, not
+// a log cut short: without resync an error that says events follow (no tail), with resync the
+// next event is read.
+TEST(LcmLog, ALengthPastTheEndWithEventsAfterIsNotATail) {
+  const std::string path = WriteSample(omni::testing::TempDir());
+  std::ifstream in(path, std::ios::binary);
+  std::string all((std::istreambuf_iterator<char>(in)), {});
+  ASSERT_EQ(all.size(), 104u);
+  all[34 + 27] = 100;  // second event's data length 6 -> 100, past the end
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(all.data(), static_cast<std::streamsize>(all.size()));
+  }
+  auto r = LcmLogReader::Open(path);
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r->Next(&ev));
+  auto bad = r->Next(&ev);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_FALSE(r->truncated_tail());
+  EXPECT_NE(bad.error().message.find("events follow"), std::string::npos) << bad.error().message;
+  auto s = LcmLogReader::Open(path);
+  ASSERT_TRUE(*s->Next(&ev, true));
+  ASSERT_TRUE(*s->Next(&ev, true));
+  EXPECT_EQ(ev.utime, 300);
+  EXPECT_FALSE(*s->Next(&ev, true));
+  EXPECT_FALSE(s->truncated_tail());
 }
 
 }  // namespace

@@ -34,6 +34,9 @@ class LcmLogReader {
   // skipped_bytes()) and only a truncated final event is an error.
   Result<bool> Next(LcmLogEvent* event, bool resync = false);
   uint64_t skipped_bytes() const { return skipped_bytes_; }
+  // After an error from Next: the file ends inside the event (a recording cut short, the
+  // usual end of a log whose writer lost power); every complete event before it was read.
+  bool truncated_tail() const { return truncated_tail_; }
   const std::string& path() const { return path_; }
 
  private:
@@ -42,6 +45,8 @@ class LcmLogReader {
   std::string path_;
   uint64_t offset_ = 0;
   uint64_t skipped_bytes_ = 0;
+  bool truncated_tail_ = false;
+  bool SyncWordAfter(uint64_t from);  // moves the file position
 };
 
 // Walks the event headers of a log, seeking over channels and data, and names the first event
