@@ -98,8 +98,16 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   // The clock set back: the step is not a period of motion.
   int64_t dt_us = last_send_us_ == 0 || now_us < last_send_us_ ? period_us : now_us - last_send_us_;
   dt_us = std::min<int64_t>(dt_us, 5 * period_us);
-  const bool fresh =
-      have_cmd_ && now_us - cmd_us_ <= static_cast<int64_t>(o_.command_timeout_s * 1e6);
+  // The clock set back past the command's stamp: its age restarts from now, so it lives at most
+  // one more timeout (never the length of the step).
+  if (have_cmd_ && now_us < cmd_us_) cmd_us_ = now_us;
+  // A command that went stale stays dead: a later step back of the clock cannot revive the last
+  // twist of a commander that has stopped (it did: the base drove off again, unattended).
+  if (have_cmd_ && now_us - cmd_us_ > static_cast<int64_t>(o_.command_timeout_s * 1e6)) {
+    have_cmd_ = false;
+    ++counters_.commands_expired;
+  }
+  const bool fresh = have_cmd_;
   kinematics::BodyTwist<double> target;
   if (fresh) target = {cmd_.vx_m_s, cmd_.vy_m_s, cmd_.omega_rad_s};
   const bool at_rest = sent_.vx_m_s == 0 && sent_.vy_m_s == 0 && sent_.omega_rad_s == 0;
