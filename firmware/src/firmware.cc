@@ -389,7 +389,7 @@ void Firmware::SendFeedback() {
   const uint8_t node = params_.node_id;
   if (uptime_ms_ - feedback_ms_ >= params_.feedback_period_ms) {
     feedback_ms_ = uptime_ms_;
-    ++feedback_seq_;
+    feedback_seq_ = can::NextFeedbackSeq(feedback_seq_);
     can::EncoderFeedback enc;
     can::WheelTriple speed, current;
     enc.seq = speed.seq = current.seq = feedback_seq_;

@@ -282,10 +282,13 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
   if (have_enc_ && now_us - last_enc_us_ > gap_us) have_enc_ = false;
   last_enc_us_ = now_us;
   if (have_enc_) {
-    const uint16_t d = static_cast<uint16_t>(e.seq - last_enc_seq_);
+    const int32_t d = fwcan::FeedbackSeqStep(last_enc_seq_, e.seq);
     if (d == 0) return;  // duplicate
-    if (d >= 0x8000) {
-      have_enc_ = false;  // sequence went backwards: the firmware restarted; re-base
+    if (d < 0) {
+      // The firmware restarted (its cycle numbers never come back into 0-255 otherwise), or the
+      // number went back: re-base before its counts, which started again, are taken as motion.
+      have_enc_ = false;
+      ++counters_.firmware_restarts_seen;
     } else if (d > 1) {
       counters_.feedback_frames_lost += d - 1;  // positions are absolute: odometry survives
     }

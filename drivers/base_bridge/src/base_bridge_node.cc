@@ -48,6 +48,7 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("commands_rejected", [c] { return c->commands_rejected; });
   heartbeat_.AddCounter("commands_in_estop", [c] { return c->commands_in_estop; });
   heartbeat_.AddCounter("commands_expired", [c] { return c->commands_expired; });
+  heartbeat_.AddCounter("firmware_restarts_seen", [c] { return c->firmware_restarts_seen; });
   heartbeat_.AddCounter("estops_sent", [c] { return c->estops_sent; });
   heartbeat_.AddCounter("can_rx_errors", [c] { return c->can_rx_errors; });
   heartbeat_.AddCounter("unknown_frames", [c] { return c->unknown_frames; });

@@ -253,7 +253,7 @@ struct FakeFirmware {
       const int64_t counts = static_cast<int64_t>(std::floor(pos_m[w] * ticks_per_m)) + 60000;
       e.position_low16[w] = static_cast<uint16_t>(counts & 0xFFFF);
     }
-    e.seq = ++seq;
+    e.seq = seq = fwcan::NextFeedbackSeq(seq);
     return fwcan::EncodeEncoderFeedback(1, e);
   }
   kinematics::OmniGeometry<double> g;
@@ -320,6 +320,53 @@ TEST(BaseBridgeTest, FirmwareRestartAfterLongUptimeDoesNotJumpTheOdometry) {
   b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), t);
   b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), t + 1000000);
   EXPECT_EQ(b.counters().firmware_returns, 1);
+}
+
+// The same restart after only 150 ms of silence (a watchdog reset: a hang, a few ms of boot),
+// shorter than the silence time: the feedback numbering, which never comes back into 0-255
+// once past it, tells the restart. Before, the old counts were taken as motion (found in review
+// with a fake board: the odometry jumped 2.52 m with the wheels at rest).
+TEST(BaseBridgeTest, AQuickFirmwareRestartIsToldByItsFeedbackNumbering) {
+  const BaseBridgeOptions o = TestOptions();
+  BaseBridge b(o);
+  FakeFirmware fw(o);
+  fw.seq = 40000;
+  fw.pos_m[0] = 3.0;  // wheel 1 well away from where a new board starts counting
+  fw.pos_m[1] = -2.0;
+  int64_t t = 0;
+  for (int i = 0; i <= 100; ++i) b.OnFrame(fw.Next({0.0, 0.0, 0.0}, 0.01), t += 10000);
+  Odometry before;
+  ASSERT_TRUE(b.TakeOdometry(&before));
+  EXPECT_NEAR(before.x_m, 0.0, 1e-9);
+  FakeFirmware rebooted(o);
+  rebooted.seq = 0;
+  t += 150000;
+  for (int i = 0; i <= 50; ++i) b.OnFrame(rebooted.Next({0.0, 0.0, 0.0}, 0.01), t += 10000);
+  Odometry after;
+  ASSERT_TRUE(b.TakeOdometry(&after));
+  EXPECT_NEAR(after.x_m, 0.0, 1e-9);
+  EXPECT_NEAR(after.y_m, 0.0, 1e-9);
+  EXPECT_NEAR(after.yaw_rad, 0.0, 1e-9);
+  EXPECT_EQ(b.counters().firmware_restarts_seen, 1);
+  EXPECT_EQ(b.counters().feedback_frames_lost, 0);
+}
+
+// The numbering helper: 65535 wraps to 256; steps across the wrap and from the boot range are
+// counted; anything that lands back in 0-255 other than by counting up there is a restart.
+TEST(BaseBridgeTest, FeedbackNumberingSteps) {
+  EXPECT_EQ(fwcan::NextFeedbackSeq(0), 1);
+  EXPECT_EQ(fwcan::NextFeedbackSeq(255), 256);
+  EXPECT_EQ(fwcan::NextFeedbackSeq(65535), 256);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(5, 5), 0);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(5, 6), 1);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(250, 260), 10);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(65535, 256), 1);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(65530, 260), 10);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(40000, 1), -1);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(200, 3), -1);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(40000, 39990), -1);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(300, 300 + 32639), 32639);
+  EXPECT_EQ(fwcan::FeedbackSeqStep(300, 300 + 32640), -1);
 }
 
 // Feedback slower than the silence time (a board configured for 2 Hz feedback) is not silence.

@@ -70,6 +70,24 @@ struct EncoderFeedback {
   uint16_t position_low16[kNumWheels] = {0, 0, 0};  // x4 counts mod 2^16
   uint16_t seq = 0;                                 // feedback cycle counter
 };
+
+// Feedback cycle numbers run 1, 2, ... 65535 after boot, then wrap to 256, never back into
+// 0-255: a number below 256 that does not follow its predecessor is a board that restarted,
+// however briefly it was silent and however long it had been up.
+inline constexpr uint16_t kFeedbackSeqWrapTo = 256;
+inline constexpr uint16_t NextFeedbackSeq(uint16_t s) {
+  return s == 0xFFFF ? kFeedbackSeqWrapTo : static_cast<uint16_t>(s + 1);
+}
+// Cycles from `last` to `seq`: 1 = the next, 0 = the same again, -1 = the board restarted (or the
+// number went back more than half the ring).
+inline constexpr int32_t FeedbackSeqStep(uint16_t last, uint16_t seq) {
+  if (seq == last) return 0;
+  if (seq < kFeedbackSeqWrapTo) return last < seq ? seq - last : -1;
+  if (last < kFeedbackSeqWrapTo) return seq - last;
+  constexpr int32_t kRing = 0x10000 - kFeedbackSeqWrapTo;
+  const int32_t d = ((static_cast<int32_t>(seq) - last) % kRing + kRing) % kRing;
+  return d >= kRing / 2 ? -1 : d;
+}
 struct ParamRequest {
   uint16_t id = 0;
   float value = 0.f;  // SET_PARAM only

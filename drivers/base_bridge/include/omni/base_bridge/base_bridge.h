@@ -109,7 +109,8 @@ struct Counters {
   int64_t commands_rejected = 0;  // non-finite values or unknown mode
   int64_t commands_in_estop = 0;  // twists refused while ESTOP is latched (until CLEAR_FAULTS)
   int64_t commands_expired = 0;   // commands that went stale (no newer one within the timeout)
-  int64_t estops_sent = 0;        // ESTOP frames, first and repeated until the firmware shows it
+  int64_t firmware_restarts_seen = 0;  // feedback numbering started again: encoders re-based
+  int64_t estops_sent = 0;  // ESTOP frames, first and repeated until the firmware shows it
   int64_t frames_sent = 0;
   int64_t frames_in = 0;
   int64_t can_rx_errors = 0;         // our node, wrong length
