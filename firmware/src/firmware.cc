@@ -197,6 +197,12 @@ void Firmware::HandleSaveParams(uint8_t action) {
 }
 
 void Firmware::HandleFrame(const CanFrame& f) {
+  if (f.id == can::kForeignFrameId) {
+    // A remote or extended-id frame (node 63's id otherwise): counted whatever our node is.
+    ++counters_.rx_frames;
+    ++counters_.rx_unknown;
+    return;
+  }
   if (can::NodeOf(f.id) != params_.node_id) return;  // another node's traffic: not ours
   ++counters_.rx_frames;
   const uint8_t cmd = can::CommandOf(f.id);

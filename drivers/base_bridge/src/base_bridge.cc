@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <sstream>
 
 #include "omni/common/time.h"
@@ -14,6 +15,16 @@ namespace fwcan = omni::firmware::can;
 
 namespace {
 constexpr int64_t kEstopRepeatUs = 100000;
+// The parameters whose values the bridge's odometry depends on, checked at connect.
+constexpr uint16_t kGeometryParams[] = {firmware::kParamAlpha, firmware::kParamCenterToWheel,
+                                        firmware::kParamWheelRadius, firmware::kParamTicksPerRev,
+                                        firmware::kParamFeedbackPeriodMs};
+constexpr uint32_t kAllGeometryBits = (1u << std::size(kGeometryParams)) - 1;
+uint32_t GeometryBit(uint16_t id) {
+  for (size_t i = 0; i < std::size(kGeometryParams); ++i)
+    if (kGeometryParams[i] == id) return 1u << i;
+  return 0;
+}
 }  // namespace
 
 BaseBridge::BaseBridge(const BaseBridgeOptions& options)
@@ -83,13 +94,14 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   }
   // Once the firmware answers, check that it uses our geometry (else odometry would be wrong);
   // while a parameter differs, ask again every 5 s so a corrected one clears the warning.
+  // Until each of the five has answered, the ones still missing are asked again every second
+  // (a request lost in a full receive FIFO on the board used to leave its check undone for good).
   const int64_t recheck_us = geometry_checked_ ? 5000000 : 1000000;
   if ((!geometry_checked_ || !mismatches_.empty()) && have_hb_ &&
       PeriodDue(now_us, geometry_query_us_, recheck_us + 1)) {
     geometry_query_us_ = now_us;
-    for (uint16_t id :
-         {firmware::kParamAlpha, firmware::kParamCenterToWheel, firmware::kParamWheelRadius,
-          firmware::kParamTicksPerRev, firmware::kParamFeedbackPeriodMs}) {
+    for (uint16_t id : kGeometryParams) {
+      if (!geometry_checked_ && (geometry_answered_ & GeometryBit(id))) continue;
       out->push_back(fwcan::EncodeGetParam(node_, id));
     }
   }
@@ -247,7 +259,8 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
       return;
   }
   if (r.result != fwcan::kParamOk) return;
-  geometry_checked_ = true;
+  geometry_answered_ |= GeometryBit(r.id);
+  geometry_checked_ = geometry_answered_ == kAllGeometryBits;
   if (std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours))) {
     std::ostringstream s;
     s << "firmware " << what << " = " << r.value << " but config says " << ours;
@@ -271,6 +284,7 @@ void BaseBridge::FirmwareReturned() {
   ++counters_.firmware_returns;
   have_enc_ = false;
   geometry_checked_ = false;
+  geometry_answered_ = 0;
 }
 
 void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us) {
@@ -356,6 +370,7 @@ void BaseBridge::OnLinkUp(int64_t now_us) {
   link_up_ = true;
   ++counters_.reconnects;
   geometry_checked_ = false;
+  geometry_answered_ = 0;
 }
 
 bool BaseBridge::TakeOdometry(Odometry* out) {

@@ -112,7 +112,10 @@ void BaseBridgeNode::SpinOnce() {
         break;
       }
       if (!r.value()) break;
-      if (f.extended || f.rtr) continue;
+      if (f.extended || f.rtr) {
+        bridge_.OnForeignFrame();  // not our protocol's: counted with the unknown frames
+        continue;
+      }
       firmware::CanFrame ff;
       ff.id = static_cast<uint16_t>(f.id);
       ff.dlc = f.dlc;

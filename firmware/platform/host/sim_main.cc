@@ -22,6 +22,7 @@
 #include "omni/can/can_bus.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/firmware/can_protocol.h"
 #include "omni/firmware/firmware.h"
 #include "plant.h"
 #include "sim_config.h"
@@ -46,7 +47,7 @@ void Usage(std::FILE* f) {
 omni::firmware::CanFrame ToFw(const omni::can::Frame& f) {
   omni::firmware::CanFrame o;
   if (f.extended || f.rtr) {
-    o.id = 0x7FF;
+    o.id = omni::firmware::can::kForeignFrameId;
     o.dlc = 0;
     return o;
   }

@@ -1,5 +1,6 @@
 #include "hal_stm32f4.h"
 
+#include "omni/firmware/can_protocol.h"
 #include "omni/firmware/param_store.h"
 #include "regs.h"
 
@@ -196,7 +197,7 @@ bool Stm32Hal::CanRead(CanFrame* frame) {
   // whatever the mailbox held (a remote 0x024 read as a twist, 0x023 as CLEAR_FAULTS). Both are
   // reported as the unknown standard id 0x7FF and counted as such.
   if (rir & ((1u << 2) | (1u << 1))) {
-    frame->id = 0x7FF;
+    frame->id = can::kForeignFrameId;
     frame->dlc = 0;
     return true;
   }

@@ -2,9 +2,11 @@
 // malformed frames; the node's reconnect on a user-space CAN bus; the shipped configs.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omni/base_bridge/base_bridge.h"
@@ -460,6 +462,60 @@ TEST(BaseBridgeTest, RandomFramesNeverCrash) {
   EXPECT_GT(b.counters().can_rx_errors + b.counters().unknown_frames, 0);
 }
 
+// The firmware's answers to the bridge's geometry queries, with the config's values, for every
+// parameter but those in `skip`.
+void AnswerGeometry(BaseBridge* b, const BaseBridgeOptions& o, int64_t t,
+                    const std::vector<uint16_t>& skip) {
+  const std::pair<uint16_t, double> values[] = {
+      {omni::firmware::kParamAlpha, o.alpha_rad},
+      {omni::firmware::kParamCenterToWheel, o.center_to_wheel_m},
+      {omni::firmware::kParamWheelRadius, o.wheel_radius_m},
+      {omni::firmware::kParamTicksPerRev, o.ticks_per_rev},
+      {omni::firmware::kParamFeedbackPeriodMs, o.feedback_period_s * 1000.0}};
+  for (const auto& [id, v] : values) {
+    if (std::find(skip.begin(), skip.end(), id) != skip.end()) continue;
+    fwcan::ParamReply r;
+    r.id = id;
+    r.value = static_cast<float>(v);
+    b->OnFrame(fwcan::EncodeParamValue(1, r), t);
+  }
+}
+
+// Only one of the five geometry queries answered (the others lost in the board's full receive
+// FIFO): the missing ones are asked again every second until each has answered, and only then
+// is the check done. Before, the first answer marked it done and the rest were never asked again.
+TEST(BaseBridgeTest, UnansweredGeometryQueriesAreAskedAgain) {
+  const BaseBridgeOptions o = TestOptions();
+  BaseBridge b(o);
+  std::vector<CanFrame> out;
+  int64_t beat = 2000000;  // the firmware beats every 100 ms all along
+  auto queried = [&](int64_t t) {
+    out.clear();
+    for (; beat <= t; beat += 100000)
+      b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), beat);
+    b.Tick(t, &out);
+    std::vector<uint16_t> ids;
+    for (const CanFrame& f : out) {
+      if (fwcan::CommandOf(f.id) != fwcan::kGetParam) continue;
+      fwcan::ParamRequest q;
+      if (fwcan::DecodeParamRequest(f, &q)) ids.push_back(q.id);
+    }
+    return ids;
+  };
+  EXPECT_EQ(queried(2000000).size(), 5u);
+  fwcan::ParamReply r;
+  r.id = omni::firmware::kParamAlpha;
+  r.value = static_cast<float>(o.alpha_rad);
+  b.OnFrame(fwcan::EncodeParamValue(1, r), 2000000);
+  EXPECT_TRUE(queried(2500000).empty());
+  const auto again = queried(3100000);
+  EXPECT_EQ(again.size(), 4u);
+  EXPECT_EQ(std::count(again.begin(), again.end(), omni::firmware::kParamAlpha), 0);
+  AnswerGeometry(&b, o, 3100000, {});
+  EXPECT_TRUE(queried(4200000).empty()) << "all five answered and equal: checked";
+  EXPECT_TRUE(queried(9300000).empty());
+}
+
 TEST(BaseBridgeTest, GeometryMismatchReported) {
   BaseBridge b(TestOptions());
   b.OnFrame(fwcan::EncodeHeartbeat(1, fwcan::Heartbeat{}), 2000000);
@@ -468,6 +524,8 @@ TEST(BaseBridgeTest, GeometryMismatchReported) {
   int queries = 0;
   for (const CanFrame& f : out) queries += fwcan::CommandOf(f.id) == fwcan::kGetParam;
   EXPECT_EQ(queries, 5);
+  const BaseBridgeOptions o = TestOptions();
+  AnswerGeometry(&b, o, 2000000, {omni::firmware::kParamWheelRadius});
   fwcan::ParamReply r;
   r.id = omni::firmware::kParamWheelRadius;
   r.value = 0.06f;

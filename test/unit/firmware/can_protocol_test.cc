@@ -155,10 +155,14 @@ TEST(CanFirmwareTest, MalformedFramesCountedAndIgnored) {
   h.Send(own_feedback);
   CanFrame other_node = EncodeSetBodyTwist(2, BodyTwist{0.3f, 0.f, 0.f, 0});
   h.Send(other_node);
+  CanFrame remote;  // an RTR or extended-id frame as the HAL hands it over
+  remote.id = kForeignFrameId;
+  remote.dlc = 0;
+  h.Send(remote);
   h.Run(1);
   EXPECT_EQ(h.fw.counters().rx_bad_length, 1u);
-  EXPECT_EQ(h.fw.counters().rx_unknown, 2u);
-  EXPECT_EQ(h.fw.counters().rx_frames, 3u);  // the other node's frame is not ours
+  EXPECT_EQ(h.fw.counters().rx_unknown, 3u) << "a remote/extended frame is counted on node 1 too";
+  EXPECT_EQ(h.fw.counters().rx_frames, 4u);  // the other node's frame is not ours
   EXPECT_EQ(h.fw.state(), State::kIdle);
   EXPECT_TRUE(h.MotorsOff());
 }

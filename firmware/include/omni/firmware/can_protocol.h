@@ -37,6 +37,9 @@ enum Command : uint8_t {
 inline constexpr uint16_t MakeId(uint8_t node, uint8_t cmd) {
   return static_cast<uint16_t>(((node & 0x3Fu) << 5) | (cmd & 0x1Fu));
 }
+// What a HAL hands over for a remote (RTR) or extended-id frame: never a command, whatever node
+// the firmware is, and counted as unknown (rx_unknown).
+inline constexpr uint16_t kForeignFrameId = 0x7FF;
 inline constexpr uint8_t NodeOf(uint16_t id) { return static_cast<uint8_t>((id >> 5) & 0x3F); }
 inline constexpr uint8_t CommandOf(uint16_t id) { return static_cast<uint8_t>(id & 0x1F); }
 

@@ -136,6 +136,8 @@ class BaseBridge {
   explicit BaseBridge(const BaseBridgeOptions& options);
 
   void OnCommand(const Command& cmd, int64_t now_us);
+  // A remote (RTR) or extended-id frame read from the bus: never ours, counted as unknown.
+  void OnForeignFrame() { ++counters_.unknown_frames; }
   void OnFrame(const firmware::CanFrame& f, int64_t now_us);
   // Periodic work; appends frames to send. Call often (every few ms).
   void Tick(int64_t now_us, std::vector<firmware::CanFrame>* out);
@@ -201,7 +203,8 @@ class BaseBridge {
   // Link.
   bool link_up_ = true;
   int64_t link_down_since_us_ = 0;
-  bool geometry_checked_ = false;
+  bool geometry_checked_ = false;   // every geometry parameter has answered once
+  uint32_t geometry_answered_ = 0;  // which have (bits in kGeometryParams' order)
   void FirmwareReturned();
   int64_t SilenceUs() const;  // missed_heartbeats_for_silent heartbeat periods
   int64_t geometry_query_us_ = 0;
