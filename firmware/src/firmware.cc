@@ -72,7 +72,26 @@ void Firmware::EnterFault(uint32_t bit) {
 }
 
 void Firmware::Send(const CanFrame& f) {
-  if (hal_->CanBusOff() || hal_->CanWrite(f) != FwStatus::kOk) ++counters_.tx_dropped;
+  if (tx_count_ == kTxQueue) {
+    ++counters_.tx_dropped;
+  } else {
+    tx_queue_[(tx_head_ + tx_count_) % kTxQueue] = f;
+    ++tx_count_;
+  }
+  DrainTx();
+}
+
+void Firmware::DrainTx() {
+  if (hal_->CanBusOff()) {
+    // Nothing leaves a bus-off controller; what is queued would be stale when it recovers.
+    counters_.tx_dropped += static_cast<uint32_t>(tx_count_);
+    tx_count_ = 0;
+    return;
+  }
+  while (tx_count_ > 0 && hal_->CanWrite(tx_queue_[tx_head_]) == FwStatus::kOk) {
+    tx_head_ = (tx_head_ + 1) % kTxQueue;
+    --tx_count_;
+  }
 }
 
 void Firmware::OnMotionCommand(const float target_rad_s[kNumWheels]) {
@@ -317,7 +336,9 @@ void Firmware::Step() {
     step_accum_us_ -= 1000;
   }
 
-  // 1. Commands (and the frames the controller had to drop since the last step).
+  // 1. Frames still queued from the last step go out first; then commands (and the frames the
+  // controller had to drop since the last step).
+  DrainTx();
   counters_.rx_overruns += hal_->TakeCanRxOverruns();
   CanFrame f;
   for (int n = 0; n < kMaxFramesPerStep && hal_->CanRead(&f); ++n) HandleFrame(f);

@@ -55,6 +55,7 @@ FirmwareBase::FirmwareBase(double center_to_wheel_m, double wheel_radius_m,
       fw_(&hal_, FirmwareFor(center_to_wheel_m, wheel_radius_m)),
       bridge_(bo_) {
   hal_.UseClock(&clock_us_);
+  hal_.tx_mailboxes = 3;  // as the board's bxCAN
   booted_ = fw_.Init() == firmware::FwStatus::kOk;
 }
 

@@ -58,6 +58,15 @@ class HostHal final : public Hal {
     return n;
   }
   FwStatus CanWrite(const CanFrame& f) override {
+    if (tx_mailboxes > 0) {
+      // A frame holds its mailbox until it is on the wire; frames go out one after another.
+      const uint32_t now = MicrosNow();
+      while (!mailbox_free_at_.empty() && static_cast<int32_t>(now - mailbox_free_at_.front()) >= 0)
+        mailbox_free_at_.pop_front();
+      if (mailbox_free_at_.size() >= tx_mailboxes) return FwStatus::kBusy;
+      const uint32_t start = mailbox_free_at_.empty() ? now : mailbox_free_at_.back();
+      mailbox_free_at_.push_back(start + tx_frame_us);
+    }
     if (tx.size() >= tx_capacity) return FwStatus::kBusy;
     tx.push_back(f);
     return FwStatus::kOk;
@@ -106,6 +115,10 @@ class HostHal final : public Hal {
   std::deque<CanFrame> rx;  // frames for the firmware
   std::deque<CanFrame> tx;  // frames sent by the firmware
   size_t tx_capacity = 1024;
+  // The board's transmit mailboxes (3 on the STM32's bxCAN), each held for tx_frame_us per
+  // frame (an 8-byte frame with stuffing at 1 Mbit/s); 0: no limit but tx_capacity.
+  size_t tx_mailboxes = 0;
+  uint32_t tx_frame_us = 130;
   size_t rx_capacity = 32;
   uint32_t rx_overruns_pending = 0;
   bool bus_off = false;
@@ -120,6 +133,7 @@ class HostHal final : public Hal {
   float current_override_a_ = -1.f;
   const int64_t* clock_us_ = nullptr;
   std::string param_store_file_;
+  std::deque<uint32_t> mailbox_free_at_;  // when each busy mailbox frees, in send order
 };
 
 }  // namespace omni::firmware::sim

@@ -128,6 +128,7 @@ int main(int argc, char** argv) {
 
   sim::Plant plant(opts->plant);
   sim::HostHal hal(&plant);
+  hal.tx_mailboxes = 3;  // as the board's bxCAN: frames beyond wait in the firmware's queue
   if (!param_store.empty()) hal.UseParamStoreFile(param_store);
   Firmware fw(&hal, opts->firmware);
   if (fw.Init() != FwStatus::kOk) {

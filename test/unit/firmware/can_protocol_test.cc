@@ -142,6 +142,44 @@ TEST(CanFirmwareTest, SecondDiagnosticsFrameCarriesWatchdogLimitAndOverruns) {
   EXPECT_EQ(h.fw.counters().rx_overruns, 40 - h.hal.rx_capacity);
 }
 
+// The board's controller has three transmit mailboxes, and a frame holds one for ~130 us on
+// the wire, while a feedback step writes four frames and every 100 ms six or seven. Without a
+// queue the fourth onwards was dropped every time: BODY_TWIST_FEEDBACK every 10 ms, and
+// HEARTBEAT, SETPOINT_FEEDBACK and both DIAGNOSTICS frames always, so on the board the bridge
+// never heard a heartbeat (review finding 2026-12-06; the simulator's HAL took any number).
+TEST(CanFirmwareTest, EveryFrameGetsThroughThreeMailboxes) {
+  testing::Harness h;
+  int64_t clock_us = 0;
+  h.hal.UseClock(&clock_us);
+  h.hal.tx_mailboxes = 3;
+  int heartbeats = 0, twists = 0, encoders = 0, diagnostics = 0;
+  for (int ms = 0; ms < 1000; ++ms) {
+    h.fw.Step();
+    h.plant.Advance(h.fw.params().control_period_us * 1e-6);
+    clock_us += h.fw.params().control_period_us;
+    for (const CanFrame& f : h.hal.tx) {
+      heartbeats += CommandOf(f.id) == kHeartbeat;
+      twists += CommandOf(f.id) == kBodyTwistFeedback;
+      encoders += CommandOf(f.id) == kEncoderFeedback;
+      diagnostics += CommandOf(f.id) == kDiagnostics || CommandOf(f.id) == kDiagnostics2;
+    }
+    h.hal.tx.clear();
+  }
+  EXPECT_GE(heartbeats, 9);
+  EXPECT_GE(twists, 99);
+  EXPECT_GE(encoders, 99);
+  EXPECT_GE(diagnostics, 1);
+  EXPECT_EQ(h.fw.counters().tx_dropped, 0u);
+  // A bus-off controller: what is queued is dropped and counted, nothing is sent.
+  h.hal.bus_off = true;
+  for (int ms = 0; ms < 100; ++ms) {
+    h.fw.Step();
+    clock_us += h.fw.params().control_period_us;
+  }
+  EXPECT_TRUE(h.hal.tx.empty());
+  EXPECT_GT(h.fw.counters().tx_dropped, 40u);
+}
+
 TEST(CanFirmwareTest, MalformedFramesCountedAndIgnored) {
   testing::Harness h;
   CanFrame bad_len = EncodeSetBodyTwist(1, BodyTwist{0.3f, 0.f, 0.f, 0});

@@ -70,11 +70,11 @@ struct WheelState {
 
 struct Counters {
   uint32_t steps = 0;
-  uint32_t rx_frames = 0;      // frames addressed to this node
-  uint32_t rx_unknown = 0;     // ... with an unknown command
-  uint32_t rx_bad_length = 0;  // ... with a wrong DLC
-  uint32_t rx_overruns = 0;    // receive-FIFO overruns reported by the HAL (frames lost)
-  uint32_t tx_dropped = 0;
+  uint32_t rx_frames = 0;         // frames addressed to this node
+  uint32_t rx_unknown = 0;        // ... with an unknown command
+  uint32_t rx_bad_length = 0;     // ... with a wrong DLC
+  uint32_t rx_overruns = 0;       // receive-FIFO overruns reported by the HAL (frames lost)
+  uint32_t tx_dropped = 0;        // frames lost: the transmit queue full, or the controller bus-off
   uint32_t commands = 0;          // accepted motion commands
   uint32_t commands_limited = 0;  // motion commands scaled down to max_wheel_speed
   uint32_t watchdog_trips = 0;
@@ -116,7 +116,11 @@ class Firmware {
   void MotorsOff();
   void CheckFaults(float dt_s);
   void SendFeedback();
+  // Queues a frame and hands what the controller's transmit mailboxes take (FIFO order).
   void Send(const CanFrame& f);
+  // Hands queued frames to the controller while it takes them; called by Send and at the start
+  // of every step (mailboxes freed since by frames that went out on the wire).
+  void DrainTx();
   // Forward kinematics as a matrix: the shared WheelsToBody applied to unit wheel speeds
   // (it is linear), computed at Init and whenever a geometry parameter changes, so the 1 kHz
   // step does not redo the trigonometry and the 3x3 solve.
@@ -152,6 +156,12 @@ class Firmware {
   uint32_t stored_crc_ = 0;
   bool untimed_step_ = false;  // a flash write ran in this step: not a control-step time
   Counters counters_;
+  // Transmit queue in front of the controller's mailboxes (3 on the bxCAN): a feedback step
+  // writes 4 frames, one every 100 ms 6-7, far faster than one goes out on the wire (~130 us at
+  // 1 Mbit/s), so without it the 4th frame onwards was dropped every time on the board.
+  static constexpr int kTxQueue = 16;
+  CanFrame tx_queue_[kTxQueue];
+  int tx_head_ = 0, tx_count_ = 0;
   omni::kinematics::BodyTwist<float> measured_twist_;
   float forward_[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // body twist = forward_ * rim speeds
 };
