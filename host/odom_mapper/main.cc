@@ -113,8 +113,12 @@ int main(int argc, char** argv) {
       const int64_t index = m.seq >= 0 ? m.seq : static_cast<int64_t>(i);
       entries.push_back(omni::io::MakeEntry2D(index, omni::UtimeToSeconds(m.utime), m.base_pose));
     }
+    // Drawn at 2 pixels per cell up to 4 M cells; beyond, at 1 (the image takes 6 bytes per
+    // pixel: a 20 M-cell map at 2x needed about 0.5 GB for it alone).
+    const int scale = static_cast<int64_t>(map.width) * map.height <= (int64_t{4} << 20) ? 2 : 1;
     if (s.ok())
-      s = omni::io::WritePng(dir + "/odom_trajectory.png", omni::io::RenderGrid(map, {line}, 2));
+      s = omni::io::WritePng(dir + "/odom_trajectory.png",
+                             omni::io::RenderGrid(map, {line}, scale));
     if (s.ok())
       s = omni::io::WriteTrajectory2D(
           dir + "/odom_trajectory.txt", entries,

@@ -6,6 +6,7 @@
 #include <limits>
 
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include "omni/io/grid.h"
 #include "omni/io/image_io.h"
@@ -106,6 +107,65 @@ TEST(Image, PngHasSignatureAndChunks) {
   EXPECT_EQ(all.substr(12, 4), "IHDR");
   EXPECT_NE(all.find("IDAT"), std::string::npos);
   EXPECT_EQ(all.substr(all.size() - 8, 4), "IEND");
+}
+
+// The PNG is decoded here with zlib: every chunk's CRC holds, the IDAT chunks (the writer
+// streams them, 64 KiB each at most) inflate to the rows, each a filter byte 0 and the pixels.
+TEST(Image, PngDecodesToThePixelsWritten) {
+  const std::string dir = omni::testing::TempDir();
+  Image im = Image::Make(401, 303, 3, 0);
+  uint32_t state = 12345;
+  for (auto& p : im.pixels) {
+    state = state * 1664525u + 1013904223u;
+    p = static_cast<uint16_t>(state >> 24);  // noise: compresses poorly, many IDAT chunks
+  }
+  im.pixels[7] = 300;  // above 255: written as 255
+  ASSERT_TRUE(WritePng(dir + "/n.png", im).ok());
+  std::ifstream f(dir + "/n.png", std::ios::binary);
+  std::string all((std::istreambuf_iterator<char>(f)), {});
+  ASSERT_EQ(all.substr(0, 8), std::string("\x89PNG\r\n\x1a\n", 8));
+  auto u32 = [&all](size_t at) {
+    uint32_t v = 0;
+    for (int k = 0; k < 4; ++k) v = (v << 8) | static_cast<unsigned char>(all[at + k]);
+    return v;
+  };
+  std::string idat, last;
+  int idat_chunks = 0;
+  for (size_t at = 8; at < all.size();) {
+    ASSERT_LE(at + 12, all.size());
+    const uint32_t n = u32(at);
+    ASSERT_LE(at + 12 + n, all.size());
+    const std::string type = all.substr(at + 4, 4);
+    const uLong crc = crc32(0, reinterpret_cast<const Bytef*>(all.data() + at + 4), n + 4);
+    EXPECT_EQ(u32(at + 8 + n), static_cast<uint32_t>(crc)) << type;
+    if (type == "IHDR") {
+      EXPECT_EQ(u32(at + 8), 401u);
+      EXPECT_EQ(u32(at + 12), 303u);
+    }
+    if (type == "IDAT") {
+      idat += all.substr(at + 8, n);
+      ++idat_chunks;
+    }
+    last = type;
+    at += 12 + n;
+  }
+  EXPECT_EQ(last, "IEND");
+  EXPECT_GT(idat_chunks, 1);
+  const size_t row = 1 + 401 * 3;
+  std::string raw(row * 303, '\0');
+  uLongf raw_len = static_cast<uLongf>(raw.size());
+  ASSERT_EQ(
+      uncompress(reinterpret_cast<Bytef*>(raw.data()), &raw_len,
+                 reinterpret_cast<const Bytef*>(idat.data()), static_cast<uLong>(idat.size())),
+      Z_OK);
+  ASSERT_EQ(raw_len, raw.size());
+  size_t i = 0;
+  for (int y = 0; y < 303; ++y) {
+    ASSERT_EQ(raw[y * row], 0);
+    for (size_t x = 1; x < row; ++x, ++i)
+      ASSERT_EQ(static_cast<unsigned char>(raw[y * row + x]), std::min<uint16_t>(im.pixels[i], 255))
+          << y << " " << x;
+  }
 }
 
 TEST(Grid, ScanOfAWallMarksWallOccupiedAndSpaceFree) {
