@@ -1,5 +1,7 @@
 #include "omni/bus/node_loop.h"
 
+#include <signal.h>
+
 #include <csignal>
 
 #include "omni/common/log.h"
@@ -12,8 +14,17 @@ void OnStopSignal(int) { g_stop = 1; }
 }  // namespace
 
 void InstallStopSignals() {
-  std::signal(SIGINT, OnStopSignal);
-  std::signal(SIGTERM, OnStopSignal);
+  struct sigaction sa {};
+  sa.sa_handler = OnStopSignal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = SA_RESTART;  // as std::signal's
+  for (const int sig : {SIGINT, SIGTERM, SIGHUP, SIGQUIT}) {
+    // A hangup its caller chose to ignore (`nohup`) stays ignored: the process was meant to
+    // outlive the terminal.
+    struct sigaction old {};
+    if (sig == SIGHUP && sigaction(sig, nullptr, &old) == 0 && old.sa_handler == SIG_IGN) continue;
+    sigaction(sig, &sa, nullptr);
+  }
 }
 
 bool StopRequested() { return g_stop != 0; }

@@ -1,7 +1,8 @@
 // supervisor process: starts the processes of config/supervisor.yaml, restarts them when they
 // exit or their HEARTBEAT stops, reports in its own HEARTBEAT, and stops them all on
-// SIGINT/SIGTERM.
+// SIGINT/SIGTERM/SIGHUP/SIGQUIT.
 
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -17,6 +18,8 @@
 
 namespace {
 
+void IgnoreSignal(int) {}
+
 void Usage(std::FILE* f) {
   std::fprintf(
       f,
@@ -26,10 +29,10 @@ void Usage(std::FILE* f) {
       "  (always | on-failure | never) with a doubling backoff, kills and restarts a child whose\n"
       "  heartbeat stops, gives up on one that keeps failing. Publishes HEARTBEAT (process\n"
       "  \"supervisor\": children running, starts, restarts, failures, heartbeat timeouts, given\n"
-      "  up; the text names the children that are down). SIGINT/SIGTERM (or S seconds) stops\n"
-      "  the children one at a time, newest first (SIGTERM, then SIGKILL after their\n"
-      "  stop_grace_s). Exits by itself when no child is left to run. Exit status 0 when every\n"
-      "  child's last exit was clean, 1 otherwise.\n");
+      "  up; the text names the children that are down). SIGINT/SIGTERM/SIGHUP/SIGQUIT (or S\n"
+      "  seconds) stops the children one at a time, newest first (SIGTERM, then SIGKILL after\n"
+      "  their stop_grace_s), then kills what they left behind. Exits by itself when no child is\n"
+      "  left to run. Exit status 0 when every child's last exit was clean, 1 otherwise.\n");
 }
 
 }  // namespace
@@ -75,6 +78,11 @@ int main(int argc, char** argv) {
   if (!url.empty()) setenv("LCM_DEFAULT_URL", url.c_str(), 1);
   auto& bus = **bus_or;
   omni::SystemClock clock;
+  // What a child leaves behind outside its process group (the worker of a wrapper, a daemon) is
+  // reparented here instead of to init: reaped, and killed when the stop is done.
+  if (omni::Status st = omni::supervisor::PosixLauncher::BecomeSubreaper(); !st.ok()) {
+    LOG_WARN << st.error().message << ": what the children leave behind may outlive them";
+  }
   omni::supervisor::PosixLauncher launcher;
   omni::supervisor::Supervisor sup(*opt, &launcher);
   bus.Subscribe<omni::heartbeat_t>(opt->channel, [&](const omni::heartbeat_t& h, int64_t) {
@@ -93,6 +101,10 @@ int main(int argc, char** argv) {
   hb.AddCounter("gave_up", [&] { return sup.gave_up(); });
   hb.AddCounter("foreign_heartbeats", [&] { return sup.foreign_heartbeats(); });
   omni::bus::InstallStopSignals();
+  // A log line written to a pipe whose reader is gone (`supervisor | tee`, with tee ended by the
+  // same hangup) must not end the stop half way: the write fails instead. (A handler, not
+  // SIG_IGN, so that the children get the default back at exec.)
+  std::signal(SIGPIPE, IgnoreSignal);
   const int64_t t0 = omni::MonotonicMicros();
   sup.Start(t0);
   LOG_INFO << "started " << sup.children().size() << " processes (bus "
@@ -127,6 +139,9 @@ int main(int argc, char** argv) {
     bus.HandleTimeout(20);
     sup.Tick(omni::MonotonicMicros());
     hb.Tick();  // still visible (STOPPING) while the mappers write their maps
+  }
+  if (const int left = launcher.KillLeftovers(); left > 0) {
+    LOG_INFO << "killed " << left << " processes the children left behind";
   }
   int exit_code = 0;
   for (size_t i = 0; i < sup.children().size(); ++i) {

@@ -1,5 +1,6 @@
 #include "omni/supervisor/supervisor.h"
 
+#include <dirent.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/prctl.h>
@@ -8,7 +9,10 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <climits>
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <functional>
 
 namespace omni::supervisor {
@@ -21,7 +25,15 @@ int64_t Us(double s) { return static_cast<int64_t>(s * 1e6); }
 Result<SupervisorOptions> SupervisorOptions::Load(ConfigReader& r) {
   SupervisorOptions o;
   r.Get("working_dir", &o.working_dir, Optional());
-  r.Get("channel", &o.channel, Optional(), NonEmpty());
+  // bus::Heartbeat always publishes on HEARTBEAT: listening anywhere else, the supervisor would
+  // hear no child and restart each one after its grace, for ever.
+  r.Get("channel", &o.channel, Optional(), Rule<std::string>([](const std::string& v) {
+          return v == kHeartbeatChannel
+                     ? std::string()
+                     : std::string(
+                           "must be HEARTBEAT: every omni process publishes its heartbeat "
+                           "there (no other channel can be heard)");
+        }));
   auto children = r.Section("children");
   for (const std::string& name : children.Keys()) {
     ChildSpec c;
@@ -30,7 +42,14 @@ Result<SupervisorOptions> SupervisorOptions::Load(ConfigReader& r) {
     s.Get("command", &c.command, Required());
     if (s.Has("command") && c.command.empty()) s.AddError("command", "must not be empty");
     s.Get("heartbeat", &c.heartbeat, Optional());
-    s.Get("heartbeat_timeout_s", &c.heartbeat_timeout_s, Optional(), InRange(0.1, 3600.0));
+    s.Get("heartbeat_timeout_s", &c.heartbeat_timeout_s, Optional(),
+          Rule<double>([](const double& v) {
+            return v >= kMinHeartbeatTimeoutS && v <= 3600.0
+                       ? std::string()
+                       : std::string(
+                             "must be in [2, 3600] s: heartbeats come once a second, so a "
+                             "shorter timeout kills children that are fine");
+          }));
     s.Get("start_grace_s", &c.start_grace_s, Optional(), InRange(0.1, 3600.0));
     std::string restart = "on-failure";
     s.Get("restart", &restart, Optional(), OneOf({"always", "on-failure", "never"}));
@@ -103,11 +122,17 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   const std::string chdir_failed =
       "supervisor: cannot enter the working directory '" + working_dir + "'\n";
   const bool path_given = command[0].find('/') != std::string::npos;
+  // For closing the inherited descriptors where close_range is missing (a kernel before 5.9).
+  const long open_max = sysconf(_SC_OPEN_MAX);
+  const int last_fd = open_max > 0 && open_max < INT_MAX ? static_cast<int>(open_max) - 1 : 65535;
   const pid_t parent = getpid();
   const pid_t pid = fork();
   if (pid < 0)
     return MakeError(ErrorCode::kUnavailable, std::string("fork: ") + std::strerror(errno));
-  if (pid > 0) setpgid(pid, pid);  // also here, so a signal right after Start finds the group
+  if (pid > 0) {
+    setpgid(pid, pid);  // also here, so a signal right after Start finds the group
+    running_.insert(pid);
+  }
   if (pid == 0) {
     // Child: die with the supervisor, own process group (a terminal's Ctrl-C goes to the
     // supervisor, which stops the children in order).
@@ -119,6 +144,11 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
       (void)w;
       _exit(126);
     }
+    // Only stdin, stdout and stderr (the supervisor's) go to the child: not the supervisor's LCM
+    // sockets and pipes, nor whatever it inherited (a child holding them keeps them open after
+    // the supervisor is gone, and can read or write on its bus sockets).
+    if (close_range(3, ~0U, 0) != 0)
+      for (int fd = 3; fd <= last_fd; ++fd) close(fd);
     execvp(argv[0], argv.data());
     // Say why (not found, not executable) on the supervisor's stderr, which the child shares:
     // a bare exit 127 restarted in a loop tells nobody that a relative path was wrong.
@@ -135,15 +165,35 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   return static_cast<int>(pid);
 }
 
-std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
+Status PosixLauncher::BecomeSubreaper() {
+  if (prctl(PR_SET_CHILD_SUBREAPER, 1) != 0)
+    return MakeError(ErrorCode::kUnavailable,
+                     std::string("prctl(PR_SET_CHILD_SUBREAPER): ") + std::strerror(errno));
+  return Status::Ok();
+}
+
+void PosixLauncher::Reap() {
   int status = 0;
-  const pid_t r = waitpid(pid, &status, WNOHANG);
-  if (r == 0) return std::nullopt;
+  pid_t r;
+  while ((r = waitpid(-1, &status, WNOHANG)) > 0) {
+    if (running_.erase(r) > 0)
+      ended_[r] = status;
+    else
+      ++orphans_reaped_;  // adopted (subreaper): what a child left behind
+  }
+}
+
+std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
+  Reap();
   ExitInfo e;
-  if (r < 0) {
-    e.code = 255;  // not our child any more (should not happen): treat as a failed exit
+  auto it = ended_.find(pid);
+  if (it == ended_.end()) {
+    if (running_.count(pid) > 0) return std::nullopt;
+    e.code = 255;  // not our child (should not happen): treat as a failed exit
     return e;
   }
+  const int status = it->second;
+  ended_.erase(it);
   if (WIFSIGNALED(status)) e.signal = WTERMSIG(status);
   if (WIFEXITED(status)) e.code = WEXITSTATUS(status);
   // Whatever the child left running in its group goes with it. (The group's id stays taken
@@ -155,6 +205,51 @@ std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
 void PosixLauncher::Signal(int pid, int sig) {
   if (pid <= 0) return;
   if (kill(-pid, sig) != 0) kill(pid, sig);  // the group, or the child if it has none yet
+}
+
+namespace {
+// The processes whose parent is `parent` and that have not ended (from /proc/PID/stat).
+std::vector<int> LiveChildrenOf(pid_t parent) {
+  std::vector<int> kids;
+  DIR* proc = opendir("/proc");
+  if (proc == nullptr) return kids;
+  while (const dirent* d = readdir(proc)) {
+    char* end = nullptr;
+    const long pid = std::strtol(d->d_name, &end, 10);
+    if (pid <= 0 || *end != '\0') continue;
+    std::ifstream stat(std::string("/proc/") + d->d_name + "/stat");
+    std::string line;
+    if (!std::getline(stat, line)) continue;
+    // pid (comm) state ppid ...: comm may hold spaces and parentheses, so parse after the last ')'.
+    const auto paren = line.rfind(')');
+    if (paren == std::string::npos || paren + 2 >= line.size()) continue;
+    const char state = line[paren + 2];
+    const long ppid = std::strtol(line.c_str() + paren + 3, nullptr, 10);
+    if (ppid == parent && state != 'Z' && state != 'X') kids.push_back(static_cast<int>(pid));
+  }
+  closedir(proc);
+  return kids;
+}
+}  // namespace
+
+int PosixLauncher::KillLeftovers(double max_wait_s) {
+  std::set<int> killed;
+  const pid_t self = getpid();
+  const int rounds = std::max(1, static_cast<int>(max_wait_s * 100));
+  for (int k = 0; k < rounds; ++k) {
+    Reap();
+    bool any = false;
+    for (const int pid : LiveChildrenOf(self)) {
+      if (running_.count(pid) > 0) continue;  // a started child: stopped by its own Signal
+      kill(pid, SIGKILL);  // (its own children come here in turn, and go the next round)
+      killed.insert(pid);
+      any = true;
+    }
+    if (!any) break;
+    usleep(10000);
+  }
+  Reap();
+  return static_cast<int>(killed.size());
 }
 
 bool PosixLauncher::Owns(int child_pid, int reported_pid) const {

@@ -1,11 +1,18 @@
 // The supervisor: restart policies, backoff and giving up, heartbeat timeouts with SIGTERM then
 // SIGKILL, stopping everything, the options; then the process with real children.
+#include <dirent.h>
+#include <fcntl.h>
 #include <signal.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -466,6 +473,49 @@ TEST(SupervisorOptions, ChildrenByNameAndMistakesNamed) {
   EXPECT_GE(so->children.size(), 5u);
 }
 
+// bus::Heartbeat publishes on HEARTBEAT only: a supervisor listening on another channel would
+// hear no child and restart each one for ever (review finding 2026-12-06). Refused, named.
+TEST(SupervisorOptions, TheHeartbeatChannelCanOnlyBeHEARTBEAT) {
+  auto load = [](const std::string& yaml) {
+    auto r = ConfigReader::FromString(yaml, "channel.yaml");
+    EXPECT_TRUE(r.ok());
+    return SupervisorOptions::Load(*r);
+  };
+  auto ok = load("channel: HEARTBEAT\nchildren:\n  a:\n    command: [x]\n");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->channel, "HEARTBEAT");
+  auto other = load("channel: HB_X\nchildren:\n  a:\n    command: [x]\n");
+  ASSERT_FALSE(other.ok());
+  EXPECT_NE(other.error().message.find("key 'channel' = 'HB_X': must be HEARTBEAT"),
+            std::string::npos)
+      << other.error().message;
+}
+
+// Heartbeats come once a second: a timeout under 2 s killed healthy children now and then
+// (review finding 2026-12-06). The key is named; the built-in default is above the floor.
+TEST(SupervisorOptions, AHeartbeatTimeoutUnderTwoSecondsIsAnError) {
+  EXPECT_GE(ChildSpec{}.heartbeat_timeout_s, kMinHeartbeatTimeoutS);
+  auto load = [](const std::string& timeout) {
+    auto r = ConfigReader::FromString(
+        "children:\n  a:\n    command: [x]\n    heartbeat: a\n    heartbeat_timeout_s: " + timeout +
+            "\n",
+        "timeout.yaml");
+    EXPECT_TRUE(r.ok());
+    return SupervisorOptions::Load(*r);
+  };
+  for (const char* bad : {"0.1", "1", "1.5", "1.99"}) {
+    auto e = load(bad);
+    ASSERT_FALSE(e.ok()) << bad;
+    EXPECT_NE(e.error().message.find("key 'children.a.heartbeat_timeout_s'"), std::string::npos)
+        << e.error().message;
+    EXPECT_NE(e.error().message.find("must be in [2, 3600]"), std::string::npos)
+        << e.error().message;
+  }
+  auto two = load("2");
+  ASSERT_TRUE(two.ok()) << two.error().message;
+  EXPECT_DOUBLE_EQ(two->children[0].heartbeat_timeout_s, 2.0);
+}
+
 TEST(SupervisorProcess, RestartsRealChildrenAndGivesUp) {
   const std::string dir = ::testing::TempDir() + "/supervisor_proc";
   std::filesystem::create_directories(dir);
@@ -525,6 +575,47 @@ TEST(SupervisorProcess, ChildrenRunOnTheSupervisorsBus) {
   EXPECT_EQ(got, "memq://");
 }
 
+// The descriptors of a child that ran `ls -l /proc/self/fd` (its output), other than stdin,
+// stdout, stderr and ls's own handle on that directory: "9 -> /dev/null".
+std::vector<std::string> ExtraFds(const std::string& output) {
+  std::vector<std::string> extra;
+  std::istringstream in(output);
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto arrow = line.find(" -> ");
+    if (arrow == std::string::npos) continue;
+    const auto space = line.rfind(' ', arrow - 1);
+    const std::string fd = line.substr(space + 1, arrow - space - 1);
+    const std::string target = line.substr(arrow + 4);
+    if (fd == "0" || fd == "1" || fd == "2") continue;
+    if (target.rfind("/proc/", 0) == 0 && target.size() > 3 &&
+        target.compare(target.size() - 3, 3, "/fd") == 0)
+      continue;  // ls's own
+    extra.push_back(fd + " -> " + target);
+  }
+  return extra;
+}
+
+// A child gets stdin, stdout and stderr and no other descriptor of the supervisor's (review
+// finding 2026-12-06: its LCM sockets and pipes, and whatever it inherited, went to every
+// child). Here descriptor 9, which the supervisor inherits open; over UDP, its LCM sockets below.
+TEST(SupervisorProcess, ChildrenGetOnlyStdinStdoutAndStderr) {
+  const std::string dir = ::testing::TempDir() + "/supervisor_fds";
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream f(dir + "/sup.yaml");
+    f << "children:\n  fds:\n    command: [ls, -l, /proc/self/fd]\n    restart: never\n";
+  }
+  auto r = testing::Run("timeout 30 " + testing::Bin("supervisor") + " --url memq:// --config " +
+                        dir + "/sup.yaml 9</dev/null");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  ASSERT_NE(r.output.find(" 1 -> "), std::string::npos) << "no listing:\n" << r.output;
+  const auto extra = ExtraFds(r.output);
+  EXPECT_TRUE(extra.empty()) << "the child inherited " << extra.size() << " more, e.g. "
+                             << extra.front() << ":\n"
+                             << r.output;
+}
+
 TEST(SupervisorProcess, WatchesARealProcessHeartbeatOverUdpInANetns) {
   if (testing::Run("unshare -n true").exit_code != 0)
     GTEST_SKIP() << "cannot create a private network namespace (unshare -n needs root)";
@@ -541,7 +632,8 @@ TEST(SupervisorProcess, WatchesARealProcessHeartbeatOverUdpInANetns) {
       << "/odom]\n    heartbeat: odom_mapper\n    heartbeat_timeout_s: 5\n"
          "    start_grace_s: 8\n"
          "  ghost:\n    command: [sleep, '100']\n    heartbeat: ghost\n    start_grace_s: 1\n"
-         "    stop_grace_s: 0.5\n    backoff_initial_s: 0.2\n";
+         "    stop_grace_s: 0.5\n    backoff_initial_s: 0.2\n"
+         "  fds:\n    command: [ls, -l, /proc/self/fd]\n    restart: never\n";
     std::ofstream s(dir + "/run.sh");
     s << "ip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 3\n"
       << "export LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=0'\n"
@@ -556,6 +648,187 @@ TEST(SupervisorProcess, WatchesARealProcessHeartbeatOverUdpInANetns) {
   EXPECT_NE(r.output.find("ghost: "), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("ghost: 1 starts"), std::string::npos) << r.output;  // restarted
   EXPECT_EQ(r.output.find("ghost: 0 heartbeat"), std::string::npos) << r.output;
+  // The supervisor's UDP sockets (and LCM's pipe) are not the children's.
+  ASSERT_NE(r.output.find(" 1 -> "), std::string::npos) << "no listing:\n" << r.output;
+  const auto extra = ExtraFds(r.output);
+  EXPECT_TRUE(extra.empty()) << "the child inherited " << extra.size() << " more, e.g. "
+                             << extra.front() << ":\n"
+                             << r.output;
+}
+
+// --- A hangup (review finding 2026-12-06: an SSH session dropping killed the supervisor at
+// once; its children got SIGTERM together and the workers of wrapper commands lived on). ---
+
+// The live processes whose environment holds `tag` (NAME=VALUE): the supervisor started by
+// SpawnTagged and everything under it, wherever it was reparented.
+std::map<int, std::string> Tagged(const std::string& tag) {
+  std::map<int, std::string> found;  // pid -> command line
+  DIR* proc = opendir("/proc");
+  if (proc == nullptr) return found;
+  while (const dirent* d = readdir(proc)) {
+    const int pid = std::atoi(d->d_name);
+    if (pid <= 0 || !Alive(pid)) continue;
+    std::ifstream env(std::string("/proc/") + d->d_name + "/environ");
+    std::string var;
+    bool has = false;
+    while (std::getline(env, var, '\0'))
+      if (var == tag) has = true;
+    if (!has) continue;
+    std::ifstream cmd(std::string("/proc/") + d->d_name + "/cmdline");
+    std::string arg, line;
+    while (std::getline(cmd, arg, '\0')) line += (line.empty() ? "" : " ") + arg;
+    found[pid] = line;
+  }
+  closedir(proc);
+  return found;
+}
+
+bool AnyRuns(const std::map<int, std::string>& procs, const std::string& cmdline) {
+  for (const auto& [pid, line] : procs)
+    if (line == cmdline) return true;
+  return false;
+}
+
+enum class Output { kFile, kDeadPipe, kNohup };
+
+// Starts `argv` with `tag` in its environment and its stdout and stderr into `out` (kFile,
+// kNohup) or a pipe (its read end returned in *pipe_read), with SIGHUP ignored for kNohup.
+pid_t SpawnTagged(const std::vector<std::string>& argv, const std::string& tag,
+                  const std::string& out, Output mode, int* pipe_read) {
+  std::vector<char*> args;
+  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  std::string env = tag;
+  int p[2] = {-1, -1};
+  if (mode == Output::kDeadPipe && pipe(p) != 0) return -1;
+  const pid_t pid = fork();
+  if (pid == 0) {
+    const int fd =
+        mode == Output::kDeadPipe ? p[1] : open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(fd, 1);
+    dup2(fd, 2);
+    if (mode == Output::kDeadPipe) close(p[0]);  // the test's: once it closes it, none is left
+    putenv(env.data());
+    for (int sig : {SIGHUP, SIGINT, SIGQUIT, SIGTERM, SIGPIPE}) signal(sig, SIG_DFL);
+    if (mode == Output::kNohup) signal(SIGHUP, SIG_IGN);
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  if (mode == Output::kDeadPipe) {
+    close(p[1]);
+    *pipe_read = p[0];
+  }
+  return pid;
+}
+
+double Seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+// A supervisor in the foreground gets SIGHUP: it stops its children in order, newest first,
+// and leaves none of their processes. `c` leaves a process in a session of its own (out of its
+// group: found as an adopted orphan and killed at the end), `b` ignores SIGTERM (killed after
+// its 1 s grace), `a` is a wrapper whose worker would have outlived a SIGTERM to the shell alone.
+void HangupStopsEverything(Output mode) {
+  const std::string dir = ::testing::TempDir() + "/supervisor_hup";
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream f(dir + "/sup.yaml");
+    f << "children:\n"
+         "  a:\n    command: [sh, -c, 'sleep 321; echo done']\n    stop_grace_s: 5\n"
+         "  b:\n    command: [sh, -c, 'trap \"\" TERM; exec sleep 322']\n    stop_grace_s: 1\n"
+         "  c:\n    command: [sh, -c, 'setsid sleep 323 & exec sleep 324']\n"
+         "    stop_grace_s: 5\n";
+  }
+  const std::string tag = "OMNI_SUPERVISOR_TEST=hup-" + std::to_string(getpid()) + "-" +
+                          std::to_string(static_cast<int>(mode));
+  const std::string out = dir + "/out.txt";
+  int pipe_read = -1;
+  const pid_t sup =
+      SpawnTagged({testing::Bin("supervisor"), "--url", "memq://", "--config", dir + "/sup.yaml"},
+                  tag, out, mode, &pipe_read);
+  ASSERT_GT(sup, 0);
+  const std::vector<std::string> sleeps = {"sleep 321", "sleep 322", "sleep 323", "sleep 324"};
+  bool up = false;
+  for (int i = 0; i < 1000 && !up; ++i) {
+    const auto procs = Tagged(tag);
+    up = true;
+    for (const auto& s : sleeps) up = up && AnyRuns(procs, s);
+    if (!up) usleep(10000);
+  }
+  EXPECT_TRUE(up) << "the children did not start";
+  if (mode == Output::kDeadPipe) close(pipe_read);  // as a `| tee` ended by the same hangup
+  kill(sup, SIGHUP);
+  if (mode == Output::kNohup) {  // ignored (`nohup supervisor`): it carries on
+    usleep(500000);
+    int status = 0;
+    EXPECT_EQ(waitpid(sup, &status, WNOHANG), 0) << "a nohup'ed supervisor ended on SIGHUP";
+    for (const auto& s : sleeps) EXPECT_TRUE(AnyRuns(Tagged(tag), s)) << s;
+    kill(sup, SIGTERM);
+  }
+  // When each of the children's processes goes (for at most 3 s after the supervisor's end).
+  const double t0 = Seconds();
+  std::map<std::string, double> gone;
+  int status = 0;
+  double exited_at = -1;
+  while (Seconds() - t0 < 30) {
+    const auto procs = Tagged(tag);
+    for (const auto& s : sleeps)
+      if (!gone.count(s) && !AnyRuns(procs, s)) gone[s] = Seconds() - t0;
+    if (exited_at < 0 && waitpid(sup, &status, WNOHANG) == sup) exited_at = Seconds();
+    if (exited_at >= 0 && (gone.size() == sleeps.size() || Seconds() - exited_at > 3)) break;
+    usleep(5000);
+  }
+  // Nothing of theirs is left, reparented anywhere (and nothing is left behind by this test).
+  for (const auto& [pid, line] : Tagged(tag)) {
+    ADD_FAILURE() << "left running: " << pid << " " << line;
+    kill(pid, SIGKILL);
+  }
+  if (exited_at < 0) {
+    kill(sup, SIGKILL);
+    waitpid(sup, &status, 0);
+    FAIL() << "the supervisor did not end";
+  }
+  std::ifstream in(out);
+  const std::string log((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_TRUE(WIFEXITED(status)) << "the supervisor died of signal "
+                                 << (WIFSIGNALED(status) ? WTERMSIG(status) : 0) << "\n"
+                                 << log;
+  if (WIFEXITED(status)) {
+    EXPECT_EQ(WEXITSTATUS(status), 1) << log;  // b needed the SIGKILL
+  }
+  // Newest first: c's worker, then b after its 1 s grace, then a; c's escapee at the end.
+  ASSERT_EQ(gone.size(), sleeps.size()) << log;
+  EXPECT_LT(gone["sleep 324"], gone["sleep 322"]);
+  EXPECT_GT(gone["sleep 322"] - gone["sleep 324"], 0.8) << "b was not given its grace";
+  EXPECT_LE(gone["sleep 322"], gone["sleep 321"]) << "a was stopped before b was gone";
+  EXPECT_LE(gone["sleep 321"], gone["sleep 323"]) << "c's escapee was killed before the stop";
+  if (mode != Output::kDeadPipe) {
+    for (const char* name : {"a", "b", "c"})
+      EXPECT_NE(log.find(std::string("supervisor: ") + name + ": 1 starts, 0 restarts"),
+                std::string::npos)
+          << name << "\n"
+          << log;
+    EXPECT_NE(log.find("killed 1 processes the children left behind"), std::string::npos) << log;
+    EXPECT_NE(log.find("c: 1 starts, 0 restarts, 0 failures, 0 heartbeat timeouts, stopped"),
+              std::string::npos)
+        << log;
+  }
+}
+
+TEST(SupervisorProcess, AHangupStopsTheChildrenInOrderAndLeavesNoneOfTheirProcesses) {
+  HangupStopsEverything(Output::kFile);
+}
+
+// The same with its output into a pipe whose reader the hangup ended too (`supervisor | tee`):
+// a log line must not kill the supervisor half way through the stop (SIGPIPE).
+TEST(SupervisorProcess, AHangupStopsInOrderWithTheOutputPipeGone) {
+  HangupStopsEverything(Output::kDeadPipe);
+}
+
+// Started with SIGHUP ignored (`nohup`), the supervisor outlives a hangup; SIGTERM stops it.
+TEST(SupervisorProcess, ANohupedSupervisorOutlivesAHangup) {
+  HangupStopsEverything(Output::kNohup);
 }
 
 }  // namespace

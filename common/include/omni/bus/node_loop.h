@@ -1,8 +1,8 @@
 // The main loop shared by the mapper processes (rbpf_mapper, pose_graph_mapper): wait for bus
 // traffic only when nothing is ready, empty the socket into the node's queues before each unit of
 // work (so a slow update never leaves datagrams to overflow the kernel's receive buffer), tick
-// the node, and stop on SIGINT/SIGTERM, at the end of a file:// log once the queues are empty,
-// or after an idle period without messages.
+// the node, and stop on SIGINT/SIGTERM/SIGHUP/SIGQUIT, at the end of a file:// log once the
+// queues are empty, or after an idle period without messages.
 #pragma once
 
 #include <functional>
@@ -11,7 +11,10 @@
 
 namespace omni::bus {
 
-// SIGINT and SIGTERM set a flag that StopRequested() reads (and that ends RunNodeLoop).
+// SIGINT, SIGTERM, SIGHUP (the terminal or SSH session went away) and SIGQUIT (Ctrl+backslash)
+// set a flag that StopRequested() reads (and that ends RunNodeLoop), so the process stops in
+// order (a mapper writes its map) instead of dying at once. A SIGHUP ignored when this is called
+// (`nohup`) stays ignored.
 void InstallStopSignals();
 bool StopRequested();
 

@@ -26,7 +26,9 @@
 
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -52,12 +54,19 @@ struct ChildSpec {
   std::vector<std::string> after;  // children that must be running before the first start
 };
 
+// Every omni process heartbeats once a second: a shorter heartbeat_timeout_s than this would
+// kill children that are fine (a heartbeat a little late, one lost datagram).
+constexpr double kMinHeartbeatTimeoutS = 2.0;
+// The channel bus::Heartbeat publishes on, the only one the supervisor can listen to.
+constexpr const char* kHeartbeatChannel = "HEARTBEAT";
+
 struct SupervisorOptions {
-  std::vector<ChildSpec> children;  // in config order: started in this order
-  std::string working_dir;          // "" = the supervisor's own
-  std::string channel = "HEARTBEAT";
+  std::vector<ChildSpec> children;          // in config order: started in this order
+  std::string working_dir;                  // "" = the supervisor's own
+  std::string channel = kHeartbeatChannel;  // `channel:` may only say HEARTBEAT
   // `children:` is a map from a name to that child's keys (command required); unknown keys,
-  // bad values, an `after` naming no child (or itself) and a cycle of `after`s are errors naming
+  // bad values (a heartbeat_timeout_s under kMinHeartbeatTimeoutS, a channel other than
+  // HEARTBEAT), an `after` naming no child (or itself) and a cycle of `after`s are errors naming
   // them.
   static Result<SupervisorOptions> Load(ConfigReader& reader);
 };
@@ -94,18 +103,42 @@ class Launcher {
 };
 
 // fork + execvp; the child gets SIGTERM if the supervisor dies (PR_SET_PDEATHSIG), its own
-// process group, and the supervisor's stdout/stderr. A command that cannot be executed exits
-// 127 (seen as a failure, so restarted with backoff and in the end given up). Signals go to the
-// child's whole process group, so the worker of a wrapper (`sh -c '...'`) is stopped with it,
-// and what is left of the group when the child has exited is killed (an orphan would hold the
-// serial port the restarted driver needs).
+// process group, the supervisor's stdin/stdout/stderr and no other descriptor (descriptors 3 and
+// up, e.g. the supervisor's LCM sockets, are closed before the exec). A command that cannot be
+// executed exits 127 (seen as a failure, so restarted with backoff and in the end given up).
+// Signals go to the child's whole process group, so the worker of a wrapper (`sh -c '...'`) is
+// stopped with it, and what is left of the group when the child has exited is killed (an orphan
+// would hold the serial port the restarted driver needs).
+//
+// Poll reaps every ended child of this process: the started ones (their exit kept for their
+// Poll) and those adopted as their subreaper (BecomeSubreaper), counted as orphans_reaped().
 class PosixLauncher final : public Launcher {
  public:
+  // Makes this process the subreaper of its descendants (PR_SET_CHILD_SUBREAPER): a process
+  // that a child leaves behind outside its group (a daemon that made its own session, the
+  // worker of a wrapper whose group was signalled late) is reparented here instead of to init,
+  // so Poll reaps it and KillLeftovers can find it.
+  static Status BecomeSubreaper();
+
   Result<int> Start(const std::vector<std::string>& command,
                     const std::string& working_dir) override;
   std::optional<ExitInfo> Poll(int pid) override;
   void Signal(int pid, int signal) override;
   bool Owns(int child_pid, int reported_pid) const override;
+
+  // Kills (SIGKILL) and reaps every child process of this one that is not a started child
+  // still running — with BecomeSubreaper, what the children left behind — and their
+  // descendants (each reparented here in turn), for up to `max_wait_s`. At the end of a stop,
+  // once every child has been reaped. Returns how many processes it killed.
+  int KillLeftovers(double max_wait_s = 3.0);
+  int64_t orphans_reaped() const { return orphans_reaped_; }
+
+ private:
+  void Reap();  // waitpid(-1) until nothing more has ended
+
+  std::set<int> running_;     // started and not reaped yet
+  std::map<int, int> ended_;  // reaped, wait status not yet returned by Poll
+  int64_t orphans_reaped_ = 0;
 };
 
 enum class ChildState { kWaiting, kBackoff, kStarting, kRunning, kStopping, kExited, kGaveUp };
