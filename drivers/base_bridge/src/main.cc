@@ -62,6 +62,8 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  // A lost terminal or SSH session stops it in order too (unless started under nohup).
+  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
   omni::SystemClock clock;
   omni::base_bridge::BaseBridgeNode node(*opts, bus->get(), &clock);
   node.Run(&g_stop, duration_s);

@@ -80,6 +80,8 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  // A lost terminal or SSH session stops it in order too (unless started under nohup).
+  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
   omni::kinect::KinectNode node(bus->get(), &driver, nopt, &clock);
   node.Run(&g_stop, duration_s);
   LOG_INFO << "published " << node.depth_published() << " depth and " << node.color_published()

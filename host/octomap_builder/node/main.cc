@@ -71,6 +71,8 @@ int main(int argc, char** argv) {
   omni::octo::OctomapNode node(bus_or->get(), *opt, &clock);
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  // A lost terminal or SSH session stops it in order too (unless started under nohup).
+  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
   std::signal(SIGUSR1, OnCloudRequest);
   omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
                                   &node.heartbeat());

@@ -167,6 +167,22 @@ TEST(CliErrors, ShippedOdomMapperConfigLoads) {
   EXPECT_EQ(r.exit_code, 0) << r.output;
 }
 
+// A hangup (the terminal or SSH session the process was started from went away) stops the
+// mappers and drivers in order, as SIGTERM does: exit 0 and, for a mapper, its map written.
+// Before, SIGHUP's default killed them at once (octomap_builder: exit 129, no map.bt).
+TEST(CliErrors, AHangupStopsProcessesInOrder) {
+  const std::string dir = testing::TempDir();
+  for (const std::string& cmd : {Bin("odom_mapper") + " --url memq:// --out " + dir + "/odom",
+                                 Bin("octomap_builder") + " --url memq:// --out " + dir + "/octo",
+                                 Bin("omni-base-bridge") + " --config " + OMNI_SOURCE_DIR +
+                                     "/config/base_bridge.yaml --url memq://"}) {
+    SCOPED_TRACE(cmd);
+    const auto r = testing::Run(cmd + " & sleep 0.7; kill -HUP $! ; wait $!");
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_TRUE(std::filesystem::exists(dir + "/octo/map.bt"));
+}
+
 // A number that does not parse is an error naming the program, the option and the value,
 // never read as 0 (which would mean "never idle-exit", seed 0, or the first map).
 TEST(CliErrors, BadNumbersOnTheCommandLineAreNamed) {
