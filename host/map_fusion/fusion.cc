@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 
@@ -35,6 +36,7 @@ Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   a.Get("max_rotation_rad", &o.align.max_rotation_rad, Optional(), InRange(0.0, 3.2));
   a.Get("max_shift_m", &o.align.max_shift_m, Optional(), InRange(0.0, 100.0));
   r.Get("min_overlap_fraction", &o.min_overlap_fraction, Optional(), InRange(0.0, 1.0));
+  r.Get("max_conflict_fraction", &o.max_conflict_fraction, Optional(), InRange(0.0, 1.0));
   std::string tie = "occupied";
   r.Get("tie", &tie, Optional(), OneOf({"occupied", "free", "unknown"}));
   o.tie = tie == "free"      ? TieRule::kFree
@@ -71,7 +73,7 @@ size_t KnownCells(const io::GridMap& m) {
       std::count_if(m.cells.begin(), m.cells.end(), [](int8_t v) { return v >= 0; }));
 }
 
-bool Usable(const io::GridMap& m, std::string* why) {
+bool Consistent(const io::GridMap& m, std::string* why) {
   if (m.width <= 0 || m.height <= 0 ||
       m.cells.size() != static_cast<size_t>(m.width) * static_cast<size_t>(m.height)) {
     *why = "empty or inconsistent grid";
@@ -85,7 +87,80 @@ bool Usable(const io::GridMap& m, std::string* why) {
   return true;
 }
 
+// 1 where an occupied cell of `norm` (normalised cells) lies within `r` cells (Chebyshev).
+std::vector<uint8_t> NearOccupied(const std::vector<int8_t>& norm, int w, int h, int r) {
+  std::vector<uint8_t> rows(norm.size(), 0), out(norm.size(), 0);
+  for (int y = 0; y < h; ++y) {
+    const size_t row = static_cast<size_t>(y) * static_cast<size_t>(w);
+    int last = -(r + 1) - 1;  // column of the last occupied cell seen, left to right
+    for (int x = 0; x < w; ++x) {
+      if (norm[row + static_cast<size_t>(x)] == 1) last = x;
+      if (x - last <= r) rows[row + static_cast<size_t>(x)] = 1;
+    }
+    last = w + r + 1;  // right to left
+    for (int x = w - 1; x >= 0; --x) {
+      if (norm[row + static_cast<size_t>(x)] == 1) last = x;
+      if (last - x <= r) rows[row + static_cast<size_t>(x)] = 1;
+    }
+  }
+  for (int x = 0; x < w; ++x) {
+    int last = -(r + 1) - 1;
+    for (int y = 0; y < h; ++y) {
+      const size_t c = static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x);
+      if (rows[c]) last = y;
+      if (y - last <= r) out[c] = 1;
+    }
+    last = h + r + 1;
+    for (int y = h - 1; y >= 0; --y) {
+      const size_t c = static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x);
+      if (rows[c]) last = y;
+      if (last - y <= r) out[c] = 1;
+    }
+  }
+  return out;
+}
+
 }  // namespace
+
+bool UsableMap(const io::GridMap& m, std::string* why) {
+  std::string reason;
+  bool ok = Consistent(m, &reason);
+  if (ok && KnownCells(m) == 0) {
+    reason = "no known cell";
+    ok = false;
+  }
+  if (why) *why = reason;
+  return ok;
+}
+
+MapConflicts CountConflicts(const io::GridMap& base, const io::GridMap& moved,
+                            int tolerance_cells) {
+  MapConflicts c;
+  if (moved.width != base.width || moved.height != base.height ||
+      moved.cells.size() != base.cells.size() || base.width <= 0 || base.height <= 0 ||
+      base.cells.size() != static_cast<size_t>(base.width) * static_cast<size_t>(base.height))
+    return c;
+  const int r = std::max(0, tolerance_cells);
+  std::vector<int8_t> nb(base.cells.size()), nm(moved.cells.size());
+  for (size_t i = 0; i < nb.size(); ++i) {
+    nb[i] = static_cast<int8_t>(eval::NormalizedCell(base.cells[i]));
+    nm[i] = static_cast<int8_t>(eval::NormalizedCell(moved.cells[i]));
+  }
+  const std::vector<uint8_t> near_b = NearOccupied(nb, base.width, base.height, r);
+  const std::vector<uint8_t> near_m = NearOccupied(nm, base.width, base.height, r);
+  for (size_t i = 0; i < nb.size(); ++i) {
+    if (nb[i] < 0 || nm[i] < 0) continue;  // only where both know the cell
+    if (nm[i] == 1) {
+      ++c.occupied;
+      if (nb[i] == 0 && !near_b[i]) ++c.conflicts;
+    }
+    if (nb[i] == 1) {
+      ++c.occupied;
+      if (nm[i] == 0 && !near_m[i]) ++c.conflicts;
+    }
+  }
+  return c;
+}
 
 Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOptions& opt,
                           AlignmentHints* hints, std::vector<SourceReport>* sources) {
@@ -99,12 +174,8 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
   for (size_t i = 0; i < maps.size(); ++i) {
     SourceReport& rep = res.sources[i];
     rep.name = maps[i].name;
-    if (!Usable(maps[i].map, &rep.reason)) continue;
+    if (!UsableMap(maps[i].map, &rep.reason)) continue;
     rep.known_cells = KnownCells(maps[i].map);
-    if (rep.known_cells == 0) {
-      rep.reason = "no known cell";
-      continue;
-    }
     rep.used = true;
     if (!opt.base.empty() ? maps[i].name == opt.base : base < 0) base = static_cast<int>(i);
   }
@@ -165,9 +236,30 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
       if (hints) hints->by_name.erase(maps[i].name);
       continue;
     }
-    if (hints && static_cast<int>(i) != base) hints->by_name[maps[i].name] = rep.alignment;
-    moved.push_back(
-        static_cast<int>(i) == base ? ref : eval::ResampleOnto(ref, maps[i].map, rep.alignment));
+    if (static_cast<int>(i) == base) {
+      moved.push_back(ref);
+      continue;
+    }
+    io::GridMap on_base = eval::ResampleOnto(ref, maps[i].map, rep.alignment);
+    // The tolerance in the coarser of the two grids' cells (a 5 cm map's wall on a 2.5 cm base
+    // may be one base cell thicker or off by one more).
+    const double coarser = std::max(ref.resolution_m, maps[i].map.resolution_m);
+    const int tolerance = static_cast<int>(std::ceil(
+        std::min(1e3, opt.align.match_tolerance_cells * coarser / ref.resolution_m) - 1e-9));
+    rep.conflict_fraction = CountConflicts(ref, on_base, tolerance).fraction();
+    if (rep.conflict_fraction > opt.max_conflict_fraction) {
+      rep.used = false;
+      char buf[160];
+      std::snprintf(buf, sizeof(buf),
+                    "conflicts with the base: %.2f of the occupied cells both know lie on the "
+                    "other's free space, above max_conflict_fraction %.2f",
+                    rep.conflict_fraction, opt.max_conflict_fraction);
+      rep.reason = buf;
+      if (hints) hints->by_name.erase(maps[i].name);
+      continue;
+    }
+    if (hints) hints->by_name[maps[i].name] = rep.alignment;
+    moved.push_back(std::move(on_base));
   }
   res.maps_used = moved.size();
   if (static_cast<int>(moved.size()) < opt.min_maps) {
@@ -211,14 +303,14 @@ std::string ReportJson(const FusionResult& r) {
                   ", \"height\": " + std::to_string(r.fused.height) + ", \"sources\": [";
   for (size_t i = 0; i < r.sources.size(); ++i) {
     const SourceReport& q = r.sources[i];
-    char buf[512];
+    char buf[1024];
     std::snprintf(buf, sizeof(buf),
                   "%s{\"name\": \"%s\", \"used\": %s, \"reason\": \"%s\", \"rotation_rad\": %.5f, "
-                  "\"dx_m\": %.4f, \"dy_m\": %.4f, \"overlap_fraction\": %.4f, \"known_cells\": "
-                  "%zu}",
+                  "\"dx_m\": %.4f, \"dy_m\": %.4f, \"overlap_fraction\": %.4f, "
+                  "\"conflict_fraction\": %.4f, \"known_cells\": %zu}",
                   i ? ", " : "", q.name.c_str(), q.used ? "true" : "false", q.reason.c_str(),
                   q.alignment.rotation_rad, q.alignment.dx_m, q.alignment.dy_m, q.overlap_fraction,
-                  q.known_cells);
+                  q.conflict_fraction, q.known_cells);
     s += buf;
   }
   return s + "]}";

@@ -12,7 +12,6 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
-#include "omni/heartbeat_t.hpp"
 #include "omni/map_fusion/map_fusion_node.h"
 
 namespace {
@@ -98,10 +97,12 @@ int main(int argc, char** argv) {
     if (const omni::Status s = omni::map_fusion::WriteFusionOutputs(*r, out_dir); !s.ok())
       return Fail(s.message());
     for (const auto& src : r->sources)
-      std::printf("map_fusion: %s: %s, rotation %.4f rad, shift (%.3f, %.3f) m, overlap %.2f%s%s\n",
-                  src.name.c_str(), src.used ? "used" : "left out", src.alignment.rotation_rad,
-                  src.alignment.dx_m, src.alignment.dy_m, src.overlap_fraction,
-                  src.reason.empty() ? "" : ": ", src.reason.c_str());
+      std::printf(
+          "map_fusion: %s: %s, rotation %.4f rad, shift (%.3f, %.3f) m, overlap %.2f, conflicts "
+          "%.3f%s%s\n",
+          src.name.c_str(), src.used ? "used" : "left out", src.alignment.rotation_rad,
+          src.alignment.dx_m, src.alignment.dy_m, src.overlap_fraction, src.conflict_fraction,
+          src.reason.empty() ? "" : ": ", src.reason.c_str());
     std::printf(
         "map_fusion: fused %zu maps onto %s: %zu cells unanimous, %zu by majority, %zu ties -> "
         "%s.{pgm,yaml,png}, %s/fusion.json\n",
@@ -130,7 +131,7 @@ int main(int argc, char** argv) {
         saver.Serve([&](const std::string& dir) { return node.WriteOutputs(dir); });
       });
   LOG_INFO << "stopping (" << omni::bus::LoopEndName(end) << "); fusing and writing the map";
-  node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
+  node.SetStopping();  // a fusion still running is finished (and published), heartbeating
   node.heartbeat().Tick(true);
   const omni::Status s = node.WriteOutputs(out_dir);
   if (!s.ok() && omni::bus::NothingToWriteExit(end, node.grids_in()) == 0) {

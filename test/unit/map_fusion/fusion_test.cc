@@ -1,11 +1,15 @@
 // Map fusion (SLAMfusion): the vote, the alignment on synthetic and real maps, maps left out,
 // the options, the node on memq:// and the map_fusion process.
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -47,15 +51,28 @@ TEST(MapFusionVote, MajorityWinsAndTiesFollowTheRule) {
   EXPECT_EQ(vote(0, 0, 1, TieRule::kFree), 1);  // a single voter is unanimous
 }
 
-// A floor plan of straight walls, rasterised at 5 cm into a grid whose frame sits at `frame` in
-// the world (a map made by a mapper that started somewhere else). Free inside the outer walls,
-// unknown outside. `blob` adds a phantom obstacle (world centre, half size); `gap` erases a wall
-// piece (world rectangle) to free.
+// A floor plan of straight walls inside the rectangle [0, w] x [0, h], rasterised at 5 cm into a
+// grid whose frame sits at `frame` in the world (a map made by a mapper that started somewhere
+// else). Free inside the outer walls, unknown outside. `blob` adds a phantom obstacle (world
+// centre, half size); `gap` erases a wall piece (world rectangle) to free.
 struct Plan {
   std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> walls = {
       {{0, 0}, {8, 0}},   {{8, 0}, {8, 6}},   {{8, 6}, {0, 6}},  {{0, 6}, {0, 0}},
       {{3, 0}, {3, 2.5}}, {{5, 6}, {5, 3.5}}, {{1, 4}, {2.5, 4}}};
+  double w = 8, h = 6;
 };
+
+// An office floor of 10 x 10 m: square outer walls, a corridor between two rows of rooms. Turned
+// by a quarter turn its outer walls fall on themselves and its inner walls run along the same
+// axes: occupied cells overlap well, yet the rooms are in the wrong places.
+Plan Office() {
+  Plan p;
+  p.w = p.h = 10;
+  p.walls = {{{0, 0}, {10, 0}},  {{10, 0}, {10, 10}},  {{10, 10}, {0, 10}}, {{0, 10}, {0, 0}},
+             {{0, 4}, {8.8, 4}}, {{1.2, 6}, {10, 6}},  {{3, 0}, {3, 4}},    {{6.5, 0}, {6.5, 4}},
+             {{4, 6}, {4, 10}},  {{7.5, 6}, {7.5, 10}}};
+  return p;
+}
 
 struct Corruption {
   Eigen::Vector2d blob{-100, -100};
@@ -70,8 +87,8 @@ io::GridMap Rasterize(const Plan& plan, const Pose2& frame, const Corruption& c 
   // Extent: the plan's rectangle in the map frame, with a margin.
   const Pose2 inv = frame.Inverse();
   double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
-  for (const auto& w : {Eigen::Vector2d(0, 0), Eigen::Vector2d(8, 0), Eigen::Vector2d(0, 6),
-                        Eigen::Vector2d(8, 6)}) {
+  for (const auto& w : {Eigen::Vector2d(0, 0), Eigen::Vector2d(plan.w, 0),
+                        Eigen::Vector2d(0, plan.h), Eigen::Vector2d(plan.w, plan.h)}) {
     const Eigen::Vector2d p = inv.Transform(w);
     x0 = std::min(x0, p.x());
     y0 = std::min(y0, p.y());
@@ -87,7 +104,8 @@ io::GridMap Rasterize(const Plan& plan, const Pose2& frame, const Corruption& c 
     for (int col = 0; col < m.width; ++col) {
       const Eigen::Vector2d w =
           frame.Transform({m.origin_x_m + (col + 0.5) * res, m.origin_y_m + (row + 0.5) * res});
-      if (w.x() < -0.05 || w.y() < -0.05 || w.x() > 8.05 || w.y() > 6.05) continue;
+      if (w.x() < -0.05 || w.y() < -0.05 || w.x() > plan.w + 0.05 || w.y() > plan.h + 0.05)
+        continue;
       int8_t v = 0;
       for (const auto& [a, b] : plan.walls) {
         const Eigen::Vector2d d = b - a;
@@ -279,6 +297,82 @@ TEST(MapFusion, UnknownAbstainsUnlessItVotes) {
   EXPECT_EQ(voted->fused.cells, b.cells);
 }
 
+// A mapper that restarted mid-run starts its map frame at the robot's pose of the moment: here
+// turned by a quarter turn (outside the rotation search) and shifted. In a rectilinear building
+// its walls still overlap the base's well enough for min_overlap_fraction, but its walls cross
+// the base's rooms and its rooms the base's walls: the conflict check leaves it out.
+TEST(MapFusion, AMapTurnedByAQuarterTurnInARectilinearBuildingIsLeftOut) {
+  const Plan office = Office();
+  const io::GridMap truth = Rasterize(office, Pose2());
+  const io::GridMap turned = Rasterize(office, Pose2(10.6, -0.4, M_PI / 2));
+  const io::GridMap other = Rasterize(office, Pose2(0.3, -0.2, 0.05));
+  FusionOptions o;
+  auto r = Fuse({{"A", truth}, {"turned", turned}, {"other", other}}, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const SourceReport& t = r->sources[1];
+  std::printf(
+      "quarter turn: overlap %.2f, conflicts %.3f; the unturned copy: overlap %.2f, "
+      "conflicts %.3f\n",
+      t.overlap_fraction, t.conflict_fraction, r->sources[2].overlap_fraction,
+      r->sources[2].conflict_fraction);
+  EXPECT_FALSE(t.used);
+  EXPECT_GE(t.overlap_fraction, o.min_overlap_fraction) << "the overlap gate alone lets it in";
+  EXPECT_GT(t.conflict_fraction, o.max_conflict_fraction);
+  EXPECT_NE(t.reason.find("max_conflict_fraction"), std::string::npos) << t.reason;
+  EXPECT_TRUE(r->sources[2].used) << r->sources[2].reason;
+  EXPECT_LT(r->sources[2].conflict_fraction, 0.5 * o.max_conflict_fraction);
+  EXPECT_EQ(r->maps_used, 2u);
+  auto without = Fuse({{"A", truth}, {"other", other}}, o);
+  ASSERT_TRUE(without.ok());
+  EXPECT_EQ(r->fused.cells, without->fused.cells);
+  EXPECT_NE(ReportJson(*r).find("\"conflict_fraction\""), std::string::npos);
+  // Alone with the base, the turned map would tie with it on every cell they disagree on, and the
+  // tie rule (occupied) would put its walls across the base's rooms: with the check there is too
+  // little left to fuse; without it (max_conflict_fraction 1) the fused map is corrupted.
+  std::vector<SourceReport> reports;
+  auto two = Fuse({{"A", truth}, {"turned", turned}}, o, nullptr, &reports);
+  ASSERT_FALSE(two.ok());
+  EXPECT_NE(two.error().message.find("turned: conflicts"), std::string::npos)
+      << two.error().message;
+  o.max_conflict_fraction = 1.0;
+  auto corrupted = Fuse({{"A", truth}, {"turned", turned}}, o);
+  ASSERT_TRUE(corrupted.ok());
+  EXPECT_TRUE(corrupted->sources[1].used);
+  const double corrupted_error = Error(truth, corrupted->fused);
+  std::printf("quarter turn fused with the base without the check: error %.1f (the base: 0)\n",
+              corrupted_error);
+  EXPECT_GT(corrupted_error, 20.0);
+}
+
+TEST(MapFusion, ConflictsCountOccupiedCellsOnTheOthersFreeSpace) {
+  // 1 x 10 cells: the base free except a wall at 2 and unknown at 9; the other map unknown at 2
+  // and occupied at 3 (one cell off the base's wall), 7 (on the base's free space) and 9.
+  io::GridMap base;
+  base.resolution_m = 0.05;
+  base.width = 10;
+  base.height = 1;
+  base.cells = {0, 0, 100, 0, 0, 0, 0, 0, 0, -1};
+  io::GridMap moved = base;
+  moved.cells = {0, 0, -1, 100, 0, 0, 0, 100, 0, 100};
+  // Cells both know: 0,1,3..8. Occupied there: moved's 3 and 7 (base's 2 is unknown to moved,
+  // moved's 9 unknown to the base). Conflicts: 7 only (3 is next to the base's wall at 2).
+  MapConflicts c = CountConflicts(base, moved, 1);
+  EXPECT_EQ(c.occupied, 2u);
+  EXPECT_EQ(c.conflicts, 1u);
+  EXPECT_DOUBLE_EQ(c.fraction(), 0.5);
+  // No tolerance: 3 is a conflict too. The base's wall on the other's free space counts as well.
+  EXPECT_EQ(CountConflicts(base, moved, 0).conflicts, 2u);
+  moved.cells[2] = 0;
+  c = CountConflicts(base, moved, 1);
+  EXPECT_EQ(c.occupied, 3u);
+  EXPECT_EQ(c.conflicts, 1u);  // 2 has moved's wall at 3 within one cell
+  EXPECT_EQ(CountConflicts(base, moved, 0).conflicts, 3u);
+  // Grids of different sizes: nothing counted (Fuse resamples first).
+  moved.width = 5;
+  moved.cells.resize(5);
+  EXPECT_EQ(CountConflicts(base, moved, 1).occupied, 0u);
+}
+
 TEST(MapFusion, AlignmentRecoversAKnownTransformOfARealMap) {
   // Two maps of the Intel lab from its corrected log: one at the corrected poses, one with every
   // pose moved by a known rigid transform (as a mapper that started elsewhere would give).
@@ -361,13 +455,16 @@ TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
   EXPECT_EQ(o->unknown_votes, d.unknown_votes);
   EXPECT_EQ(o->tie, d.tie);
   EXPECT_EQ(o->min_overlap_fraction, d.min_overlap_fraction);
+  EXPECT_EQ(o->max_conflict_fraction, d.max_conflict_fraction);
   EXPECT_EQ(o->align.max_shift_m, d.align.max_shift_m);
   auto bad = ConfigReader::FromString(
-      "tie: sometimes\nmin_maps: 0\nbase: GRID_X\nalign:\n  max_shfit_m: 3\n", "bad.yaml");
+      "tie: sometimes\nmin_maps: 0\nbase: GRID_X\nmax_conflict_fraction: 1.5\nalign:\n"
+      "  max_shfit_m: 3\n",
+      "bad.yaml");
   ASSERT_TRUE(bad.ok());
   auto e = FusionOptions::Load(*bad);
   ASSERT_FALSE(e.ok());
-  for (const char* key : {"tie", "min_maps", "base", "align.max_shfit_m"})
+  for (const char* key : {"tie", "min_maps", "base", "max_conflict_fraction", "align.max_shfit_m"})
     EXPECT_NE(e.error().message.find(key), std::string::npos) << key << "\n" << e.error().message;
   // More maps wanted than channels listed: on the bus it could never fuse, so it is refused there.
   auto never =
@@ -420,6 +517,17 @@ TEST(MapFusion, AGridTurnedInItsFrameIsResampledOntoTheFramesAxes) {
   EXPECT_LT(right.error, 0.5 * bad.error) << right.error << " vs " << bad.error;
 }
 
+// The node fuses on a worker thread and publishes from Tick: ticks until no fusion runs.
+void TickUntilIdle(MapFusionNode& node) {
+  node.Tick();
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (node.fusing() && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    node.Tick();
+  }
+  EXPECT_FALSE(node.fusing());
+}
+
 TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   auto bus_or = bus::Bus::Create("memq://");
   ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
@@ -448,7 +556,7 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   // One map only: nothing to fuse yet.
   b.Publish("GRID_PG", GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "posegraph"));
   pump();
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   EXPECT_TRUE(fused.empty());
   // Bad grids: undecodable, inconsistent, a non-finite turn, another frame. All counted, none
@@ -464,7 +572,7 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   other.frame = "odom";
   b.Publish("GRID_RBPF", other);
   pump();
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   EXPECT_TRUE(fused.empty());
   EXPECT_EQ(node.grids_rejected(), 3);
@@ -477,7 +585,7 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   b.Publish("GRID_RBPF", GridMsg(Rasterize(elsewhere, Pose2(3, 2, 1.0)), clock.NowUtime(), "rbpf"));
   pump();
   clock.Advance(1100000);
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   EXPECT_TRUE(fused.empty());
   EXPECT_EQ(node.fusion_failures(), 1);
@@ -487,7 +595,7 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
             GridMsg(Rasterize(plan, Pose2(0.3, 0.2, -0.05), cb), clock.NowUtime() + 1000, "rbpf"));
   pump();
   clock.Advance(1100000);
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   ASSERT_EQ(fused.size(), 1u);
   EXPECT_EQ(fused[0].source, "fused");
@@ -497,13 +605,13 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   EXPECT_EQ(node.last()->base, "GRID_PG");
   // Nothing changed: no new fusion, whatever the time.
   clock.Advance(5000000);
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   EXPECT_EQ(fused.size(), 1u);
   // A third map: fused again once the interval has passed.
   b.Publish("GRID_OCTO", GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "octomap"));
   pump();
-  node.Tick();
+  TickUntilIdle(node);
   pump();
   EXPECT_EQ(fused.size(), 2u);
   EXPECT_EQ(node.last()->maps_used, 3u);
@@ -518,6 +626,220 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   pump();
   EXPECT_GE(heartbeats, 1);
   EXPECT_TRUE(counters_seen);
+}
+
+// A fusion of large maps takes longer than the supervisor's heartbeat timeout (6.6 s for 108k
+// occupied cells against 5 s): it runs on a worker while the loop keeps heartbeating and
+// receiving grids. Here the fusion is held (a test hook around Fuse) until three heartbeats
+// came while it ran; heartbeats on the real clock, about a second apart.
+TEST(MapFusionNode, KeepsHeartbeatingAndReceivingWhileASlowFusionRuns) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  SystemClock clock;
+  FusionOptions o;
+  o.fuse_interval_s = 0.05;
+  MapFusionNode node(&b, o, &clock);
+  std::atomic<bool> release{false};
+  std::atomic<int64_t> hold_until_us{0};
+  std::atomic<int> fuse_calls{0};
+  node.SetFuseFunctionForTest([&](const std::vector<SourceMap>& maps, const FusionOptions& opt,
+                                  AlignmentHints* hints, std::vector<SourceReport>* reports) {
+    ++fuse_calls;
+    while (!release && MonotonicMicros() < hold_until_us)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    return Fuse(maps, opt, hints, reports);
+  });
+  struct Beat {
+    int64_t mono_us;
+    int64_t fusing;
+    std::string text;
+  };
+  std::vector<Beat> beats;
+  std::vector<omni::occupancy_grid_t> fused;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    Beat beat{MonotonicMicros(), -1, h.status_text};
+    for (size_t i = 0; i < h.counter_names.size(); ++i)
+      if (h.counter_names[i] == "fusing") beat.fusing = h.counter_values[i];
+    beats.push_back(beat);
+  });
+  b.Subscribe<omni::occupancy_grid_t>(
+      "GRID_FUSED", [&](const omni::occupancy_grid_t& g, int64_t) { fused.push_back(g); });
+  auto pump = [&] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  // The main loop: what RunNodeLoop does, every 20 ms, until `done` or `seconds` passed.
+  auto loop = [&](double seconds, const std::function<bool()>& done) {
+    const int64_t end = MonotonicMicros() + static_cast<int64_t>(seconds * 1e6);
+    while (!done() && MonotonicMicros() < end) {
+      pump();
+      node.Tick();
+      pump();
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  };
+  auto fusing_beats = [&] {
+    int n = 0;
+    for (const auto& beat : beats) n += beat.fusing == 1;
+    return n;
+  };
+  const Plan plan;
+  const int64_t t0 = clock.NowUtime();
+  hold_until_us = MonotonicMicros() + 8000000;  // released below, or gives up (without the fix)
+  b.Publish("GRID_PG", GridMsg(Rasterize(plan, Pose2()), t0, "posegraph"));
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.2, 0.1, 0.03)), t0, "rbpf"));
+  loop(6.0, [&] { return fusing_beats() >= 2; });
+  // A grid arrives while the fusion runs: received and held (for the next fusion).
+  const int64_t grids_before = node.grids_in();
+  b.Publish("GRID_OCTO", GridMsg(Rasterize(plan, Pose2()), t0, "octomap"));
+  loop(6.0, [&] { return fusing_beats() >= 3; });
+  EXPECT_EQ(node.grids_in(), grids_before + 1);
+  EXPECT_TRUE(node.fusing());
+  EXPECT_EQ(fuse_calls.load(), 1) << "one fusion at a time";
+  EXPECT_TRUE(fused.empty());
+  ASSERT_GE(fusing_beats(), 3) << "no heartbeat while the fusion ran";
+  int64_t max_gap_us = 0;
+  for (size_t i = 1; i < beats.size(); ++i)
+    max_gap_us = std::max(max_gap_us, beats[i].mono_us - beats[i - 1].mono_us);
+  EXPECT_LT(max_gap_us, 1600000) << "heartbeats about once a second";
+  EXPECT_NE(beats.back().text.find("fusing 2 maps"), std::string::npos) << beats.back().text;
+  // Done: published by the next Tick; the grid that came meanwhile is fused next.
+  release = true;
+  loop(30.0, [&] { return fused.size() >= 2 && !node.fusing(); });
+  ASSERT_EQ(fused.size(), 2u);
+  EXPECT_EQ(node.fusions(), 2);
+  EXPECT_EQ(node.last()->maps_used, 3u);
+  EXPECT_EQ(fuse_calls.load(), 2);
+  // Shutdown (and MAP_SAVE): a fusion is running when WriteOutputs is called; it waits for it,
+  // heartbeating, and writes the fusion of the grids held last.
+  release = false;
+  hold_until_us = MonotonicMicros() + 2500000;
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.25, 0.1, 0.03)), t0 + 1, "rbpf"));
+  pump();
+  node.Tick();
+  ASSERT_TRUE(node.fusing());
+  const size_t beats_before = beats.size();
+  const std::string out = ::testing::TempDir() + "/fusion_node_slow_out";
+  fs::remove_all(out);
+  ASSERT_TRUE(node.WriteOutputs(out).ok());
+  EXPECT_FALSE(node.fusing());
+  pump();
+  EXPECT_GE(beats.size(), beats_before + 2) << "no heartbeat while WriteOutputs waited";
+  EXPECT_EQ(fuse_calls.load(), 3) << "the running fusion is the final one: nothing changed since";
+  EXPECT_EQ(fused.size(), 3u);
+  EXPECT_TRUE(fs::exists(out + "/fused_map.pgm"));
+  EXPECT_TRUE(fs::exists(out + "/fusion.json"));
+}
+
+TEST(MapFusionNode, AnEmptyGridIsRejectedAndTheChannelKeepsItsLastGoodOne) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  ManualClock clock(1700000000000000);
+  FusionOptions o;
+  o.fuse_interval_s = 1.0;
+  MapFusionNode node(&b, o, &clock);
+  auto pump = [&] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  const Plan plan;
+  b.Publish("GRID_PG", GridMsg(Rasterize(plan, Pose2()), clock.NowUtime(), "posegraph"));
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.2, 0.1, 0.03)), clock.NowUtime(), "rbpf"));
+  pump();
+  TickUntilIdle(node);
+  ASSERT_EQ(node.fusions(), 1);
+  EXPECT_EQ(node.last()->maps_used, 2u);
+  // A mapper that restarted publishes an empty grid (0 x 0), then one it has not seen yet.
+  io::GridMap empty;
+  empty.resolution_m = 0.05;
+  b.Publish("GRID_RBPF", GridMsg(empty, clock.NowUtime(), "rbpf"));
+  pump();
+  EXPECT_EQ(node.grids_rejected(), 1);
+  clock.Advance(1100000);
+  TickUntilIdle(node);
+  EXPECT_EQ(node.fusions(), 1) << "nothing changed";
+  auto r = node.FuseNow();
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->maps_used, 2u);
+  io::GridMap unseen = Rasterize(plan, Pose2());
+  std::fill(unseen.cells.begin(), unseen.cells.end(), int8_t{-1});
+  b.Publish("GRID_RBPF", GridMsg(unseen, clock.NowUtime(), "rbpf"));
+  pump();
+  EXPECT_EQ(node.grids_rejected(), 2);
+  auto again = node.FuseNow();
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_EQ(again->maps_used, 2u);
+  EXPECT_EQ(node.fusion_failures(), 0);
+}
+
+TEST(MapFusionNode, TheFusedGridIsStampedWithTheNewestGridItUsed) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  ManualClock clock(1700000000000000);
+  FusionOptions o;
+  o.fuse_interval_s = 1.0;
+  MapFusionNode node(&b, o, &clock);
+  std::vector<int64_t> stamps;
+  b.Subscribe<omni::occupancy_grid_t>(
+      "GRID_FUSED", [&](const omni::occupancy_grid_t& g, int64_t) { stamps.push_back(g.utime); });
+  auto pump = [&] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  auto fuse = [&] {
+    pump();
+    clock.Advance(1100000);
+    TickUntilIdle(node);
+    pump();
+  };
+  const Plan plan;
+  const int64_t t0 = clock.NowUtime();
+  const int64_t future = t0 + 1000000000000;  // 11.6 days ahead: a source clock gone wrong
+  b.Publish("GRID_PG", GridMsg(Rasterize(plan, Pose2()), t0, "posegraph"));
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.2, 0.1, 0.03)), future, "rbpf"));
+  fuse();
+  ASSERT_EQ(stamps.size(), 1u);
+  EXPECT_EQ(stamps[0], future);
+  // The RBPF's clock is put right: the next fusion is stamped with its grid's time again.
+  b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.2, 0.1, 0.03)), t0 + 2000000, "rbpf"));
+  fuse();
+  ASSERT_EQ(stamps.size(), 2u);
+  EXPECT_EQ(stamps[1], t0 + 2000000);
+  // A map that is left out (it does not align) does not stamp the fusion either.
+  Plan elsewhere;
+  elsewhere.walls = {{{0, 0}, {2, 7}}, {{5, 1}, {9, 1.5}}};
+  b.Publish("GRID_OCTO", GridMsg(Rasterize(elsewhere, Pose2(3, 2, 1.0)), future, "octomap"));
+  b.Publish("GRID_PG", GridMsg(Rasterize(plan, Pose2()), t0 + 3000000, "posegraph"));
+  fuse();
+  ASSERT_EQ(stamps.size(), 3u);
+  EXPECT_EQ(node.last()->maps_used, 2u);
+  EXPECT_EQ(stamps[2], t0 + 3000000);
+}
+
+// The quarter-turned map of a restarted mapper is counted as a conflicting source by the node.
+TEST(MapFusionNode, CountsAMapLeftOutForConflicts) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  ManualClock clock(1700000000000000);
+  MapFusionNode node(&b, FusionOptions{}, &clock);
+  const Plan office = Office();
+  b.Publish("GRID_PG", GridMsg(Rasterize(office, Pose2()), clock.NowUtime(), "posegraph"));
+  b.Publish("GRID_RBPF",
+            GridMsg(Rasterize(office, Pose2(10.6, -0.4, M_PI / 2)), clock.NowUtime(), "rbpf"));
+  b.Publish("GRID_OCTO",
+            GridMsg(Rasterize(office, Pose2(0.3, -0.2, 0.05)), clock.NowUtime(), "octomap"));
+  while (b.HandleTimeout(0) > 0) {
+  }
+  auto r = node.FuseNow();
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->maps_used, 2u);
+  EXPECT_FALSE(r->sources[1].used);
+  EXPECT_EQ(node.sources_rejected(), 1);
+  EXPECT_EQ(node.sources_conflicting(), 1);
 }
 
 TEST(MapFusionProcess, FusesMapFilesAndALogAndRejectsBadArguments) {

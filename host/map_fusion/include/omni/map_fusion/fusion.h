@@ -42,6 +42,14 @@ struct FusionOptions {
   // An aligned map whose occupied cells land near the base's occupied cells less often than
   // this is left out of the vote (counted): a failed alignment must not corrupt the result.
   double min_overlap_fraction = 0.3;
+  // Occupied-on-occupied overlap alone accepts a map turned by a multiple of pi/2 (outside the
+  // rotation search) in a rectilinear building: its walls lie along the base's. So an aligned map
+  // is also left out (counted) when, over the cells both maps know, too many of the occupied cells
+  // of either map fall on the other's free space (no occupied cell within
+  // align.match_tolerance_cells cells of the coarser grid): `conflict_fraction` = such cells /
+  // occupied cells of either map there (CountConflicts). 1 disables the check. Measured in
+  // docs/map_fusion.md.
+  double max_conflict_fraction = 0.25;
   TieRule tie = TieRule::kOccupied;
   // The paper lets "unknown" vote; here a map abstains where it has not seen a cell (false),
   // which on the simulator's floor gives a 20 % lower map error (docs/map_fusion.md).
@@ -64,7 +72,8 @@ struct SourceReport {
   bool used = false;
   std::string reason;  // why it was left out ("" when used)
   eval::MapAlignment alignment;
-  double overlap_fraction = 0;  // alignment.overlap / alignment.occupied
+  double overlap_fraction = 0;   // alignment.overlap / alignment.occupied
+  double conflict_fraction = 0;  // MapConflicts::fraction() against the base (0 for the base)
   size_t known_cells = 0;
 };
 
@@ -92,6 +101,24 @@ struct AlignmentHints {
 };
 inline constexpr double kTrackRotationRad = 0.04;
 inline constexpr double kTrackShiftM = 0.25;
+
+// Whether a map can take part in a fusion: a consistent non-empty grid (cells = width x height),
+// a finite positive cell size and a finite origin, and at least one known cell. `why` (optional)
+// says what is wrong. Fuse leaves such maps out; the node refuses them on arrival.
+bool UsableMap(const io::GridMap& m, std::string* why = nullptr);
+
+// Where a map moved onto the base's grid (eval::ResampleOnto) contradicts the base, over the cells
+// both know: `occupied` counts the occupied cells of either map there, `conflicts` those of them
+// lying on the other map's free space with no occupied cell of the other within
+// `tolerance_cells` (a wall one cell off is not a conflict). `moved` must have `base`'s size.
+struct MapConflicts {
+  size_t occupied = 0;
+  size_t conflicts = 0;
+  double fraction() const {
+    return occupied == 0 ? 0.0 : static_cast<double>(conflicts) / static_cast<double>(occupied);
+  }
+};
+MapConflicts CountConflicts(const io::GridMap& base, const io::GridMap& moved, int tolerance_cells);
 
 // The vote on one cell: `votes[v + 1]` = number of maps saying v (v = -1, 0, 1). Returns the
 // normalised winner; `tied` (optional) tells whether the tie rule decided.
