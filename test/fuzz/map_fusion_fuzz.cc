@@ -103,6 +103,7 @@ void CheckFusion(const omni::map_fusion::FusionResult& f,
     OMNI_FUZZ_CHECK(std::isfinite(a.rotation_rad) && std::isfinite(a.dx_m) &&
                     std::isfinite(a.dy_m));
     OMNI_FUZZ_CHECK(s.overlap_fraction >= 0 && s.overlap_fraction <= 1);
+    OMNI_FUZZ_CHECK(s.conflict_fraction >= 0 && s.conflict_fraction <= 1);
   }
 }
 
