@@ -319,6 +319,8 @@ int main(int argc, char** argv) {
   // truth written for what was simulated (the process used to die with neither).
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  // A lost terminal or SSH session ends the run in order too (log closed, truth written).
+  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
   sim.set_stop_flag(&g_stop);
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {

@@ -33,17 +33,22 @@ std::string Simulate(const std::string& dir, const std::string& args) {
 // A live tour stopped by SIGINT (Ctrl-C, a supervisor's stop) ends at the next step with its log
 // closed and its truth written; it used to die without either.
 TEST(SimPipeline, ALiveTourStoppedBySignalKeepsItsLogAndTruth) {
-  const std::string dir = ::testing::TempDir() + "/sim_sigint";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  const auto r = testing::Run("timeout --preserve-status -s INT 2 " + testing::Bin("omni-sim") +
-                              " --out " + dir + " --no-depth --live memq:// --speed 1; echo rc=$?");
-  EXPECT_NE(r.output.find("stopped by a signal"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("rc=0"), std::string::npos) << r.output;
-  EXPECT_TRUE(std::filesystem::exists(dir + "/truth.txt")) << r.output;
-  EXPECT_TRUE(std::filesystem::exists(dir + "/truth_map.yaml")) << r.output;
-  const auto check = testing::Run(testing::Bin("omni-logcat") + " " + dir + "/sim.lcmlog");
-  EXPECT_EQ(check.exit_code, 0) << check.output;
+  // SIGINT (Ctrl-C) and SIGHUP (the terminal or SSH session went away) alike.
+  for (const char* sig : {"INT", "HUP"}) {
+    SCOPED_TRACE(sig);
+    const std::string dir = ::testing::TempDir() + "/sim_sig" + sig;
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    const auto r = testing::Run("timeout --preserve-status -s " + std::string(sig) + " 2 " +
+                                testing::Bin("omni-sim") + " --out " + dir +
+                                " --no-depth --live memq:// --speed 1; echo rc=$?");
+    EXPECT_NE(r.output.find("stopped by a signal"), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("rc=0"), std::string::npos) << r.output;
+    EXPECT_TRUE(std::filesystem::exists(dir + "/truth.txt")) << r.output;
+    EXPECT_TRUE(std::filesystem::exists(dir + "/truth_map.yaml")) << r.output;
+    const auto check = testing::Run(testing::Bin("omni-logcat") + " " + dir + "/sim.lcmlog");
+    EXPECT_EQ(check.exit_code, 0) << check.output;
+  }
 }
 
 // The base options: each base runs, bad values are errors that name the option.
