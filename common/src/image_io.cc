@@ -176,8 +176,12 @@ Status WritePng(const std::string& path, const Image& im) {
   ihdr.append(3, '\0');                                         // compression, filter, interlace
   chunk("IHDR", reinterpret_cast<const unsigned char*>(ihdr.data()), ihdr.size());
   z_stream zs{};
-  if (deflateInit(&zs, 6) != Z_OK)
+  if (deflateInit(&zs, 6) != Z_OK) {
+    out.close();
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
     return MakeError(ErrorCode::kInternal, "zlib initialisation failed for '" + path + "'");
+  }
   std::vector<unsigned char> row(1 + static_cast<size_t>(im.width) * im.channels);
   std::vector<unsigned char> buf(size_t{1} << 16);
   // Feeds `n` bytes (none with finish) and writes every full or final output buffer as IDAT.
@@ -204,10 +208,14 @@ Status WritePng(const std::string& path, const Image& im) {
   }
   ok = ok && feed(nullptr, 0, true);
   deflateEnd(&zs);
-  if (!ok) return MakeError(ErrorCode::kInternal, "zlib compression failed for '" + path + "'");
-  chunk("IEND", nullptr, 0);
+  if (ok) chunk("IEND", nullptr, 0);
   out.close();
-  if (!out) return MakeError(ErrorCode::kIo, "write to '" + tmp + "' failed");
+  if (!ok || !out) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);  // no half-written file left behind
+    return ok ? MakeError(ErrorCode::kIo, "write to '" + tmp + "' failed")
+              : MakeError(ErrorCode::kInternal, "zlib compression failed for '" + path + "'");
+  }
   return RenameInto(tmp, path);
 }
 

@@ -25,6 +25,9 @@ void InstallStopSignals() {
     if (sig == SIGHUP && sigaction(sig, nullptr, &old) == 0 && old.sa_handler == SIG_IGN) continue;
     sigaction(sig, &sa, nullptr);
   }
+  // A log line to a pipe whose reader is gone (`supervisor | tee`, tee ended by the same hangup
+  // that stops us) fails instead of killing the process before it has written its map.
+  std::signal(SIGPIPE, SIG_IGN);
 }
 
 bool StopRequested() { return g_stop != 0; }

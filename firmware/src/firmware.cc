@@ -72,6 +72,7 @@ void Firmware::EnterFault(uint32_t bit) {
 }
 
 void Firmware::Send(const CanFrame& f) {
+  if (tx_count_ == kTxQueue) DrainTx();  // mailboxes may have freed since the last drain
   if (tx_count_ == kTxQueue) {
     ++counters_.tx_dropped;
   } else {

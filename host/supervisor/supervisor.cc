@@ -204,7 +204,10 @@ std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
 
 void PosixLauncher::Signal(int pid, int sig) {
   if (pid <= 0) return;
-  if (kill(-pid, sig) != 0) kill(pid, sig);  // the group, or the child if it has none yet
+  if (kill(-pid, sig) == 0) return;  // the group
+  // The child itself if it has no group yet; not one already reaped (by another child's Poll):
+  // its pid may have been given to an unrelated process since.
+  if (running_.count(pid) > 0) kill(pid, sig);
 }
 
 namespace {

@@ -321,6 +321,7 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   // A lost terminal or SSH session ends the run in order too (log closed, truth written).
   if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
+  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
   sim.set_stop_flag(&g_stop);
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {

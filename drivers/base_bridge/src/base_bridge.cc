@@ -258,9 +258,11 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
     default:
       return;
   }
-  if (r.result != fwcan::kParamOk) return;
+  // An error answer (a firmware without that parameter) counts as answered: asking again every
+  // second for ever would not change it, and there is nothing to compare.
   geometry_answered_ |= GeometryBit(r.id);
   geometry_checked_ = geometry_answered_ == kAllGeometryBits;
+  if (r.result != fwcan::kParamOk) return;
   if (std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours))) {
     std::ostringstream s;
     s << "firmware " << what << " = " << r.value << " but config says " << ours;
@@ -301,8 +303,9 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
     if (d < 0) {
       // The firmware restarted (its cycle numbers never come back into 0-255 otherwise), or the
       // number went back: re-base before its counts, which started again, are taken as motion.
-      have_enc_ = false;
       ++counters_.firmware_restarts_seen;
+      // As after a silence: its parameters may be others now (set, not saved, before the reset).
+      FirmwareReturned();
     } else if (d > 1) {
       counters_.feedback_frames_lost += d - 1;  // positions are absolute: odometry survives
     }

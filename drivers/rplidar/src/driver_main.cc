@@ -65,6 +65,7 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   // A lost terminal or SSH session stops it in order too (unless started under nohup).
   if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
+  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
   omni::rplidar::RplidarNode node(bus->get(), &driver, nopt, &clock);
   node.Run(&g_stop, duration_s);
   return 0;

@@ -58,6 +58,7 @@ class HostHal final : public Hal {
     return n;
   }
   FwStatus CanWrite(const CanFrame& f) override {
+    if (tx.size() >= tx_capacity) return FwStatus::kBusy;
     if (tx_mailboxes > 0) {
       // A frame holds its mailbox until it is on the wire; frames go out one after another.
       const uint32_t now = MicrosNow();
@@ -67,7 +68,6 @@ class HostHal final : public Hal {
       const uint32_t start = mailbox_free_at_.empty() ? now : mailbox_free_at_.back();
       mailbox_free_at_.push_back(start + tx_frame_us);
     }
-    if (tx.size() >= tx_capacity) return FwStatus::kBusy;
     tx.push_back(f);
     return FwStatus::kOk;
   }

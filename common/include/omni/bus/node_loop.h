@@ -14,7 +14,8 @@ namespace omni::bus {
 // SIGINT, SIGTERM, SIGHUP (the terminal or SSH session went away) and SIGQUIT (Ctrl+backslash)
 // set a flag that StopRequested() reads (and that ends RunNodeLoop), so the process stops in
 // order (a mapper writes its map) instead of dying at once. A SIGHUP ignored when this is called
-// (`nohup`) stays ignored.
+// (`nohup`) stays ignored. SIGPIPE is ignored: a log line to a closed pipe fails instead of
+// killing the process mid-stop.
 void InstallStopSignals();
 bool StopRequested();
 
