@@ -20,6 +20,7 @@
 #include "omni/base_cmd_t.hpp"
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
+#include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/time.h"
 #include "omni/firmware/firmware.h"
@@ -319,9 +320,7 @@ int main(int argc, char** argv) {
   // truth written for what was simulated (the process used to die with neither).
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  // A lost terminal or SSH session ends the run in order too (log closed, truth written).
-  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
+  omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
   sim.set_stop_flag(&g_stop);
   const omni::sim::SimStats st =
       sim.Run(sink, [&](int64_t index, int64_t utime, const omni::Pose2& p) {

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "omni/base_bridge/base_bridge_node.h"
+#include "omni/bus/node_loop.h"
 #include "omni/can/can_bus.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
@@ -62,9 +63,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  // A lost terminal or SSH session stops it in order too (unless started under nohup).
-  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
+  omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
   omni::SystemClock clock;
   omni::base_bridge::BaseBridgeNode node(*opts, bus->get(), &clock);
   node.Run(&g_stop, duration_s);

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/bus/node_loop.h"
 #include "omni/common/driver_args.h"
 
 #include "omni/common/log.h"
@@ -124,9 +125,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  // A lost terminal or SSH session stops it in order too (unless started under nohup).
-  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
+  omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
   omni::imu::ImuNode node(bus->get(), &driver, nopt, &clock);
   node.Run(&g_stop, duration_s);
   LOG_INFO << "published " << node.published() << " IMU messages";

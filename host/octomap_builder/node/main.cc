@@ -7,6 +7,7 @@
 #include <string>
 
 #include "omni/bus/map_save.h"
+#include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/heartbeat_t.hpp"
@@ -71,9 +72,7 @@ int main(int argc, char** argv) {
   omni::octo::OctomapNode node(bus_or->get(), *opt, &clock);
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  // A lost terminal or SSH session stops it in order too (unless started under nohup).
-  if (std::signal(SIGHUP, SIG_IGN) != SIG_IGN) std::signal(SIGHUP, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);  // a log line to a closed pipe fails, not kills
+  omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
   std::signal(SIGUSR1, OnCloudRequest);
   omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
                                   &node.heartbeat());

@@ -17,6 +17,9 @@ namespace omni::bus {
 // (`nohup`) stays ignored. SIGPIPE is ignored: a log line to a closed pipe fails instead of
 // killing the process mid-stop.
 void InstallStopSignals();
+// For a process with its own stop handler (the drivers, octomap_builder, omni-sim): SIGHUP goes to
+// `handler` too, unless it is ignored already (`nohup`), and SIGPIPE is ignored, as above.
+void AlsoStopOnHangup(void (*handler)(int));
 bool StopRequested();
 
 enum class LoopEnd { kSignal, kBusEnded, kIdle };
