@@ -5,6 +5,7 @@
 #include <csignal>
 
 #include "omni/common/log.h"
+#include "omni/common/stop_signals.h"
 #include "omni/common/time.h"
 
 namespace omni::bus {
@@ -12,21 +13,6 @@ namespace {
 volatile std::sig_atomic_t g_stop = 0;
 void OnStopSignal(int) { g_stop = 1; }
 }  // namespace
-
-void AlsoStopOnHangup(void (*handler)(int)) {
-  struct sigaction sa {};
-  sa.sa_handler = handler;
-  sigemptyset(&sa.sa_mask);
-  sa.sa_flags = SA_RESTART;  // as std::signal's
-  // A hangup its caller chose to ignore (`nohup`) stays ignored: the process was meant to
-  // outlive the terminal.
-  struct sigaction old {};
-  if (!(sigaction(SIGHUP, nullptr, &old) == 0 && old.sa_handler == SIG_IGN))
-    sigaction(SIGHUP, &sa, nullptr);
-  // A log line to a pipe whose reader is gone (`supervisor | tee`, tee ended by the same hangup
-  // that stops us) fails instead of killing the process before it has written its map.
-  std::signal(SIGPIPE, SIG_IGN);
-}
 
 void InstallStopSignals() {
   struct sigaction sa {};

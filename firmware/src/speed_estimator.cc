@@ -1,5 +1,7 @@
 #include "omni/firmware/speed_estimator.h"
 
+#include "omni/firmware/quadrature.h"
+
 namespace omni::firmware {
 
 void SpeedEstimator::Reset(int32_t position) {
@@ -34,7 +36,7 @@ float SpeedEstimator::Update(int32_t position) {
     }
     const bool last_window = (w == kHistory - 1) || (w == filled_ - 1);
     if (newest >= 0 && oldest > newest) {
-      const int32_t counts = At(newest) - At(oldest);
+      const int32_t counts = CountsBetween(At(oldest), At(newest));
       if (counts >= kMinCounts || counts <= -kMinCounts || last_window) {
         speed = static_cast<float>(counts) / static_cast<float>(oldest - newest);
         break;
@@ -42,8 +44,8 @@ float SpeedEstimator::Update(int32_t position) {
     } else if (last_window) {
       // One change only: bounded by one change over the time since it.
       if (newest >= 0) {
-        speed =
-            static_cast<float>(At(newest) - At(newest + 1)) / static_cast<float>(since_change_ + 1);
+        speed = static_cast<float>(CountsBetween(At(newest + 1), At(newest))) /
+                static_cast<float>(since_change_ + 1);
       }
       break;
     }

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "omni/bus/bus.h"
+#include "omni/common/stop_signals.h"
 #include "omni/common/time.h"
 #include "omni/io/lcm_log.h"
 
@@ -131,6 +132,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  omni::AlsoStopOnHangup(OnSignal);  // a closed terminal stops it in order too
   omni::io::LcmLogEvent ev;
   int64_t published = 0, skipped = 0, last_pub = 0;
   bool truncated_tail = false;

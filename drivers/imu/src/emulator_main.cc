@@ -23,6 +23,7 @@
 #include <string>
 
 #include "omni/common/log.h"
+#include "omni/common/stop_signals.h"
 #include "omni/common/time.h"
 #include "omni/imu/emulator.h"
 
@@ -112,7 +113,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);
+  omni::AlsoStopOnHangup(OnSignal);  // a closed terminal stops it in order too
   LOG_INFO << "WT901 emulator on " << (*emu)->path() << " at " << opt.rate_hz << " Hz";
   std::printf("ready %s\n", (*emu)->path().c_str());
   std::fflush(stdout);

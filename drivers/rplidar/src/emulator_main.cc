@@ -21,6 +21,7 @@
 #include <string>
 
 #include "omni/common/log.h"
+#include "omni/common/stop_signals.h"
 #include "omni/common/time.h"
 #include "omni/rplidar/emulator.h"
 
@@ -108,7 +109,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  std::signal(SIGPIPE, SIG_IGN);
+  omni::AlsoStopOnHangup(OnSignal);  // a closed terminal stops it in order too
   LOG_INFO << "RPLidar emulator on " << (*emu)->path();
   std::printf("ready %s\n", (*emu)->path().c_str());
   std::fflush(stdout);

@@ -22,6 +22,7 @@
 #include "omni/can/can_bus.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/stop_signals.h"
 #include "omni/firmware/can_protocol.h"
 #include "omni/firmware/firmware.h"
 #include "plant.h"
@@ -125,6 +126,7 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  omni::AlsoStopOnHangup(OnSignal);  // a closed terminal stops it in order too
 
   sim::Plant plant(opts->plant);
   sim::HostHal hal(&plant);

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "../../unit/common/test_paths.h"
+#include "omni/io/lcm_log.h"
 #include "run.h"
 
 namespace omni {
@@ -195,6 +196,49 @@ TEST(CliErrors, AHangupStopsProcessesInOrder) {
       "\\$2}\" /proc/$p/status 2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 0x4000 )) != 0 ] "
       "&& break; sleep 0.05; done; sleep 0.3; kill -TERM $p; wait $p; echo rc=$?'");
   EXPECT_NE(r.output.find("rc=0"), std::string::npos) << r.output;
+}
+
+// The tools stop in order on a hangup too: the firmware simulator writes its truth file, an
+// emulator closes its port, a replay says where it was interrupted. Before, SIGHUP's default
+// killed them (exit 129).
+TEST(CliErrors, AHangupStopsTheToolsInOrder) {
+  const std::string dir = testing::TempDir() + "/hangup_tools";
+  std::filesystem::create_directories(dir);
+  {
+    auto w = io::LcmLogWriter::Open(dir + "/slow.lcmlog");
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const char payload[4] = {1, 2, 3, 4};
+    for (int i = 0; i < 100; ++i)  // one event a second: the replay is still running
+      ASSERT_TRUE(w->Write(1'700'000'000'000'000 + i * 1'000'000LL, "X", payload, 4).ok());
+    ASSERT_TRUE(w->Close().ok());
+  }
+  const std::string shm = "shm:hup" + std::to_string(getpid());
+  struct Case {
+    std::string cmd;
+    int exit_code;
+    const char* says;
+  };
+  for (const Case& c : {
+           Case{Bin("omni-firmware-sim") + " --config " + OMNI_SOURCE_DIR +
+                    "/config/firmware_sim.yaml --can " + shm + " --truth-out " + dir + "/truth.csv",
+                0, ""},
+           Case{Bin("omni-rplidar-emulator") + " --link " + dir + "/lidar", 0, ""},
+           Case{Bin("omni-replay") + " " + dir + "/slow.lcmlog --url memq://", 130,
+                "[interrupted]"},
+       }) {
+    SCOPED_TRACE(c.cmd);
+    const auto r = testing::Run(
+        c.cmd +
+        " & p=$!; for i in $(seq 200); do m=$(awk '/^SigCgt/{print $2}' /proc/$p/status "
+        "2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 1 )) = 1 ] && break; sleep 0.05; done; "
+        "kill -HUP $p; wait $p");
+    EXPECT_EQ(r.exit_code, c.exit_code) << r.output;
+    EXPECT_NE(r.output.find(c.says), std::string::npos) << r.output;
+  }
+  std::ifstream truth(dir + "/truth.csv");
+  std::string header;
+  std::getline(truth, header);
+  EXPECT_EQ(header.rfind("t_s,", 0), 0u) << header;
 }
 
 // A number that does not parse is an error naming the program, the option and the value,

@@ -28,6 +28,28 @@ TEST(EncoderCounterTest, SurvivesWrapBothWays) {
   EXPECT_EQ(c.position(), -530 + 1000 * 1000);
 }
 
+// 2^31 counts in one direction (74 h at the reference base's top speed): the position wraps
+// modulo 2^32, as the firmware's feedback and the speed estimator expect, instead of
+// overflowing a signed integer (undefined behaviour, which the sanitizer build reports).
+TEST(EncoderCounterTest, PositionWrapsPast32Bits) {
+  EncoderCounter c;
+  c.Reset(0);
+  uint16_t raw = 0;
+  const int32_t step = 30000;                           // under the 32768 counts one read may see
+  const int64_t steps = (int64_t{1} << 31) / step + 1;  // the last one crosses INT32_MAX
+  int32_t before = 0;
+  for (int64_t i = 0; i < steps; ++i) {
+    raw = static_cast<uint16_t>(raw + step);
+    before = c.position();
+    EXPECT_EQ(c.Update(raw), step);
+    if (CountsBetween(before, c.position()) != step) FAIL() << "step " << i;
+  }
+  EXPECT_LT(c.position(), 0);  // wrapped past INT32_MAX
+  EXPECT_GT(before, 0);
+  EXPECT_EQ(CountsBetween(before, c.position()), step);
+  EXPECT_EQ(static_cast<uint16_t>(c.position()), raw);  // the low 16 bits the feedback sends
+}
+
 TEST(QuadratureDecoderTest, CountsX4AndDirection) {
   QuadratureDecoderX4 q;
   q.Reset(false, false);
@@ -79,6 +101,24 @@ TEST(SpeedEstimatorStopTest, DecaysToZeroAfterStop) {
     prev = s;
   }
   EXPECT_EQ(est.counts_per_period(), 0.f);
+}
+
+// The same speed measured across the position's 32-bit wrap.
+TEST(SpeedEstimatorStopTest, SameSpeedAcrossThePositionWrap) {
+  for (const int32_t per_period : {7, -7, 1, -1}) {
+    SpeedEstimator plain, wrapping;
+    int32_t pos = 0;
+    const int32_t origin = per_period > 0 ? INT32_MAX - 150 : INT32_MIN + 150;
+    plain.Reset(pos);
+    wrapping.Reset(origin);
+    for (int k = 0; k < 200; ++k) {
+      pos += (per_period == 1 || per_period == -1) ? (k % 3 == 0 ? per_period : 0) : per_period;
+      const int32_t wrapped =
+          static_cast<int32_t>(static_cast<uint32_t>(origin) + static_cast<uint32_t>(pos));
+      EXPECT_EQ(plain.Update(pos), wrapping.Update(wrapped)) << per_period << " at " << k;
+    }
+    EXPECT_NE(plain.counts_per_period(), 0.f);
+  }
 }
 
 TEST(KinematicsFloatTest, FirmwareFloatMatchesCommonDouble) {

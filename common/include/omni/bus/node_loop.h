@@ -8,6 +8,7 @@
 #include <functional>
 
 #include "omni/bus/bus.h"
+#include "omni/common/stop_signals.h"
 
 namespace omni::bus {
 
@@ -17,9 +18,8 @@ namespace omni::bus {
 // (`nohup`) stays ignored. SIGPIPE is ignored: a log line to a closed pipe fails instead of
 // killing the process mid-stop.
 void InstallStopSignals();
-// For a process with its own stop handler (the drivers, octomap_builder, omni-sim): SIGHUP goes to
-// `handler` too, unless it is ignored already (`nohup`), and SIGPIPE is ignored, as above.
-void AlsoStopOnHangup(void (*handler)(int));
+// For a process with its own stop handler: omni/common/stop_signals.h.
+using omni::AlsoStopOnHangup;
 bool StopRequested();
 
 enum class LoopEnd { kSignal, kBusEnded, kIdle };

@@ -14,6 +14,12 @@
 
 namespace omni::firmware {
 
+// The signed counts from position `from` to position `to` of a wrapping 32-bit position, right as
+// long as fewer than 2^31 counts lie between them.
+inline int32_t CountsBetween(int32_t from, int32_t to) {
+  return static_cast<int32_t>(static_cast<uint32_t>(to) - static_cast<uint32_t>(from));
+}
+
 class EncoderCounter {
  public:
   // Takes the first reading as the origin.
@@ -25,10 +31,13 @@ class EncoderCounter {
   int32_t Update(uint16_t raw) {
     const int16_t delta = static_cast<int16_t>(static_cast<uint16_t>(raw - last_raw_));
     last_raw_ = raw;
-    position_ += delta;
+    // Modulo 2^32, so that the position wraps instead of overflowing (undefined behaviour) after
+    // 2^31 counts: 74 h of one direction at the reference base's top wheel speed.
+    position_ = static_cast<int32_t>(static_cast<uint32_t>(position_) +
+                                     static_cast<uint32_t>(static_cast<int32_t>(delta)));
     return delta;
   }
-  // Accumulated counts since Reset (wraps after 2^31 counts; use differences).
+  // Accumulated counts since Reset, modulo 2^32: compare positions with CountsBetween.
   int32_t position() const { return position_; }
 
  private:
