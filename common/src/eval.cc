@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <random>
 #include <thread>
 #include <unordered_map>
 #include <vector>
@@ -244,16 +245,38 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   // The estimate's occupied cells turned by r about its centre, in reference-cell units from
   // the reference origin: a shift (dx, dy) then only adds dx/res, dy/res to every point.
   const double inv_res = 1.0 / ref.resolution_m;
-  auto turn = [&](double r, std::vector<double>* u, std::vector<double>* v) {
+  auto turn_cells = [&](const std::vector<Cell>& cells, double r, std::vector<double>* u,
+                        std::vector<double>* v) {
     const double c = std::cos(r), s = std::sin(r);
-    u->resize(occ.size());
-    v->resize(occ.size());
-    for (size_t i = 0; i < occ.size(); ++i) {
-      const double rx = occ[i].x - best.cx_m, ry = occ[i].y - best.cy_m;
+    u->resize(cells.size());
+    v->resize(cells.size());
+    for (size_t i = 0; i < cells.size(); ++i) {
+      const double rx = cells[i].x - best.cx_m, ry = cells[i].y - best.cy_m;
       (*u)[i] = (best.cx_m + c * rx - s * ry - ref.origin_x_m) * inv_res;
       (*v)[i] = (best.cy_m + s * rx + c * ry - ref.origin_y_m) * inv_res;
     }
   };
+  auto turn = [&](double r, std::vector<double>* u, std::vector<double>* v) {
+    turn_cells(occ, r, u, v);
+  };
+  // The cells the levels before the last score: all, or a fixed random subset of max_cells (a
+  // partial Fisher-Yates shuffle with a fixed seed, kept in map order), so that a large map
+  // costs the search what a map of max_cells occupied cells would.
+  std::vector<Cell> subset;
+  if (opt.max_cells > 0 && occ.size() > static_cast<size_t>(opt.max_cells)) {
+    std::vector<uint32_t> index(occ.size());
+    for (size_t i = 0; i < index.size(); ++i) index[i] = static_cast<uint32_t>(i);
+    std::mt19937 rng(12345);
+    const size_t k = static_cast<size_t>(opt.max_cells);
+    for (size_t i = 0; i < k; ++i) {
+      const size_t j = i + static_cast<size_t>(rng() % (index.size() - i));
+      std::swap(index[i], index[j]);
+    }
+    index.resize(k);
+    std::sort(index.begin(), index.end());
+    subset.reserve(k);
+    for (uint32_t i : index) subset.push_back(occ[i]);
+  }
   auto count = [&](const std::vector<double>& u, const std::vector<double>& v, double dx,
                    double dy) {
     const double su = dx * inv_res, sv = dy * inv_res;
@@ -277,9 +300,27 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   // Coarse to fine: each level searches a window around the best so far with a finer step.
   double rot_range = opt.max_rotation_rad, shift_range = opt.max_shift_m;
   const int coarse = std::max(1, opt.coarse_steps), div = std::max(2, opt.refine_divisions);
-  double rot_step = std::max(opt.max_rotation_rad / coarse, 1e-3);
   double shift_step = std::max(opt.max_shift_m / coarse, ref.resolution_m);
-  size_t best_score = best.overlap;
+  // A rotation step moves a cell at distance r from the centre by r x step: on a large map a
+  // step of range / coarse_steps moves its outer walls by metres, and only the cells near the
+  // centre can score at the right rotation, which on a big floor is no basin at all (a 90 m
+  // floor was aligned 0.5 m off). So the step also keeps the cells' RMS distance within one
+  // shift step.
+  double radius2 = 0;
+  for (const Cell& c : occ)
+    radius2 += (c.x - best.cx_m) * (c.x - best.cx_m) + (c.y - best.cy_m) * (c.y - best.cy_m);
+  const double radius = std::sqrt(radius2 / static_cast<double>(occ.size()));
+  double rot_step = opt.max_rotation_rad / coarse;
+  if (opt.rotation_step_from_extent && radius * rot_step > shift_step)
+    rot_step = shift_step / radius;
+  rot_step = std::max(rot_step, 1e-3);
+  // The best score so far, counted over the cells the current level scores.
+  auto score_at_centre = [&](const std::vector<Cell>& cells) {
+    std::vector<double> u, v;
+    turn_cells(cells, rot, &u, &v);
+    return count(u, v, dx, dy);
+  };
+  size_t best_score = subset.empty() ? best.overlap : score_at_centre(subset);
   const int threads = opt.threads > 0
                           ? opt.threads
                           : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
@@ -297,10 +338,13 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
     // order, so the result is the one a single thread finds (the first of equal scores).
     std::vector<Found> found(static_cast<size_t>(2 * nr + 1));
     std::atomic<int> next{0};
+    const bool last = level + 1 == opt.levels;
+    const std::vector<Cell>& cells = subset.empty() || last ? occ : subset;
+    if (last && !subset.empty()) best_score = score_at_centre(occ);  // every cell from here on
     auto work = [&] {
       std::vector<double> u, v;
       for (int k = next++; k < static_cast<int>(found.size()); k = next++) {
-        turn(rot + (k - nr) * rot_step, &u, &v);
+        turn_cells(cells, rot + (k - nr) * rot_step, &u, &v);
         Found& f = found[static_cast<size_t>(k)];
         for (int ix = -ns; ix <= ns; ++ix)
           for (int iy = -ns; iy <= ns; ++iy) {
@@ -330,6 +374,7 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
     rot_step = std::max(rot_step / div, 1e-4);
     shift_step = std::max(shift_step / div, ref.resolution_m / 4);
   }
+  if (opt.levels <= 0) return best;  // no search: the centre, counted over every cell
   best.rotation_rad = rot;
   best.dx_m = dx;
   best.dy_m = dy;

@@ -35,6 +35,7 @@ Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   a.Get("enabled", &o.align.align, Optional());
   a.Get("max_rotation_rad", &o.align.max_rotation_rad, Optional(), InRange(0.0, 3.2));
   a.Get("max_shift_m", &o.align.max_shift_m, Optional(), InRange(0.0, 100.0));
+  a.Get("max_cells", &o.align.max_cells, Optional(), InRange(0, 100000000));
   r.Get("min_overlap_fraction", &o.min_overlap_fraction, Optional(), InRange(0.0, 1.0));
   r.Get("max_conflict_fraction", &o.max_conflict_fraction, Optional(), InRange(0.0, 1.0));
   std::string tie = "occupied";

@@ -445,6 +445,74 @@ TEST(MapFusion, AlignmentRecoversAKnownTransformOfARealMap) {
   EXPECT_GE(tracked.overlap + tracked.occupied / 100, full.overlap);
 }
 
+// A larger building (MIT CSAIL, about 60 m across) against a copy moved by a known transform
+// about its centre. With a first rotation step of range / 8 (0.044 rad), its outer walls moved by
+// over a metre per step and the search settled 0.17 m off (overlap 0.80, which passes the
+// fusion's overlap gate); the step is now also bounded by the map's extent. And the bound on the
+// cells scored (map_fusion's `align.max_cells`) finds the same alignment as every cell, reporting
+// the overlap over every cell.
+TEST(MapFusion, ALargeBuildingIsAlignedWithTheCellsBounded) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/csail-corrected.log.gz");
+  auto log = io::ReadCarmenLog(path);
+  ASSERT_TRUE(log.ok()) << log.error().message;
+  io::GridMap base, moved;
+  Pose2 t;
+  for (int pass = 0; pass < 2; ++pass) {
+    io::LogOddsGrid g;
+    int n = 0;
+    for (const auto& r : log->records) {
+      if (r.kind != io::CarmenRecord::Kind::kLaser) continue;
+      if (++n % 4) continue;
+      const auto& l = r.laser;
+      g.IntegrateScan(pass == 0 ? l.laser_pose : t * l.laser_pose, l.ranges_m, l.angle_min_rad,
+                      l.angle_increment_rad, l.max_range_m);
+    }
+    if (pass == 1) {
+      moved = g.ToGridMap();
+      break;
+    }
+    base = g.ToGridMap();
+    const Pose2 c(base.origin_x_m + base.width * base.resolution_m / 2,
+                  base.origin_y_m + base.height * base.resolution_m / 2, 0);
+    t = c * Pose2(0.6, -0.4, 0.15) * c.Inverse();
+  }
+  auto error_m = [&](const eval::MapAlignment& a) {
+    double worst = 0;
+    for (const Eigen::Vector2d& p :
+         {Eigen::Vector2d(base.origin_x_m, base.origin_y_m),
+          Eigen::Vector2d(base.origin_x_m + base.width * base.resolution_m,
+                          base.origin_y_m + base.height * base.resolution_m)}) {
+      const Eigen::Vector2d q = t.Transform(p);
+      double x, y;
+      a.Apply(q.x(), q.y(), &x, &y);
+      worst = std::max(worst, std::hypot(x - p.x(), y - p.y()));
+    }
+    return worst;
+  };
+  eval::MapCompareOptions all;
+  ASSERT_EQ(all.max_cells, 0);
+  const eval::MapAlignment a = eval::AlignMap(base, moved, all);
+  const eval::MapCompareOptions bounded = FusionOptions().align;
+  ASSERT_GT(bounded.max_cells, 0);
+  ASSERT_GT(a.occupied, static_cast<size_t>(bounded.max_cells)) << "the bound must bite";
+  const eval::MapAlignment b = eval::AlignMap(base, moved, bounded);
+  EXPECT_LT(error_m(a), 0.1);
+  EXPECT_LT(error_m(b), 0.1);
+  // The data does show the fault: the step of range / coarse_steps alone lands off.
+  eval::MapCompareOptions old_step = all;
+  old_step.rotation_step_from_extent = false;
+  EXPECT_GT(error_m(eval::AlignMap(base, moved, old_step)), 0.1);
+  EXPECT_EQ(b.occupied, a.occupied);
+  EXPECT_GT(static_cast<double>(a.overlap) / static_cast<double>(a.occupied), 0.95);
+  EXPECT_GT(static_cast<double>(b.overlap) / static_cast<double>(b.occupied), 0.95);
+  // The reported overlap is a count over every cell at the alignment found.
+  eval::MapCompareOptions at_b = all;
+  at_b.align = false;
+  EXPECT_EQ(eval::AlignMap(base, moved, at_b, &b).overlap, b.overlap);
+  std::printf("CSAIL (%zu occupied cells): error %.3f m every cell, %.3f m bounded to %d\n",
+              a.occupied, error_m(a), error_m(b), bounded.max_cells);
+}
+
 TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
   auto r = ConfigReader::FromFile(std::string(OMNI_SOURCE_DIR) + "/config/map_fusion.yaml");
   ASSERT_TRUE(r.ok()) << r.error().message;
@@ -457,6 +525,7 @@ TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
   EXPECT_EQ(o->min_overlap_fraction, d.min_overlap_fraction);
   EXPECT_EQ(o->max_conflict_fraction, d.max_conflict_fraction);
   EXPECT_EQ(o->align.max_shift_m, d.align.max_shift_m);
+  EXPECT_EQ(o->align.max_cells, d.align.max_cells);
   auto bad = ConfigReader::FromString(
       "tie: sometimes\nmin_maps: 0\nbase: GRID_X\nmax_conflict_fraction: 1.5\nalign:\n"
       "  max_shfit_m: 3\n",

@@ -68,6 +68,14 @@ struct MapCompareOptions {
   int refine_divisions = 4;
   int levels = 6;
   int threads = 0;  // threads scoring the rotations of a level; 0: one per core
+  // The first level's rotation step is also at most (its shift step) / (the RMS distance of the
+  // estimate's occupied cells from its centre), so a large map's walls move by no more than a
+  // shift step per rotation step (more rotations to try on a large map).
+  bool rotation_step_from_extent = true;
+  // > 0: every level but the last scores at most this many of the estimate's occupied cells (a
+  // fixed, evenly spread random subset), so the search's cost stops growing with the map; the
+  // last level and the overlap reported use every cell. 0: every cell at every level.
+  int max_cells = 0;
 };
 
 struct MapCompareResult {
