@@ -70,6 +70,10 @@ int main(int argc, char** argv) {
     return log->records[a].timestamp_s() < log->records[b].timestamp_s();
   });
   const std::string tmp = out + ".partial";
+  // Its folder is made as a recorder would (`out/x.lcmlog` on a fresh checkout); an error making
+  // it shows as the writer's.
+  if (const auto dir = std::filesystem::path(out).parent_path(); !dir.empty())
+    std::filesystem::create_directories(dir, ec);
   auto writer = omni::io::LcmLogWriter::Open(tmp);
   if (!writer.ok()) {
     std::fprintf(stderr, "omni import: %s\n", writer.error().message.c_str());

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <string>
 #include <thread>
 #include <vector>
@@ -192,6 +193,10 @@ int CmdOptimize(int argc, char** argv) {
   double write_s = 0;
   if (!out.empty()) {
     const auto t_write = Clock::now();
+    // Its folder is made as a recorder would (`-o out/x.g2o` on a fresh checkout).
+    std::error_code ec;
+    if (const auto dir = std::filesystem::path(out).parent_path(); !dir.empty())
+      std::filesystem::create_directories(dir, ec);
     if (omni::Status s = omni::io::WriteG2o(out, *g); !s.ok()) return Fail(s.message());
     write_s = seconds(t_write);
   }

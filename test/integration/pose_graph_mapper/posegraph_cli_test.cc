@@ -42,6 +42,19 @@ TEST(PoseGraphCli, EdgeToAMissingVertexNamesTheLine) {
   EXPECT_FALSE(std::filesystem::exists(dir + "/out.g2o"));
 }
 
+// `-o` into a folder that does not exist yet (`out/` on a fresh checkout): it is made.
+TEST(PoseGraphCli, OutputFolderIsMade) {
+  const std::string dir = testing::TempDir() + "/pg_out_folder";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  Write(dir + "/g.g2o",
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0.1\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n");
+  const auto r = testing::Run(Bin("omni-posegraph") + " optimize " + dir + "/g.g2o -o " + dir +
+                              "/new/sub/out.g2o");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(std::filesystem::exists(dir + "/new/sub/out.g2o")) << r.output;
+}
+
 TEST(PoseGraphCli, NonPositiveDefiniteInformationNamesTheLine) {
   const std::string dir = testing::TempDir();
   Write(dir + "/g.g2o",

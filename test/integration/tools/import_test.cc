@@ -1,5 +1,7 @@
 // The CARMEN importer on real data: every scan and odometry line becomes one decodable bus
 // message, in time order.
+#include <filesystem>
+
 #include <gtest/gtest.h>
 
 #include "../../unit/common/test_paths.h"
@@ -51,7 +53,9 @@ TEST(Import, IntelRawBecomesOrderedLog) {
 
 TEST(Import, GzipLogWithOtherTags) {
   OMNI_REQUIRE_DATASET(log, "carmen-corrected/csail-corrected.log.gz");
-  const std::string out = testing::TempDir() + "/csail.lcmlog";
+  // Into a folder that does not exist yet (`out/` on a fresh checkout): it is made.
+  std::filesystem::remove_all(testing::TempDir() + "/import_new");
+  const std::string out = testing::TempDir() + "/import_new/logs/csail.lcmlog";
   const auto r = testing::Run(testing::Bin("omni-import") + " carmen " + log + " " + out);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("406 laser scans"), std::string::npos) << r.output;
