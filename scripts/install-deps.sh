@@ -2,6 +2,7 @@
 # Installs every Debian 12 package omni needs. Idempotent; needs root (or sudo).
 # Nothing is downloaded from anywhere but the configured Debian archive.
 # --fuzz: also clang and its libFuzzer runtime, for ./omni fuzz (not needed to build or test).
+# --spy: also a Java runtime with its desktop (AWT) libraries, for ./omni spy (lcm-spy).
 set -euo pipefail
 
 PACKAGES=(
@@ -21,11 +22,15 @@ PACKAGES=(
   gcc-arm-none-eabi libnewlib-arm-none-eabi binutils-arm-none-eabi
   # process isolation for multi-process runs (unshare, ip)
   util-linux iproute2 bzip2
+  # the service unit's check in the tests (systemd-analyze verify); scripts/analysis/*.py
+  systemd python3
 )
 if [ "${1:-}" = "--fuzz" ]; then
   PACKAGES+=(clang libclang-rt-14-dev)
+elif [ "${1:-}" = "--spy" ]; then
+  PACKAGES+=(default-jre)
 elif [ $# -gt 0 ]; then
-  echo "usage: scripts/install-deps.sh [--fuzz]" >&2
+  echo "usage: scripts/install-deps.sh [--fuzz | --spy]" >&2
   exit 2
 fi
 
