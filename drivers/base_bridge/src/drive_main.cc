@@ -6,11 +6,12 @@
 //   omni-drive [--url URL] --keys        (keyboard teleop, omni/base_bridge/teleop.h)
 //
 // A twist is repeated at --rate (the bridge stops the base when commands go stale, after its
-// command_timeout_s, 0.3 s as shipped), then one zero twist ends the motion.
+// command_timeout_s, 0.3 s as shipped), then one zero twist ends the motion at --duration.
 #include <poll.h>
 #include <termios.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -19,11 +20,14 @@
 #include <cstdlib>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "omni/base_bridge/teleop.h"
 #include "omni/base_cmd_t.hpp"
+#include "omni/base_status_t.hpp"
 #include "omni/bus/bus.h"
 #include "omni/common/cli.h"
+#include "omni/common/stop_signals.h"
 #include "omni/common/time.h"
 
 namespace {
@@ -44,21 +48,29 @@ void Usage(std::FILE* f) {
       f,
       "usage: omni-drive [--url URL] [--channel NAME] [--vx M_S] [--vy M_S] [--omega RAD_S]\n"
       "                  [--duration S] [--rate HZ]\n"
-      "       omni-drive [--url URL] [--channel NAME] --estop | --clear-faults | --stop\n"
-      "       omni-drive [--url URL] [--channel NAME] --keys [--rate HZ]\n"
+      "       omni-drive [--url URL] [--channel NAME] --estop [--wait S] [--status-channel NAME]\n"
+      "       omni-drive [--url URL] [--channel NAME] --clear-faults | --stop\n"
+      "       omni-drive [--url URL] [--channel NAME] --keys [--rate HZ] [--key-timeout S]\n"
       "  Publishes base_cmd_t on NAME (default BASE_CMD): the body twist (x forward, y left,\n"
-      "  counter-clockwise; default 0) every 1/HZ s (default 20) for S s (default 1), then a zero\n"
-      "  twist; or one e-stop (motors off until --clear-faults), clear-faults or zero twist.\n"
-      "  The base bridge clamps the twist to its limits; Ctrl-C stops early (zero twist sent).\n"
-      "  --keys: keyboard teleop; the current twist is sent at HZ until you quit:\n  %s",
+      "  counter-clockwise; default 0) every 1/HZ s (default 20, at least 5: the bridge stops a\n"
+      "  base whose twist is older than its 0.3 s command timeout) for S s (default 1), then a\n"
+      "  zero twist; or an e-stop (motors off until --clear-faults), clear-faults or zero twist,\n"
+      "  each sent 5 times 20 ms apart (a lost datagram must not lose it). --estop then waits up\n"
+      "  to S s (default 1; 0: no wait) for the bridge's BASE_STATUS to show the e-stop, and\n"
+      "  exits 1 saying NOT CONFIRMED if it does not. The bridge clamps the twist to its limits;\n"
+      "  Ctrl-C, SIGTERM or a hangup stop early (zero twist sent).\n"
+      "  --keys: keyboard teleop, the twist sent at HZ until you quit; with no key for S s\n"
+      "  (--key-timeout, default 0.75; 0: the twist holds until space) the base stops:\n  %s",
       omni::base_bridge::TeleopHelp());
 }
 
-// Keyboard teleop: the terminal in raw mode (restored on the way out), keys change the twist,
-// which is sent every 1 / rate_hz s; stdin that is not a terminal (a pipe) is read as it is,
-// and its end quits.
+// Keyboard teleop: the terminal in raw mode (restored on the way out); a held direction key
+// moves the base, and the twist (zero once keys stop coming: TeleopOptions::key_timeout_s) is
+// sent every 1 / rate_hz s; while e-stopped the e-stop itself is repeated instead, so one lost
+// datagram cannot leave the base running. Stdin that is not a terminal (a pipe) is read as it
+// is, and its end quits.
 template <typename Send>
-int Teleop(const Send& send, double rate_hz, const std::string& channel) {
+int Teleop(const Send& send, double rate_hz, double key_timeout_s, const std::string& channel) {
   if (isatty(STDIN_FILENO) != 0 && tcgetattr(STDIN_FILENO, &g_saved_terminal) == 0) {
     termios raw = g_saved_terminal;
     raw.c_lflag &= static_cast<tcflag_t>(~(ICANON | ECHO | ISIG));
@@ -74,80 +86,119 @@ int Teleop(const Send& send, double rate_hz, const std::string& channel) {
   // On a terminal the twist is one line rewritten in place; otherwise one line per change.
   const char* const line_start = isatty(STDERR_FILENO) != 0 ? "\r\x1b[K" : "";
   const char* const line_end = isatty(STDERR_FILENO) != 0 ? "" : "\n";
-  const omni::base_bridge::TeleopOptions opt;
-  omni::base_bridge::TeleopTwist twist;
+  omni::base_bridge::TeleopOptions opt;
+  opt.key_timeout_s = key_timeout_s;
+  omni::base_bridge::TeleopState state(opt);
+  omni::base_bridge::TeleopKeyReader reader;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto now_s = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
   const auto period = std::chrono::duration<double>(1.0 / rate_hz);
   auto next = std::chrono::steady_clock::now();
   int64_t sent = 0;
   bool quit = false;
+  std::vector<char> keys;
   while (!quit && !g_stop) {
     const auto now = std::chrono::steady_clock::now();
     if (now >= next) {
-      send(omni::base_cmd_t::MODE_TWIST, twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s);
+      if (state.estopped()) {
+        send(omni::base_cmd_t::MODE_ESTOP, 0, 0, 0);
+      } else {
+        const omni::base_bridge::TeleopTwist t = state.TwistAt(now_s());
+        send(omni::base_cmd_t::MODE_TWIST, t.vx_m_s, t.vy_m_s, t.omega_rad_s);
+      }
       ++sent;
+      if (state.TimedOutNow(now_s()))
+        std::fprintf(stderr, "%sno key for %.2f s: stopped (hold a key to move)%s", line_start,
+                     key_timeout_s, line_end);
       next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
+      if (next < now) next = now;  // a stall (a suspended terminal) is not made up in a burst
       continue;
     }
     pollfd p{STDIN_FILENO, POLLIN, 0};
-    const int ms = static_cast<int>(
-                       std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count()) +
-                   1;
-    if (poll(&p, 1, ms) <= 0) continue;
-    if (p.revents & (POLLERR | POLLNVAL)) break;  // stdin is gone: stop, do not spin
-    if ((p.revents & (POLLIN | POLLHUP)) == 0) continue;
-    char buf[64];
-    ssize_t n = read(STDIN_FILENO, buf, sizeof(buf));
-    if (n <= 0) {  // end of input
-      quit = true;
-      break;
-    }
-    // A key like an arrow sends an escape sequence (ESC [ A): not the Esc key that quits. Esc
-    // alone is the last byte read with nothing following within 50 ms.
-    if (buf[n - 1] == 27) {
-      pollfd more{STDIN_FILENO, POLLIN, 0};
-      if (poll(&more, 1, 50) > 0 && (more.revents & POLLIN)) {
-        char rest[64];
-        const ssize_t m = read(STDIN_FILENO, rest, sizeof(rest));
-        if (m > 0) {
-          --n;  // the ESC starts a sequence whose rest was `rest`: drop both
-        }
+    int ms = static_cast<int>(
+                 std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count()) +
+             1;
+    // An ESC with nothing after it is the Esc key once 50 ms passed without the rest of a
+    // sequence.
+    if (reader.escape_pending()) ms = std::min(ms, 50);
+    const int ready = poll(&p, 1, ms);
+    keys.clear();
+    if (ready <= 0) {
+      if (ready == 0 && reader.escape_pending()) reader.Flush(&keys);
+      if (keys.empty()) continue;
+    } else {
+      if (p.revents & (POLLERR | POLLNVAL)) break;  // stdin is gone: stop, do not spin
+      if ((p.revents & (POLLIN | POLLHUP)) == 0) continue;
+      char buf[64];
+      const ssize_t n = read(STDIN_FILENO, buf, sizeof(buf));
+      if (n <= 0) {  // end of input
+        reader.Flush(&keys);
+        quit = true;
+      } else {
+        reader.Feed(buf, static_cast<size_t>(n), &keys);
       }
     }
-    for (ssize_t i = 0; i < n && !quit; ++i) {
-      if (buf[i] == 27 && i + 1 < n) break;  // an escape sequence: the rest of this read
-      switch (omni::base_bridge::ApplyTeleopKey(buf[i], opt, &twist)) {
+    for (char key : keys) {
+      const double t = now_s();
+      switch (state.Key(key, t)) {
         case omni::base_bridge::TeleopAction::kEstop:
           send(omni::base_cmd_t::MODE_ESTOP, 0, 0, 0);
-          std::fprintf(stderr, "%se-stop sent (c clears faults)\n", line_start);
+          std::fprintf(stderr, "%se-stop sent, repeated until c clears faults\n", line_start);
           break;
         case omni::base_bridge::TeleopAction::kClearFaults:
           send(omni::base_cmd_t::MODE_CLEAR_FAULTS, 0, 0, 0);
-          std::fprintf(stderr, "%sclear-faults sent\n", line_start);
+          std::fprintf(stderr, "%sclear-faults sent (stopped; hold a key to move)\n", line_start);
+          break;
+        case omni::base_bridge::TeleopAction::kRefused:
+          std::fprintf(stderr, "%se-stopped: c clears faults before the base can move%s",
+                       line_start, line_end);
           break;
         case omni::base_bridge::TeleopAction::kQuit:
           quit = true;
           break;
-        case omni::base_bridge::TeleopAction::kTwist:
+        case omni::base_bridge::TeleopAction::kTwist: {
+          const omni::base_bridge::TeleopTwist tw = state.TwistAt(t);
           std::fprintf(stderr, "%svx %+.2f m/s  vy %+.2f m/s  omega %+.2f rad/s%s", line_start,
-                       twist.vx_m_s, twist.vy_m_s, twist.omega_rad_s, line_end);
+                       tw.vx_m_s, tw.vy_m_s, tw.omega_rad_s, line_end);
+          break;
+        }
+        case omni::base_bridge::TeleopAction::kSpeed:
+          std::fprintf(stderr, "%sspeeds %.2f m/s, %.2f rad/s%s", line_start,
+                       state.linear_speed_m_s(), state.angular_speed_rad_s(), line_end);
           break;
         case omni::base_bridge::TeleopAction::kNone:
           break;
       }
+      if (quit) break;
     }
   }
-  send(omni::base_cmd_t::MODE_TWIST, 0, 0, 0);
+  if (!state.estopped()) send(omni::base_cmd_t::MODE_TWIST, 0, 0, 0);
   RestoreTerminal();
-  std::printf("\nomni-drive: teleop ended, %lld twists sent, then a zero twist\n",
-              static_cast<long long>(sent));
+  std::printf("\nomni-drive: teleop ended, %lld commands sent, then %s\n",
+              static_cast<long long>(sent),
+              state.estopped() ? "none (the base stays e-stopped)" : "a zero twist");
   return 0;
+}
+
+// Sleeps until `until`, in slices, so a signal ends the wait at once. False when stopped.
+bool SleepUntil(std::chrono::steady_clock::time_point until) {
+  while (!g_stop) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= until) return true;
+    std::this_thread::sleep_for(
+        std::min<std::chrono::steady_clock::duration>(until - now, std::chrono::milliseconds(10)));
+  }
+  return false;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string lcm_url, channel = "BASE_CMD";
-  double vx = 0, vy = 0, omega = 0, duration_s = 1.0, rate_hz = 20;
+  std::string lcm_url, channel = "BASE_CMD", status_channel = "BASE_STATUS";
+  double vx = 0, vy = 0, omega = 0, duration_s = 1.0, rate_hz = 20, wait_s = 1.0;
+  double key_timeout_s = omni::base_bridge::TeleopOptions().key_timeout_s;
   int8_t mode = omni::base_cmd_t::MODE_TWIST;
   bool twist_given = false, single = false, keys = false;
   std::string single_flag;  // the one-shot command given (two are refused: which one was meant?)
@@ -163,6 +214,8 @@ int main(int argc, char** argv) {
       lcm_url = args.Value();
     } else if (args.Is("--channel")) {
       channel = args.Value();
+    } else if (args.Is("--status-channel")) {
+      status_channel = args.Value();
     } else if (args.Is("--vx")) {
       vx = args.Number(-10, 10);
       twist_given = true;
@@ -175,7 +228,13 @@ int main(int argc, char** argv) {
     } else if (args.Is("--duration")) {
       duration_s = args.Number(0, 3600);
     } else if (args.Is("--rate")) {
-      rate_hz = args.Number(1, 1000);
+      // At least 5 Hz: the bridge stops a base whose last twist is older than its
+      // command_timeout_s (0.3 s as shipped), so a slower stream would drive it in bursts.
+      rate_hz = args.Number(5, 1000);
+    } else if (args.Is("--key-timeout")) {
+      key_timeout_s = args.Number(0, 10);
+    } else if (args.Is("--wait")) {
+      wait_s = args.Number(0, 60);
     } else if (args.Is("--estop")) {
       one_shot(args);
       mode = omni::base_cmd_t::MODE_ESTOP;
@@ -200,6 +259,8 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  std::signal(SIGQUIT, OnSignal);
+  omni::AlsoStopOnHangup(OnSignal);  // a closed SSH session stops the base, terminal restored
   int64_t seq = 0;
   auto send = [&](int8_t m, double x, double y, double w) {
     omni::base_cmd_t c{};
@@ -215,25 +276,64 @@ int main(int argc, char** argv) {
     }
   };
   if (single) {
-    send(mode, 0, 0, 0);
-    std::printf("omni-drive: sent %s on %s\n",
-                mode == omni::base_cmd_t::MODE_ESTOP          ? "e-stop"
-                : mode == omni::base_cmd_t::MODE_CLEAR_FAULTS ? "clear-faults"
-                                                              : "zero twist",
-                channel.c_str());
-    return 0;
+    const char* what = mode == omni::base_cmd_t::MODE_ESTOP          ? "e-stop"
+                       : mode == omni::base_cmd_t::MODE_CLEAR_FAULTS ? "clear-faults"
+                                                                     : "zero twist";
+    // The bridge's BASE_STATUS says whether an e-stop took hold; heard from the start, so a
+    // status already on its way counts only if it shows the e-stop.
+    int64_t statuses = 0;
+    int8_t last_state = -1;
+    (*bus)->Subscribe<omni::base_status_t>(status_channel,
+                                           [&](const omni::base_status_t& st, int64_t) {
+                                             ++statuses;
+                                             last_state = st.state;
+                                           });
+    // A datagram can be lost: the command is idempotent, so it goes out five times, 20 ms apart.
+    for (int i = 0; i < 5 && !g_stop; ++i) {
+      send(mode, 0, 0, 0);
+      (*bus)->HandleTimeout(20);
+    }
+    std::printf("omni-drive: sent %s on %s\n", what, channel.c_str());
+    if (mode != omni::base_cmd_t::MODE_ESTOP || wait_s <= 0) return 0;
+    const auto until = std::chrono::steady_clock::now() +
+                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                           std::chrono::duration<double>(wait_s));
+    while (!g_stop && std::chrono::steady_clock::now() < until &&
+           last_state != omni::base_status_t::STATE_ESTOP)
+      (*bus)->HandleTimeout(20);
+    if (last_state == omni::base_status_t::STATE_ESTOP) {
+      std::printf("omni-drive: the base bridge reports the base e-stopped (%s)\n",
+                  status_channel.c_str());
+      return 0;
+    }
+    if (statuses == 0)
+      std::fprintf(stderr,
+                   "omni-drive: NOT CONFIRMED: no %s heard within %.1f s; is the base bridge "
+                   "running on this bus (LCM_DEFAULT_URL, --url, --channel)?\n",
+                   status_channel.c_str(), wait_s);
+    else
+      std::fprintf(stderr,
+                   "omni-drive: NOT CONFIRMED: %s still shows state %d, not ESTOP (5), after "
+                   "%.1f s\n",
+                   status_channel.c_str(), last_state, wait_s);
+    return 1;
   }
-  if (keys) return Teleop(send, rate_hz, channel);
+  if (keys) return Teleop(send, rate_hz, key_timeout_s, channel);
   const auto start = std::chrono::steady_clock::now();
   const auto period = std::chrono::duration<double>(1.0 / rate_hz);
+  auto at_s = [&](double t) {
+    return start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                       std::chrono::duration<double>(t));
+  };
   int64_t n = 0;
   for (; !g_stop; ++n) {
-    const auto at =
-        start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(n * period);
-    if (std::chrono::duration<double>(at - start).count() >= duration_s) break;
-    std::this_thread::sleep_until(at);
+    const double t = n * period.count();
+    if (t >= duration_s) break;
+    if (!SleepUntil(at_s(t))) break;  // stopped while waiting: no further twist
     send(omni::base_cmd_t::MODE_TWIST, vx, vy, omega);
   }
+  // The last twist holds until the duration is over, then the zero twist ends it.
+  SleepUntil(at_s(duration_s));
   send(omni::base_cmd_t::MODE_TWIST, 0, 0, 0);
   std::printf("omni-drive: sent %lld twists (%.3f, %.3f, %.3f) on %s, then a zero twist%s\n",
               static_cast<long long>(n), vx, vy, omega, channel.c_str(),

@@ -4,48 +4,133 @@
 
 namespace omni::base_bridge {
 
-TeleopAction ApplyTeleopKey(char c, const TeleopOptions& o, TeleopTwist* t) {
-  auto step = [](double* v, double d, double limit) { *v = std::clamp(*v + d, -limit, limit); };
+TeleopAction TeleopState::Key(char c, double now_s) {
+  auto direction = [&](int x, int y, int turn) {
+    if (estopped_) return TeleopAction::kRefused;
+    dir_x_ = x;
+    dir_y_ = y;
+    dir_turn_ = turn;
+    last_key_s_ = now_s;
+    timeout_said_ = false;
+    return TeleopAction::kTwist;
+  };
+  auto stop = [&] { dir_x_ = dir_y_ = dir_turn_ = 0; };
   switch (c) {
     case 'w':
-      step(&t->vx_m_s, o.linear_step_m_s, o.max_linear_m_s);
-      return TeleopAction::kTwist;
+      return direction(1, 0, 0);
     case 's':
-      step(&t->vx_m_s, -o.linear_step_m_s, o.max_linear_m_s);
-      return TeleopAction::kTwist;
+      return direction(-1, 0, 0);
     case 'a':
-      step(&t->vy_m_s, o.linear_step_m_s, o.max_linear_m_s);
-      return TeleopAction::kTwist;
+      return direction(0, 1, 0);
     case 'd':
-      step(&t->vy_m_s, -o.linear_step_m_s, o.max_linear_m_s);
-      return TeleopAction::kTwist;
+      return direction(0, -1, 0);
     case 'q':
-      step(&t->omega_rad_s, o.angular_step_rad_s, o.max_angular_rad_s);
-      return TeleopAction::kTwist;
+      return direction(0, 0, 1);
     case 'e':
-      step(&t->omega_rad_s, -o.angular_step_rad_s, o.max_angular_rad_s);
-      return TeleopAction::kTwist;
+      return direction(0, 0, -1);
+    case '+':
+    case '=':
+    case '-':
+    case '_': {
+      const double sign = (c == '+' || c == '=') ? 1.0 : -1.0;
+      linear_ = std::clamp(linear_ + sign * opt_.linear_step_m_s, opt_.linear_step_m_s,
+                           std::max(opt_.linear_step_m_s, opt_.max_linear_m_s));
+      angular_ = std::clamp(angular_ + sign * opt_.angular_step_rad_s, opt_.angular_step_rad_s,
+                            std::max(opt_.angular_step_rad_s, opt_.max_angular_rad_s));
+      last_key_s_ = now_s;  // a held direction goes on at the new speed
+      return TeleopAction::kSpeed;
+    }
     case ' ':
-      *t = {};
+      stop();
       return TeleopAction::kTwist;
     case '!':
-      *t = {};
+      stop();
+      estopped_ = true;
       return TeleopAction::kEstop;
     case 'c':
+      stop();  // clearing faults never resumes a motion
+      estopped_ = false;
       return TeleopAction::kClearFaults;
     case 27:  // Esc
     case 3:   // Ctrl-C (raw terminal)
     case 4:   // Ctrl-D
-      *t = {};
+      stop();
       return TeleopAction::kQuit;
     default:
       return TeleopAction::kNone;
   }
 }
 
+TeleopTwist TeleopState::TwistAt(double now_s) const {
+  TeleopTwist t;
+  if (estopped_) return t;
+  if (opt_.key_timeout_s > 0 && now_s - last_key_s_ > opt_.key_timeout_s) return t;
+  t.vx_m_s = dir_x_ * linear_;
+  t.vy_m_s = dir_y_ * linear_;
+  t.omega_rad_s = dir_turn_ * angular_;
+  return t;
+}
+
+bool TeleopState::TimedOutNow(double now_s) {
+  if (timeout_said_ || opt_.key_timeout_s <= 0 || estopped_) return false;
+  if (dir_x_ == 0 && dir_y_ == 0 && dir_turn_ == 0) return false;
+  if (now_s - last_key_s_ <= opt_.key_timeout_s) return false;
+  timeout_said_ = true;
+  return true;
+}
+
+void TeleopKeyReader::Feed(const char* data, size_t n, std::vector<char>* keys) {
+  for (size_t i = 0; i < n; ++i) {
+    const char c = data[i];
+    const auto u = static_cast<unsigned char>(c);
+    switch (state_) {
+      case State::kKeys:
+        if (c == 27) {
+          state_ = State::kEscape;
+        } else {
+          keys->push_back(c);
+        }
+        break;
+      case State::kEscape:
+        if (c == '[') {
+          state_ = State::kCsi;
+        } else if (c == 'O') {
+          state_ = State::kSs3;
+        } else if (c == 27) {
+          keys->push_back(27);  // Esc pressed twice: one Esc, the second may start a sequence
+        } else {
+          keys->push_back(27);  // Esc, then a key (or Alt+key: read as Esc, which quits: safe)
+          keys->push_back(c);
+          state_ = State::kKeys;
+        }
+        break;
+      case State::kCsi:
+        // Parameter bytes 0x30-0x3F and intermediates 0x20-0x2F, then a final byte 0x40-0x7E.
+        if (u >= 0x40 && u <= 0x7E) {
+          state_ = State::kKeys;
+        } else if (u < 0x20 || u > 0x3F) {
+          // Not a sequence after all (a control byte or a non-ASCII byte): read it as a key.
+          state_ = State::kKeys;
+          --i;
+        }
+        break;
+      case State::kSs3:
+        state_ = State::kKeys;  // ESC O x: x is the final byte
+        break;
+    }
+  }
+}
+
+void TeleopKeyReader::Flush(std::vector<char>* keys) {
+  if (state_ == State::kEscape) keys->push_back(27);
+  // An unfinished sequence whose rest never came is dropped; what comes next is keys.
+  state_ = State::kKeys;
+}
+
 const char* TeleopHelp() {
-  return "keys: w/s forward/back, a/d left/right, q/e turn left/right, space stop,\n"
-         "      ! e-stop, c clear faults, Esc or Ctrl-C or Ctrl-D quit\n";
+  return "keys: hold w/s forward/back, a/d left/right, q/e turn (the base stops when keys stop\n"
+         "      coming), + / - faster/slower, space stop, ! e-stop, c clear faults,\n"
+         "      Esc or Ctrl-C or Ctrl-D quit\n";
 }
 
 }  // namespace omni::base_bridge

@@ -263,6 +263,7 @@ TEST(CliErrors, BadNumbersOnTheCommandLineAreNamed) {
            Case{"omni-drive", "--keys --vx 1", "take no twist"},
            Case{"omni-drive", "--estop --clear-faults", "are two commands"},
            Case{"omni-drive", "--clear-faults --stop", "are two commands"},
+           Case{"omni-drive", "--vx 0.2 --rate 2", "--rate expects a number in [5, 1000]"},
            Case{"omni-sim", "--out /tmp/x --speed 2", "--speed paces a --live run"},
            Case{"omni-sim", "--out /tmp/x --base ideal --slip 0.1,0.1,0.1", "--base firmware"},
            Case{"omni-sim", "--out /tmp/x --cmd-channel X", "add --drive bus"},
@@ -275,6 +276,11 @@ TEST(CliErrors, BadNumbersOnTheCommandLineAreNamed) {
     EXPECT_NE(r.output.find(c.says), std::string::npos)
         << c.bin << " " << c.args << ": " << r.output;
   }
+  // An e-stop nobody confirms (no base bridge on this bus) is said loudly and exits 1.
+  const auto estop = testing::Run(Bin("omni-drive") + " --url memq:// --estop --wait 0.2");
+  EXPECT_EQ(estop.exit_code, 1) << estop.output;
+  EXPECT_NE(estop.output.find("NOT CONFIRMED: no BASE_STATUS heard"), std::string::npos)
+      << estop.output;
   const auto help = testing::Run(Bin("omni-drive") + " --help");
   EXPECT_EQ(help.exit_code, 0);
   EXPECT_NE(help.output.find("usage: omni-drive"), std::string::npos) << help.output;

@@ -17,7 +17,8 @@ TEST(DemoDrive, TheStackMapsWhatTheKeysDrove) {
   const std::string out = ::testing::TempDir() + "/demo_drive";
   std::filesystem::remove_all(out);
   const auto r = testing::Run(
-      "(sleep 3; printf 'ww'; sleep 5; printf ' q'; sleep 2; printf ' '; sleep 1; printf '\\033')"
+      "(sleep 3; for i in $(seq 40); do printf w; sleep 0.1; done;"
+      " for i in $(seq 15); do printf q; sleep 0.1; done; printf ' '; sleep 1; printf '\\033')"
       " | OMNI_BUILD_DIR=" OMNI_BINARY_DIR " OMNI_OUT_DIR=" +
       out + " timeout 120 " OMNI_SOURCE_DIR "/omni demo --drive --no-setup");
   ASSERT_EQ(r.exit_code, 0) << r.output;
