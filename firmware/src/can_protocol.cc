@@ -108,6 +108,7 @@ CanFrame EncodeParamValue(uint8_t node, const ParamReply& m) {
   CanFrame f = Make(node, kParamValue);
   PutU16(&f.data[0], m.id);
   f.data[2] = m.result;
+  f.data[3] = m.of_set;
   PutF32(&f.data[4], m.value);
   return f;
 }
@@ -182,6 +183,7 @@ bool DecodeParamReply(const CanFrame& f, ParamReply* m) {
   if (!CheckLength(f)) return false;
   m->id = GetU16(&f.data[0]);
   m->result = f.data[2];
+  m->of_set = f.data[3] != 0 ? 1 : 0;
   m->value = GetF32(&f.data[4]);
   return true;
 }

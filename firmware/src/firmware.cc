@@ -127,6 +127,7 @@ void Firmware::HandleParam(const CanFrame& f, bool set) {
   if (!can::DecodeParamRequest(f, &req)) return;
   can::ParamReply reply;
   reply.id = req.id;
+  reply.of_set = set ? 1 : 0;
   FwStatus s = FwStatus::kOk;
   if (set) {
     s = SetParam(&params_, req.id, req.value);

@@ -83,8 +83,11 @@ class Client {
       : bus_(bus), node_(node), timeout_s_(timeout_s) {}
 
   // Sends `f` and waits for the firmware's frame of command `reply` (and, for parameter
-  // replies, the same id); false on timeout or a bus error (said on stderr).
-  bool Ask(const fw::CanFrame& f, uint8_t reply, uint16_t param_id, fw::CanFrame* out) {
+  // replies, the same id and the answer to the same kind of request: a SET's answer is marked,
+  // so the answer to another client's GET is not taken for it); false on timeout or a bus error
+  // (said on stderr).
+  bool Ask(const fw::CanFrame& f, uint8_t reply, uint16_t param_id, fw::CanFrame* out,
+           bool of_set = false) {
     omni::can::Frame c;
     c.id = f.id;
     c.dlc = f.dlc;
@@ -109,7 +112,8 @@ class Client {
       for (int i = 0; i < 8; ++i) out->data[i] = r.data[i];
       if (reply == fwcan::kParamValue) {
         fwcan::ParamReply p;
-        if (!fwcan::DecodeParamReply(*out, &p) || p.id != param_id) continue;
+        if (!fwcan::DecodeParamReply(*out, &p) || p.id != param_id || (p.of_set != 0) != of_set)
+          continue;
       }
       return true;
     }
@@ -129,7 +133,7 @@ class Client {
       f = fwcan::EncodeGetParam(node_, id);
     }
     fw::CanFrame r;
-    return Ask(f, fwcan::kParamValue, id, &r) && fwcan::DecodeParamReply(r, reply);
+    return Ask(f, fwcan::kParamValue, id, &r, set) && fwcan::DecodeParamReply(r, reply);
   }
 
   bool Store(uint8_t action, fwcan::ParamStoreStatus* st) {

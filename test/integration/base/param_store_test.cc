@@ -53,5 +53,27 @@ TEST(BaseParamStore, ASavedGainSurvivesARestartOfTheBoard) {
   std::filesystem::remove("/dev/shm/omni-can-" + name);  // the user-space bus's segment
 }
 
+// A refused set is reported as refused while someone else reads the same parameter (the base
+// bridge asks for the geometry every second): before the answers said what they answered, the
+// GET's "ok, old value" was taken for the SET's answer about one time in six.
+TEST(BaseParamStore, ARefusedSetIsNotTakenForAnotherClientsRead) {
+  const std::string name = "pget" + std::to_string(getpid()), bus = "shm:" + name;
+  const std::string param = testing::Bin("omni-base-param") + " --can " + bus + " ";
+  const auto r =
+      testing::Run(testing::Bin("omni-firmware-sim") +
+                   " --config " OMNI_SOURCE_DIR "/config/firmware_sim.yaml --can " + bus +
+                   " --duration-s 6 >/dev/null 2>&1 & sleep 0.5; "
+                   "(for i in $(seq 300); do " +
+                   param +
+                   "get kp >/dev/null 2>&1; done) & g=$!; "
+                   "ok=0; refused=0; for i in $(seq 30); do if " +
+                   param +
+                   "set kp 99 >/dev/null 2>&1; "
+                   "then ok=$((ok+1)); else refused=$((refused+1)); fi; done; "
+                   "echo \"ok=$ok refused=$refused\"; kill $g 2>/dev/null; wait");
+  EXPECT_NE(r.output.find("ok=0 refused=30"), std::string::npos) << r.output;
+  std::filesystem::remove("/dev/shm/omni-can-" + name);
+}
+
 }  // namespace
 }  // namespace omni

@@ -254,6 +254,8 @@ TEST(CanFirmwareTest, GetAndSetParameters) {
   EXPECT_EQ(replies[5].result, kParamOk);
   EXPECT_FLOAT_EQ(replies[5].value, 0.05f);
   EXPECT_TRUE(h.fw.fault_bits() & kFaultBadCommand);
+  // Each answer says what it answers: the four SETs, then the two GETs.
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(replies[i].of_set, i < 4 ? 1 : 0) << i;
 }
 
 TEST(CanFirmwareTest, FeedbackIsCyclicWithSequence) {

@@ -104,6 +104,10 @@ enum ParamResult : uint8_t {
 struct ParamReply {
   uint16_t id = 0;
   uint8_t result = kParamOk;
+  // 1: the answer to a SET_PARAM, 0: to a GET_PARAM (byte 3). A tool setting a parameter must
+  // not take the answer to someone else's GET of the same id (the bridge asks for the geometry
+  // every second) as its own: that read "ok, old value" for a refused set.
+  uint8_t of_set = 0;
   float value = 0.f;
 };
 // SAVE_PARAMS: what to do with the non-volatile parameter store (param_store.h). Refused
