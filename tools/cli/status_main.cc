@@ -21,8 +21,11 @@ void Usage(std::FILE* f) {
       "  Listens to HEARTBEAT for S seconds (default 2.5; processes beat once a second) and\n"
       "  prints each process heard: state, uptime, CPU, memory, bus traffic and errors, its\n"
       "  status text and its non-zero counters (--all-counters: every counter).\n"
-      "  Exit status: 0 all OK (or starting), 1 one is DEGRADED, ERROR or STOPPING, 3 none "
-      "heard.\n");
+      "  Every instance is shown (one name heard from two pids, e.g. a second base bridge\n"
+      "  started by hand, is marked DUPLICATE), except one that stopped while a newer one of\n"
+      "  the same name runs (a restart).\n"
+      "  Exit status: 0 all OK (or starting), 1 one is DEGRADED, ERROR, STOPPING, in an\n"
+      "  unknown state or duplicated, 3 none heard, 4 the bus could not be opened.\n");
 }
 
 const char* StateName(int8_t s) {
@@ -42,18 +45,38 @@ const char* StateName(int8_t s) {
   }
 }
 
+// The length of the well-formed UTF-8 sequence at s[i], or 0 (a stray or cut byte).
+size_t Utf8Length(const std::string& s, size_t i) {
+  const auto b = [&](size_t k) { return static_cast<unsigned char>(s[k]); };
+  const unsigned char c = b(i);
+  size_t n = c >= 0xF0 && c <= 0xF4 ? 4 : c >= 0xE0 ? 3 : c >= 0xC2 && c <= 0xDF ? 2 : 0;
+  if (n == 0 || i + n > s.size()) return 0;
+  for (size_t k = 1; k < n; ++k)
+    if ((b(i + k) & 0xC0) != 0x80) return 0;
+  return n;
+}
+
+// A JSON string: quotes, backslashes and control bytes escaped, and bytes that are not UTF-8
+// (a status text is the process's bytes) replaced by U+FFFD, so the output always parses.
 std::string Json(const std::string& s) {
   std::string o = "\"";
-  for (char c : s) {
+  for (size_t i = 0; i < s.size(); ++i) {
+    const char c = s[i];
+    const auto u = static_cast<unsigned char>(c);
     if (c == '"' || c == '\\') {
       o += '\\';
       o += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
+    } else if (u < 0x20 || u == 0x7F) {
       char b[8];
-      std::snprintf(b, sizeof(b), "\\u%04x", c);
+      std::snprintf(b, sizeof(b), "\\u%04x", u);
       o += b;
-    } else {
+    } else if (u < 0x80) {
       o += c;
+    } else if (const size_t n = Utf8Length(s, i); n > 0) {
+      o.append(s, i, n);
+      i += n - 1;
+    } else {
+      o += "\\ufffd";
     }
   }
   return o + "\"";
@@ -99,14 +122,13 @@ int main(int argc, char** argv) {
   auto bus = omni::bus::Bus::Create(lcm_url);
   if (!bus.ok()) {
     std::fprintf(stderr, "omni-status: %s\n", bus.error().message.c_str());
-    return 1;
+    return 4;
   }
-  // The newest heartbeat of each process (by name: a process restarted while we listen shows
-  // its new instance, not the old one's last STOPPING).
-  std::map<std::string, omni::heartbeat_t> latest;
+  // The newest heartbeat of each instance (name and pid).
+  std::map<std::pair<std::string, int32_t>, omni::heartbeat_t> heard;
   (*bus)->Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) {
     if (!only.empty() && m.process != only) return;
-    auto& slot = latest[m.process];
+    auto& slot = heard[{m.process, m.pid}];
     if (m.utime >= slot.utime) slot = m;
   });
   const auto deadline = std::chrono::steady_clock::now() +
@@ -118,24 +140,37 @@ int main(int argc, char** argv) {
     if ((*bus)->HandleTimeout(static_cast<int>(std::max<int64_t>(1, left.count()))) < 0) break;
   }
   const int64_t undecodable = (*bus)->counters().decode_errors;
+  // An instance that stopped while a newer one of its name beats was restarted: not shown. Any
+  // other name heard from several pids is a duplicate (two bridges would both command the base).
+  std::map<std::string, int64_t> newest;
+  for (const auto& [key, m] : heard) newest[key.first] = std::max(newest[key.first], m.utime);
+  std::map<std::pair<std::string, int32_t>, omni::heartbeat_t> latest;
+  for (const auto& [key, m] : heard)
+    if (!(m.state == omni::heartbeat_t::STATE_STOPPING && m.utime < newest[key.first]))
+      latest.emplace(key, m);
+  std::map<std::string, int> instances;
+  for (const auto& [key, m] : latest) ++instances[key.first];
+  auto duplicate = [&](const omni::heartbeat_t& m) { return instances[m.process] > 1; };
   int unhealthy = 0;
   for (const auto& [key, m] : latest)
     unhealthy += m.state == omni::heartbeat_t::STATE_DEGRADED ||
                  m.state == omni::heartbeat_t::STATE_ERROR ||
-                 m.state == omni::heartbeat_t::STATE_STOPPING;
+                 m.state == omni::heartbeat_t::STATE_STOPPING ||
+                 std::string(StateName(m.state)) == "?" || duplicate(m);
   if (json) {
     std::printf("{\"processes\": [");
     bool first = true;
     for (const auto& [key, m] : latest) {
       std::printf(
-          "%s\n  {\"process\": %s, \"pid\": %d, \"state\": \"%s\", \"status\": %s, "
+          "%s\n  {\"process\": %s, \"pid\": %d, \"state\": \"%s\", \"duplicate\": %s, "
+          "\"status\": %s, "
           "\"uptime_s\": %.1f, \"cpu_percent\": %.1f, \"rss_mb\": %.1f, \"msgs_in\": %lld, "
           "\"msgs_out\": %lld, \"decode_errors\": %lld, \"drops\": %lld, \"counters\": {",
           first ? "" : ",", Json(m.process).c_str(), m.pid, StateName(m.state),
-          Json(m.status_text).c_str(), static_cast<double>(m.uptime_us) * 1e-6,
-          Finite(m.cpu_percent), Finite(m.rss_mb), static_cast<long long>(m.msgs_in),
-          static_cast<long long>(m.msgs_out), static_cast<long long>(m.decode_errors),
-          static_cast<long long>(m.drops));
+          duplicate(m) ? "true" : "false", Json(m.status_text).c_str(),
+          static_cast<double>(m.uptime_us) * 1e-6, Finite(m.cpu_percent), Finite(m.rss_mb),
+          static_cast<long long>(m.msgs_in), static_cast<long long>(m.msgs_out),
+          static_cast<long long>(m.decode_errors), static_cast<long long>(m.drops));
       for (int i = 0; i < m.num_counters; ++i)
         std::printf("%s%s: %lld", i == 0 ? "" : ", ", Json(m.counter_names[i]).c_str(),
                     static_cast<long long>(m.counter_values[i]));
@@ -152,6 +187,9 @@ int main(int argc, char** argv) {
                   Finite(m.rss_mb), static_cast<long long>(m.msgs_in),
                   static_cast<long long>(m.msgs_out), static_cast<long long>(m.decode_errors),
                   static_cast<long long>(m.drops), m.status_text.c_str());
+      if (duplicate(m))
+        std::printf("    DUPLICATE: %d instances of %s on this bus\n", instances[m.process],
+                    m.process.c_str());
       std::string line;
       for (int i = 0; i < m.num_counters; ++i)
         if (all_counters || m.counter_values[i] != 0)

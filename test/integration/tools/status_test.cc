@@ -26,7 +26,18 @@ TEST(OmniStatus, ShowsEveryProcessOnTheBusAndSaysWhenThereIsNone) {
       << " --out " << dir << " >/dev/null 2>&1 & m=$!\n"
       << "sleep 1.2\n"
       << testing::Bin("omni-status") << "; echo \"table: $?\"\n"
-      << testing::Bin("omni-status") << " --json --all-counters --wait 1.2; echo \"json: $?\"\n"
+      << testing::Bin("omni-status")
+      << " --json --all-counters --wait 1.2; echo \"json: $?\"\n"
+      // A second instance of the same name (a process started twice): both shown, flagged.
+      << testing::Bin("odom_mapper") << " --config " OMNI_SOURCE_DIR "/config/odom_mapper.yaml"
+      << " --out " << dir << "/second >/dev/null 2>&1 & m2=$!\n"
+      << "sleep 1.2\n"
+      << testing::Bin("omni-status")
+      << "; echo \"dup: $?\"\n"
+      // It stops (its last heartbeat says STOPPING) while the first beats on: a restart, hidden.
+      << "(sleep 0.3; kill -TERM $m2) &\n"
+      << testing::Bin("omni-status") << " --wait 2.5; echo \"after: $?\"\n"
+      << "wait $m2\n"
       << "kill -TERM $m; wait $m; exit 0\n";
   }
   r = testing::Run("timeout 30 unshare -n bash " + dir + "/run.sh");
@@ -38,6 +49,13 @@ TEST(OmniStatus, ShowsEveryProcessOnTheBusAndSaysWhenThereIsNone) {
   EXPECT_NE(r.output.find("{\"process\": \"odom_mapper\""), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("\"state\": \"OK\""), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("\"scans_in\": 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"duplicate\": false"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("DUPLICATE: 2 instances of odom_mapper"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("dup: 1"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("after: 0"), std::string::npos) << r.output;
+  // A bus that cannot be opened is its own exit status, not "a process is unhealthy".
+  r = testing::Run(testing::Bin("omni-status") + " --url nosuch://x --wait 0.2");
+  EXPECT_EQ(r.exit_code, 4) << r.output;
 }
 
 }  // namespace
