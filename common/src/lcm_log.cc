@@ -116,6 +116,8 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     const uint64_t start = offset_;
     uint8_t hdr[28];
     const size_t n = std::fread(hdr, 1, sizeof(hdr), f_);
+    if (n == 0 && std::ferror(f_))  // a read error (a folder, a failing disk) is not an end
+      return MakeError(ErrorCode::kIo, where(start) + "read error: " + std::strerror(errno));
     if (n == 0) return false;
     if (n < sizeof(hdr)) {
       truncated_tail_ = true;

@@ -40,7 +40,8 @@ int main(int argc, char** argv) {
     pc.second += static_cast<long long>(ev.data.size());
     ++n;
   }
-  std::printf("%s: %lld events over %.3f s", argv[1], n, (t1 - t0) * 1e-6);
+  std::printf("%s: %lld events over %.3f s", argv[1], n,
+              (static_cast<double>(t1) - static_cast<double>(t0)) * 1e-6);  // no int64 overflow
   std::printf(backwards ? ", %lld timestamps going backwards\n" : "\n",
               static_cast<long long>(backwards));
   for (const auto& [ch, v] : per_channel)

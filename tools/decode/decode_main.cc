@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <string>
@@ -144,6 +145,21 @@ int main(int argc, char** argv) {
   }
   if (path.empty()) {
     Usage(stderr);
+    return 1;
+  }
+  // A capture is a regular file (a folder threw, a serial device or /dev/zero never ended), and
+  // at most 1 GiB, read whole.
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (!ec && status.type() != std::filesystem::file_type::regular) {
+    std::fprintf(stderr,
+                 "omni decode: %s is not a regular file (decode a capture file; record a port "
+                 "with e.g. `cat /dev/ttyUSB0 > capture.bin`)\n",
+                 path.c_str());
+    return 1;
+  }
+  if (!ec && std::filesystem::file_size(path, ec) > (uint64_t{1} << 30) && !ec) {
+    std::fprintf(stderr, "omni decode: %s is over 1 GiB; cut it first (head -c)\n", path.c_str());
     return 1;
   }
   std::ifstream in(path, std::ios::binary);

@@ -6,6 +6,7 @@
 //   omni-devices kinect-accel      read the Kinect v1 accelerometer and tilt state
 #include <libusb.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <functional>
@@ -57,7 +58,8 @@ std::string JsonEscape(const std::string& s) {
 int List(bool json) {
   libusb_context* ctx = nullptr;
   std::vector<Found> found;
-  if (libusb_init(&ctx) == 0) {
+  const bool usb = libusb_init(&ctx) == 0;
+  if (usb) {
     libusb_device** list = nullptr;
     const ssize_t n = libusb_get_device_list(ctx, &list);
     for (ssize_t i = 0; i < n; ++i) {
@@ -82,8 +84,9 @@ int List(bool json) {
     }
     if (n >= 0) libusb_free_device_list(list, 1);
     libusb_exit(ctx);
-  } else if (!json) {
-    std::fprintf(stderr, "libusb could not start: no USB access on this machine\n");
+  } else {
+    // Said in both forms, and exit 1: "no devices" would be a false answer.
+    std::fprintf(stderr, "omni-devices: libusb could not start: no USB access on this machine\n");
   }
   if (json) {
     std::printf("[");
@@ -100,8 +103,9 @@ int List(bool json) {
       std::printf("]}");
     }
     std::printf("%s]\n", found.empty() ? "" : "\n");
-    return 0;
+    return usb ? 0 : 1;
   }
+  if (!usb) return 1;
   if (found.empty()) {
     std::printf("no known devices (USB-serial bridges for RPLidar/IMU, Kinect v1 parts)\n");
     return 0;
@@ -196,10 +200,14 @@ int main(int argc, char** argv) {
         return 2;
       }
     } else {
+      // The range first: casting NaN or 1e300 to int is undefined.
+      if (!(v >= 0 && v <= 6) || v != std::floor(v)) {
+        std::fprintf(stderr, "LED mode must be an integer 0..6\n");
+        return 2;
+      }
       auto r = omni::devices::LedRequest(static_cast<int>(v));
-      if (v != static_cast<int>(v) || !r.ok()) {
-        std::fprintf(stderr, "%s\n",
-                     r.ok() ? "LED mode must be an integer 0..6" : r.error().message.c_str());
+      if (!r.ok()) {
+        std::fprintf(stderr, "%s\n", r.error().message.c_str());
         return 2;
       }
     }

@@ -241,6 +241,29 @@ TEST(CliErrors, AHangupStopsTheToolsInOrder) {
   EXPECT_EQ(header.rfind("t_s,", 0), 0u) << header;
 }
 
+// A folder or a device where a file is expected is a clear error: omni-decode threw on a folder
+// (abort) and read /dev/zero without end, omni-logcat reported a folder as an empty log, and an
+// LED mode of NaN was cast to int before its range check.
+TEST(CliErrors, ToolsRefuseFoldersDevicesAndNaN) {
+  const std::string dir = testing::TempDir();
+  struct Case {
+    std::string cmd;
+    int exit_code;
+    const char* says;
+  };
+  for (const Case& c : {
+           Case{Bin("omni-decode") + " imu " + dir, 1, "is not a regular file"},
+           Case{Bin("omni-decode") + " rplidar /dev/zero", 1, "is not a regular file"},
+           Case{Bin("omni-logcat") + " " + dir, 1, "read error"},
+           Case{Bin("omni-devices") + " kinect-led nan", 2, "LED mode must be an integer 0..6"},
+           Case{Bin("omni-devices") + " kinect-led 1e300", 2, "LED mode must be an integer"},
+       }) {
+    const auto r = testing::Run("timeout 10 " + c.cmd);
+    EXPECT_EQ(r.exit_code, c.exit_code) << c.cmd << ": " << r.output;
+    EXPECT_NE(r.output.find(c.says), std::string::npos) << c.cmd << ": " << r.output;
+  }
+}
+
 // A number that does not parse is an error naming the program, the option and the value,
 // never read as 0 (which would mean "never idle-exit", seed 0, or the first map).
 TEST(CliErrors, BadNumbersOnTheCommandLineAreNamed) {
