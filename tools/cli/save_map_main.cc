@@ -86,11 +86,14 @@ int main(int argc, char** argv) {
   req.process = process;
   req.directory = dir;
   int answers = 0, failures = 0;
-  // The processes that serve map saves (their heartbeat carries maps_saved), heard while we wait,
-  // and those that answered.
+  // The processes that serve map saves (their heartbeat carries maps_saved), heard in the first
+  // kListenS s (a mapper that starts later, e.g. restarted by the supervisor, never got the
+  // request: it is not waited for, nor reported as not answering), and those that answered.
   std::set<std::string> serving, answered;
+  std::chrono::steady_clock::time_point listen_end = std::chrono::steady_clock::time_point::max();
   (*bus)->Subscribe<omni::heartbeat_t>(
       omni::channels::kHeartbeat, [&](const omni::heartbeat_t& h, int64_t) {
+        if (std::chrono::steady_clock::now() >= listen_end) return;
         if (h.state == omni::heartbeat_t::STATE_STOPPING) return;
         if (!process.empty() && h.process != process) return;
         if (std::find(h.counter_names.begin(), h.counter_names.end(), "maps_saved") !=
@@ -100,6 +103,7 @@ int main(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   const auto listened = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                     std::chrono::duration<double>(kListenS));
+  listen_end = listened;
   const auto deadline = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                     std::chrono::duration<double>(wait_s));
   // Without any heartbeat (none on this bus, or a mapper too busy to send one), the old rule:

@@ -7,6 +7,7 @@
 //   omni-base-param --can URL get NAME|ID
 //   omni-base-param --can URL set NAME|ID VALUE
 //   omni-base-param --can URL save | erase | status
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -190,7 +191,12 @@ int main(int argc, char** argv) {
       node = args.Integer(0, 63);
     } else if (args.Is("--timeout")) {
       timeout_s = args.Number(0.05, 60);
-    } else if (!args.arg().empty() && args.arg()[0] != '-') {
+    } else if (!args.arg().empty() &&
+               (args.arg()[0] != '-' ||
+                // A negative number is a value (`set NAME -0.5`), not an option.
+                (words.size() == 2 && words[0] == "set" && args.arg().size() > 1 &&
+                 (std::isdigit(static_cast<unsigned char>(args.arg()[1])) ||
+                  args.arg()[1] == '.')))) {
       words.push_back(args.arg());
     } else {
       args.Unknown();

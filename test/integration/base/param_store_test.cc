@@ -59,19 +59,22 @@ TEST(BaseParamStore, ASavedGainSurvivesARestartOfTheBoard) {
 TEST(BaseParamStore, ARefusedSetIsNotTakenForAnotherClientsRead) {
   const std::string name = "pget" + std::to_string(getpid()), bus = "shm:" + name;
   const std::string param = testing::Bin("omni-base-param") + " --can " + bus + " ";
-  const auto r =
-      testing::Run(testing::Bin("omni-firmware-sim") +
-                   " --config " OMNI_SOURCE_DIR "/config/firmware_sim.yaml --can " + bus +
-                   " --duration-s 6 >/dev/null 2>&1 & sleep 0.5; "
-                   "(for i in $(seq 300); do " +
-                   param +
-                   "get kp >/dev/null 2>&1; done) & g=$!; "
-                   "ok=0; refused=0; for i in $(seq 30); do if " +
-                   param +
-                   "set kp 99 >/dev/null 2>&1; "
-                   "then ok=$((ok+1)); else refused=$((refused+1)); fi; done; "
-                   "echo \"ok=$ok refused=$refused\"; kill $g 2>/dev/null; wait");
+  const auto r = testing::Run(testing::Bin("omni-firmware-sim") +
+                              " --config " OMNI_SOURCE_DIR "/config/firmware_sim.yaml --can " +
+                              bus + " --duration-s 6 >/dev/null 2>&1 & sleep 0.5; " + param +
+                              "set kp -0.5; echo \"negative: $?\"; "
+                              "(for i in $(seq 300); do " +
+                              param +
+                              "get kp >/dev/null 2>&1; done) & g=$!; "
+                              "ok=0; refused=0; for i in $(seq 30); do if " +
+                              param +
+                              "set kp 99 >/dev/null 2>&1; "
+                              "then ok=$((ok+1)); else refused=$((refused+1)); fi; done; "
+                              "echo \"ok=$ok refused=$refused\"; kill $g 2>/dev/null; wait");
   EXPECT_NE(r.output.find("ok=0 refused=30"), std::string::npos) << r.output;
+  // A negative value is a value, refused by the firmware's range, not an unknown option.
+  EXPECT_NE(r.output.find("out of range"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("negative: 1"), std::string::npos) << r.output;
   std::filesystem::remove("/dev/shm/omni-can-" + name);
 }
 
