@@ -2,7 +2,7 @@
 # Installs every Debian 12 package omni needs. Idempotent; needs root (or sudo).
 # Nothing is downloaded from anywhere but the configured Debian archive.
 # --fuzz: also clang and its libFuzzer runtime, for ./omni fuzz (not needed to build or test).
-# --spy: also a Java runtime with its desktop (AWT) libraries, for ./omni spy (lcm-spy).
+# --spy: only a Java runtime with its desktop (AWT) libraries, for ./omni spy (lcm-spy).
 set -euo pipefail
 
 PACKAGES=(
@@ -28,7 +28,7 @@ PACKAGES=(
 if [ "${1:-}" = "--fuzz" ]; then
   PACKAGES+=(clang libclang-rt-14-dev)
 elif [ "${1:-}" = "--spy" ]; then
-  PACKAGES+=(default-jre)
+  PACKAGES=(default-jre)  # only what lcm-spy needs beyond the build (a display PC may not build)
 elif [ $# -gt 0 ]; then
   echo "usage: scripts/install-deps.sh [--fuzz | --spy]" >&2
   exit 2

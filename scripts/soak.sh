@@ -30,6 +30,13 @@ done
 for b in supervisor omni-sim omni-eval odom_mapper rbpf_mapper pose_graph_mapper octomap_builder map_fusion; do
   [ -x "$BUILD/bin/$b" ] || { echo "soak.sh: $BUILD/bin/$b missing: build first (./omni setup)" >&2; exit 1; }
 done
+# Only a folder this script wrote (its supervisor.yaml says so) or an empty or new one is
+# cleared: --out must never take a folder of other work with it.
+if [ -d "$OUT" ] && [ -n "$(ls -A "$OUT")" ] &&
+   ! grep -qs '^# written by scripts/soak.sh' "$OUT/supervisor.yaml"; then
+  echo "soak.sh: $OUT exists and is not a soak run's folder; name a new or empty one" >&2
+  exit 2
+fi
 rm -rf "$OUT"
 mkdir -p "$OUT"
 OUT="$(cd "$OUT" && pwd)"
@@ -70,13 +77,14 @@ sleep 2
       c=$(awk "{print \$14 + \$15}" /proc/$p/stat 2>/dev/null) || continue
       echo "$t $n $r $c"
     done >> "$D/rss.txt"
-    sleep 20
-  done ) &
+    sleep 20 & wait $!
+  done ) & sampler=$!
 rc=0
 "$B/bin/omni-sim" --out "$D/sim" --laps "$LAPS" --live "" --speed "$SPEED" > "$D/sim.log" 2>&1 || rc=$?
 sleep 5
 kill -TERM $s
 wait $s || rc=$((rc ? rc : 10))
+kill $sampler 2>/dev/null
 exit $rc'
 rc=0
 if [ "$(id -u)" -eq 0 ] && unshare -n true 2>/dev/null; then
@@ -89,6 +97,7 @@ else
 fi
 [ "$rc" = 0 ] || echo "soak.sh: the run did not end cleanly (exit $rc; see $OUT/sim.log, $OUT/supervisor.log)" >&2
 
+[ -s "$OUT/rss.txt" ] || { echo "soak.sh: no process was sampled (see $OUT/supervisor.log)" >&2; exit 1; }
 hz=$(getconf CLK_TCK)
 echo "memory (RSS) and CPU per process over $LAPS laps at ${SPEED}x (sampled every 20 s):"
 awk -v hz="$hz" -v laps="$LAPS" '
@@ -107,7 +116,7 @@ awk -v hz="$hz" -v laps="$LAPS" '
       printf "  %-18s %9.1f MB %9.1f MB %9.1f MB %+11.2f MB %8.1f s\n", n, at1[n] / 1024, last[n] / 1024, peak[n] / 1024, g / 1024, cpu[n] / hz
     }
   }' "$OUT/rss.txt"
-tail -n 3 "$OUT/sim.log" | sed 's/^/  /'
+tail -n 3 "$OUT/sim.log" 2>/dev/null | sed 's/^/  /' || true
 echo "trajectory errors against the simulator's truth:"
 for t in odom_trajectory.txt rbpf/trajectory.txt posegraph/trajectory.txt; do
   [ -f "$OUT/$t" ] || { echo "  $t: missing"; continue; }

@@ -313,7 +313,10 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
   double rot_step = opt.max_rotation_rad / coarse;
   if (opt.rotation_step_from_extent && radius * rot_step > shift_step)
     rot_step = shift_step / radius;
-  rot_step = std::max(rot_step, 1e-3);
+  // At most kMaxRotationSteps a side, so a wide range on a huge map (±3.2 rad, a 300 m radius)
+  // does not take minutes.
+  constexpr double kMaxRotationSteps = 128;
+  rot_step = std::max({rot_step, opt.max_rotation_rad / kMaxRotationSteps, 1e-3});
   // The best score so far, counted over the cells the current level scores.
   auto score_at_centre = [&](const std::vector<Cell>& cells) {
     std::vector<double> u, v;
@@ -375,6 +378,9 @@ MapAlignment AlignMap(const io::GridMap& ref, const io::GridMap& est, const MapC
     shift_step = std::max(shift_step / div, ref.resolution_m / 4);
   }
   if (opt.levels <= 0) return best;  // no search: the centre, counted over every cell
+  // The levels before the last chose by a subset's score: never end worse, over every cell,
+  // than where the search started (maps that already line up stay put).
+  if (best_score < best.overlap) return best;
   best.rotation_rad = rot;
   best.dx_m = dx;
   best.dy_m = dy;

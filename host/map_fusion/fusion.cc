@@ -212,7 +212,8 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
         eval::MapCompareOptions near = opt.align;
         near.max_rotation_rad = std::min(opt.align.max_rotation_rad, kTrackRotationRad);
         near.max_shift_m = std::min(opt.align.max_shift_m, kTrackShiftM);
-        // 5 values per axis per level, halving: ~125 poses a level instead of ~730.
+        // 5 values per axis per level, halving: ~125 poses a level instead of ~730 (more
+        // rotations on a large map, whose rotation step follows its extent).
         near.coarse_steps = 2;
         near.refine_divisions = 2;
         near.levels = 9;

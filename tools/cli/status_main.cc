@@ -45,13 +45,27 @@ const char* StateName(int8_t s) {
   }
 }
 
-// The length of the well-formed UTF-8 sequence at s[i], or 0 (a stray or cut byte).
+// The length of the well-formed UTF-8 sequence at s[i], or 0 (a stray, cut, overlong or
+// surrogate sequence, or a lead byte UTF-8 does not have).
 size_t Utf8Length(const std::string& s, size_t i) {
   const auto b = [&](size_t k) { return static_cast<unsigned char>(s[k]); };
   const unsigned char c = b(i);
-  size_t n = c >= 0xF0 && c <= 0xF4 ? 4 : c >= 0xE0 ? 3 : c >= 0xC2 && c <= 0xDF ? 2 : 0;
+  size_t n = 0;
+  unsigned char lo = 0x80, hi = 0xBF;  // the second byte's range
+  if (c >= 0xC2 && c <= 0xDF) {
+    n = 2;
+  } else if (c >= 0xE0 && c <= 0xEF) {
+    n = 3;
+    if (c == 0xE0) lo = 0xA0;  // overlong
+    if (c == 0xED) hi = 0x9F;  // surrogates
+  } else if (c >= 0xF0 && c <= 0xF4) {
+    n = 4;
+    if (c == 0xF0) lo = 0x90;  // overlong
+    if (c == 0xF4) hi = 0x8F;  // beyond U+10FFFF
+  }
   if (n == 0 || i + n > s.size()) return 0;
-  for (size_t k = 1; k < n; ++k)
+  if (b(i + 1) < lo || b(i + 1) > hi) return 0;
+  for (size_t k = 2; k < n; ++k)
     if ((b(i + k) & 0xC0) != 0x80) return 0;
   return n;
 }
@@ -124,12 +138,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-status: %s\n", bus.error().message.c_str());
     return 4;
   }
-  // The newest heartbeat of each instance (name and pid).
+  // The newest heartbeat of each instance (name and pid), and the stamp of its first.
   std::map<std::pair<std::string, int32_t>, omni::heartbeat_t> heard;
+  std::map<std::pair<std::string, int32_t>, int64_t> first_utime;
   (*bus)->Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) {
     if (!only.empty() && m.process != only) return;
     auto& slot = heard[{m.process, m.pid}];
     if (m.utime >= slot.utime) slot = m;
+    auto [it, added] = first_utime.emplace(std::make_pair(m.process, m.pid), m.utime);
+    if (!added) it->second = std::min(it->second, m.utime);
   });
   const auto deadline = std::chrono::steady_clock::now() +
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
@@ -140,14 +157,21 @@ int main(int argc, char** argv) {
     if ((*bus)->HandleTimeout(static_cast<int>(std::max<int64_t>(1, left.count()))) < 0) break;
   }
   const int64_t undecodable = (*bus)->counters().decode_errors;
-  // An instance that stopped while a newer one of its name beats was restarted: not shown. Any
-  // other name heard from several pids is a duplicate (two bridges would both command the base).
-  std::map<std::string, int64_t> newest;
-  for (const auto& [key, m] : heard) newest[key.first] = std::max(newest[key.first], m.utime);
+  // An instance replaced by a newer one of its name was restarted: not shown. Replaced means it
+  // said STOPPING before the newer one's last heartbeat, or it fell silent before the newer one
+  // first beat (it crashed or was killed, and the supervisor started another). Any other name
+  // heard from several pids is a duplicate (two bridges would both command the base).
+  auto replaced = [&](const std::pair<std::string, int32_t>& key, const omni::heartbeat_t& m) {
+    for (const auto& [other, o] : heard) {
+      if (other.first != key.first || other.second == key.second) continue;
+      if (m.state == omni::heartbeat_t::STATE_STOPPING && m.utime < o.utime) return true;
+      if (m.utime < first_utime[other]) return true;
+    }
+    return false;
+  };
   std::map<std::pair<std::string, int32_t>, omni::heartbeat_t> latest;
   for (const auto& [key, m] : heard)
-    if (!(m.state == omni::heartbeat_t::STATE_STOPPING && m.utime < newest[key.first]))
-      latest.emplace(key, m);
+    if (!replaced(key, m)) latest.emplace(key, m);
   std::map<std::string, int> instances;
   for (const auto& [key, m] : latest) ++instances[key.first];
   auto duplicate = [&](const omni::heartbeat_t& m) { return instances[m.process] > 1; };

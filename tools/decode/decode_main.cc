@@ -147,19 +147,17 @@ int main(int argc, char** argv) {
     Usage(stderr);
     return 1;
   }
-  // A capture is a regular file (a folder threw, a serial device or /dev/zero never ended), and
-  // at most 1 GiB, read whole.
+  // A capture is a file or a pipe (`<(xz -dc capture.xz)`, /dev/stdin from a pipe), read whole
+  // up to 1 GiB: a folder threw, a serial device or /dev/zero never ended.
+  constexpr size_t kMaxBytes = size_t{1} << 30;
   std::error_code ec;
-  const auto status = std::filesystem::status(path, ec);
-  if (!ec && status.type() != std::filesystem::file_type::regular) {
+  const auto type = std::filesystem::status(path, ec).type();
+  if (!ec && type != std::filesystem::file_type::regular &&
+      type != std::filesystem::file_type::fifo) {
     std::fprintf(stderr,
-                 "omni decode: %s is not a regular file (decode a capture file; record a port "
-                 "with e.g. `cat /dev/ttyUSB0 > capture.bin`)\n",
+                 "omni decode: %s is not a file or a pipe (decode a capture; record a port with "
+                 "e.g. `cat /dev/ttyUSB0 > capture.bin`)\n",
                  path.c_str());
-    return 1;
-  }
-  if (!ec && std::filesystem::file_size(path, ec) > (uint64_t{1} << 30) && !ec) {
-    std::fprintf(stderr, "omni decode: %s is over 1 GiB; cut it first (head -c)\n", path.c_str());
     return 1;
   }
   std::ifstream in(path, std::ios::binary);
@@ -167,8 +165,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni decode: cannot open %s: %s\n", path.c_str(), std::strerror(errno));
     return 1;
   }
-  const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
-                                   std::istreambuf_iterator<char>());
+  std::vector<uint8_t> bytes;
+  std::vector<char> chunk(1 << 16);
+  while (in.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) || in.gcount() > 0) {
+    bytes.insert(bytes.end(), chunk.begin(), chunk.begin() + in.gcount());
+    if (bytes.size() > kMaxBytes) {
+      std::fprintf(stderr, "omni decode: %s is over 1 GiB; cut it first (head -c)\n", path.c_str());
+      return 1;
+    }
+  }
   if (device == "rplidar") return DecodeRplidar(bytes, express);
   if (device == "imu") return DecodeImu(bytes);
   std::fprintf(stderr, "omni decode: unknown device '%s' (rplidar or imu)\n", device.c_str());

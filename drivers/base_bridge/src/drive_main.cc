@@ -99,6 +99,7 @@ int Teleop(const Send& send, double rate_hz, double key_timeout_s, const std::st
   int64_t sent = 0;
   bool quit = false;
   std::vector<char> keys;
+  auto escape_since = std::chrono::steady_clock::now();  // when the pending ESC came
   while (!quit && !g_stop) {
     const auto now = std::chrono::steady_clock::now();
     if (now >= next) {
@@ -120,13 +121,20 @@ int Teleop(const Send& send, double rate_hz, double key_timeout_s, const std::st
     int ms = static_cast<int>(
                  std::chrono::duration_cast<std::chrono::milliseconds>(next - now).count()) +
              1;
-    // An ESC with nothing after it is the Esc key once 50 ms passed without the rest of a
-    // sequence.
-    if (reader.escape_pending()) ms = std::min(ms, 50);
+    // An ESC with nothing after it is the Esc key once 50 ms passed since it came without the
+    // rest of a sequence (not at the first timeout, which may be the next send's).
+    const auto escape_due = escape_since + std::chrono::milliseconds(50);
+    if (reader.escape_pending())
+      ms = std::min<int>(
+          ms,
+          static_cast<int>(std::max<int64_t>(
+              0, std::chrono::duration_cast<std::chrono::milliseconds>(escape_due - now).count() +
+                     1)));
     const int ready = poll(&p, 1, ms);
     keys.clear();
     if (ready <= 0) {
-      if (ready == 0 && reader.escape_pending()) reader.Flush(&keys);
+      if (ready == 0 && reader.escape_pending() && std::chrono::steady_clock::now() >= escape_due)
+        reader.Flush(&keys);
       if (keys.empty()) continue;
     } else {
       if (p.revents & (POLLERR | POLLNVAL)) break;  // stdin is gone: stop, do not spin
@@ -137,7 +145,10 @@ int Teleop(const Send& send, double rate_hz, double key_timeout_s, const std::st
         reader.Flush(&keys);
         quit = true;
       } else {
+        const bool was_pending = reader.escape_pending();
         reader.Feed(buf, static_cast<size_t>(n), &keys);
+        if (reader.escape_pending() && !was_pending)
+          escape_since = std::chrono::steady_clock::now();
       }
     }
     for (char key : keys) {
@@ -281,15 +292,20 @@ int main(int argc, char** argv) {
                                                                      : "zero twist";
     // The bridge's BASE_STATUS says whether an e-stop took hold; heard from the start, so a
     // status already on its way counts only if it shows the e-stop.
+    // Only a status with the firmware alive counts: the bridge keeps the last state it heard
+    // while the board is silent, so an old ESTOP could "confirm" one that never arrived.
     int64_t statuses = 0;
     int8_t last_state = -1;
+    bool alive = false;
     (*bus)->Subscribe<omni::base_status_t>(status_channel,
                                            [&](const omni::base_status_t& st, int64_t) {
                                              ++statuses;
                                              last_state = st.state;
+                                             alive = st.firmware_alive;
                                            });
+    auto confirmed = [&] { return alive && last_state == omni::base_status_t::STATE_ESTOP; };
     // A datagram can be lost: the command is idempotent, so it goes out five times, 20 ms apart.
-    for (int i = 0; i < 5 && !g_stop; ++i) {
+    for (int i = 0; i < 5; ++i) {  // not cut short by Ctrl-C: an e-stop must go out
       send(mode, 0, 0, 0);
       (*bus)->HandleTimeout(20);
     }
@@ -298,10 +314,9 @@ int main(int argc, char** argv) {
     const auto until = std::chrono::steady_clock::now() +
                        std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                            std::chrono::duration<double>(wait_s));
-    while (!g_stop && std::chrono::steady_clock::now() < until &&
-           last_state != omni::base_status_t::STATE_ESTOP)
+    while (!g_stop && std::chrono::steady_clock::now() < until && !confirmed())
       (*bus)->HandleTimeout(20);
-    if (last_state == omni::base_status_t::STATE_ESTOP) {
+    if (confirmed()) {
       std::printf("omni-drive: the base bridge reports the base e-stopped (%s)\n",
                   status_channel.c_str());
       return 0;
@@ -311,6 +326,11 @@ int main(int argc, char** argv) {
                    "omni-drive: NOT CONFIRMED: no %s heard within %.1f s; is the base bridge "
                    "running on this bus (LCM_DEFAULT_URL, --url, --channel)?\n",
                    status_channel.c_str(), wait_s);
+    else if (!alive)
+      std::fprintf(stderr,
+                   "omni-drive: NOT CONFIRMED: %s says the firmware is silent (no heartbeat): "
+                   "the e-stop may not have reached the board\n",
+                   status_channel.c_str());
     else
       std::fprintf(stderr,
                    "omni-drive: NOT CONFIRMED: %s still shows state %d, not ESTOP (5), after "

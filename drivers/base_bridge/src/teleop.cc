@@ -32,12 +32,15 @@ TeleopAction TeleopState::Key(char c, double now_s) {
     case '=':
     case '-':
     case '_': {
+      // A direction the dead man's switch has stopped stays stopped: a speed key must not
+      // start it again (only a direction key moves the base).
+      if (opt_.key_timeout_s > 0 && now_s - last_key_s_ > opt_.key_timeout_s) stop();
       const double sign = (c == '+' || c == '=') ? 1.0 : -1.0;
       linear_ = std::clamp(linear_ + sign * opt_.linear_step_m_s, opt_.linear_step_m_s,
                            std::max(opt_.linear_step_m_s, opt_.max_linear_m_s));
       angular_ = std::clamp(angular_ + sign * opt_.angular_step_rad_s, opt_.angular_step_rad_s,
                             std::max(opt_.angular_step_rad_s, opt_.max_angular_rad_s));
-      last_key_s_ = now_s;  // a held direction goes on at the new speed
+      last_key_s_ = now_s;  // a direction still held goes on at the new speed
       return TeleopAction::kSpeed;
     }
     case ' ':
@@ -94,6 +97,7 @@ void TeleopKeyReader::Feed(const char* data, size_t n, std::vector<char>* keys) 
       case State::kEscape:
         if (c == '[') {
           state_ = State::kCsi;
+          sequence_bytes_ = 0;
         } else if (c == 'O') {
           state_ = State::kSs3;
         } else if (c == 27) {
@@ -105,17 +109,20 @@ void TeleopKeyReader::Feed(const char* data, size_t n, std::vector<char>* keys) 
         }
         break;
       case State::kCsi:
-        // Parameter bytes 0x30-0x3F and intermediates 0x20-0x2F, then a final byte 0x40-0x7E.
+        // A key's sequence: parameter bytes 0x30-0x3F (digits, ';'), then a final byte
+        // 0x40-0x7E. Anything else (a space, '!', '+', '-': intermediates no key sends) or a
+        // long run means it was not one (Alt+[ then keys): that byte is read as a key.
         if (u >= 0x40 && u <= 0x7E) {
           state_ = State::kKeys;
-        } else if (u < 0x20 || u > 0x3F) {
+        } else if (u < 0x30 || u > 0x3F || ++sequence_bytes_ > kMaxSequenceBytes) {
           // Not a sequence after all (a control byte or a non-ASCII byte): read it as a key.
           state_ = State::kKeys;
           --i;
         }
         break;
       case State::kSs3:
-        state_ = State::kKeys;  // ESC O x: x is the final byte
+        state_ = State::kKeys;          // ESC O x: x is the final byte, if it is one (0x40-0x7E)
+        if (u < 0x40 || u > 0x7E) --i;  // Alt+O then a key: the key is read as one
         break;
     }
   }
@@ -123,7 +130,8 @@ void TeleopKeyReader::Feed(const char* data, size_t n, std::vector<char>* keys) 
 
 void TeleopKeyReader::Flush(std::vector<char>* keys) {
   if (state_ == State::kEscape) keys->push_back(27);
-  // An unfinished sequence whose rest never came is dropped; what comes next is keys.
+  // An unfinished sequence whose rest never came (Alt+[ or Alt+O) is dropped; what comes next
+  // is keys.
   state_ = State::kKeys;
 }
 

@@ -252,8 +252,9 @@ TEST(CliErrors, ToolsRefuseFoldersDevicesAndNaN) {
     const char* says;
   };
   for (const Case& c : {
-           Case{Bin("omni-decode") + " imu " + dir, 1, "is not a regular file"},
-           Case{Bin("omni-decode") + " rplidar /dev/zero", 1, "is not a regular file"},
+           Case{Bin("omni-decode") + " imu " + dir, 1, "is not a file or a pipe"},
+           Case{Bin("omni-decode") + " rplidar /dev/zero", 1, "is not a file or a pipe"},
+           Case{"bash -c '" + Bin("omni-decode") + " imu <(printf abc)'", 0, ""},  // a pipe
            Case{Bin("omni-logcat") + " " + dir, 1, "read error"},
            Case{Bin("omni-devices") + " kinect-led nan", 2, "LED mode must be an integer 0..6"},
            Case{Bin("omni-devices") + " kinect-led 1e300", 2, "LED mode must be an integer"},

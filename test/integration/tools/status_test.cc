@@ -2,9 +2,12 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
+#include "omni/heartbeat_t.hpp"
+#include "omni/io/lcm_log.h"
 #include "run.h"
 
 namespace omni {
@@ -56,6 +59,43 @@ TEST(OmniStatus, ShowsEveryProcessOnTheBusAndSaysWhenThereIsNone) {
   // A bus that cannot be opened is its own exit status, not "a process is unhealthy".
   r = testing::Run(testing::Bin("omni-status") + " --url nosuch://x --wait 0.2");
   EXPECT_EQ(r.exit_code, 4) << r.output;
+}
+
+// Heartbeats from a recorded log: a process that crashed (its last heartbeat OK, then silence)
+// and was started again under a new pid is shown once, as its new instance; two instances
+// beating at once are a duplicate.
+TEST(OmniStatus, ARestartAfterACrashIsNotADuplicate) {
+  const std::string dir = ::testing::TempDir() + "/omni_status_log";
+  std::filesystem::create_directories(dir);
+  auto write = [&](const std::string& path, const std::vector<std::pair<int32_t, double>>& beats) {
+    auto w = io::LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    for (const auto& [pid, t] : beats) {
+      omni::heartbeat_t h{};
+      h.utime = 1'700'000'000'000'000 + static_cast<int64_t>(t * 1e6);
+      h.process = "base_bridge";
+      h.pid = pid;
+      h.state = omni::heartbeat_t::STATE_OK;
+      h.status_text = pid == 111 ? "old" : "new";
+      std::vector<uint8_t> buf(static_cast<size_t>(h.getEncodedSize()));
+      ASSERT_EQ(h.encode(buf.data(), 0, static_cast<int>(buf.size())),
+                static_cast<int>(buf.size()));
+      ASSERT_TRUE(w->Write(h.utime, "HEARTBEAT", buf.data(), static_cast<int>(buf.size())).ok());
+    }
+    ASSERT_TRUE(w->Close().ok());
+  };
+  write(dir + "/restart.lcmlog", {{111, 0.0}, {111, 1.0}, {222, 1.6}, {222, 2.6}});
+  write(dir + "/dup.lcmlog", {{111, 0.0}, {222, 0.5}, {111, 1.0}, {222, 1.5}, {111, 2.0}});
+  auto r = testing::Run(testing::Bin("omni-status") + " --url 'file://" + dir +
+                        "/restart.lcmlog?speed=0' --wait 0.5");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("DUPLICATE"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("new"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("old"), std::string::npos) << r.output;
+  r = testing::Run(testing::Bin("omni-status") + " --url 'file://" + dir +
+                   "/dup.lcmlog?speed=0' --wait 0.5");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("DUPLICATE: 2 instances of base_bridge"), std::string::npos) << r.output;
 }
 
 }  // namespace

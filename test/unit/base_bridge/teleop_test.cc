@@ -58,6 +58,14 @@ TEST(Teleop, SpeedsStepWithinTheirLimits) {
   for (int i = 0; i < 30; ++i) s.Key('-', 0.3);
   EXPECT_NEAR(s.linear_speed_m_s(), o.linear_step_m_s, 1e-12) << "never zero";
   EXPECT_NEAR(s.angular_speed_rad_s(), o.angular_step_rad_s, 1e-12);
+  // A speed key after the dead man's switch stopped the base does not start it again.
+  s.Key('w', 1.0);
+  EXPECT_GT(s.TwistAt(1.1).vx_m_s, 0);
+  EXPECT_EQ(s.TwistAt(1.0 + o.key_timeout_s + 0.1).vx_m_s, 0);
+  EXPECT_EQ(s.Key('+', 3.0), TeleopAction::kSpeed);
+  EXPECT_EQ(s.TwistAt(3.01).vx_m_s, 0);
+  for (int i = 0; i < 20; ++i) s.Key('+', 3.0 + 0.05 * i);  // held '+'
+  EXPECT_EQ(s.TwistAt(4.0).vx_m_s, 0);
 }
 
 // An e-stop zeroes the twist and refuses direction keys until clear-faults, which leaves the
@@ -114,7 +122,17 @@ TEST(TeleopKeys, EscapeSequencesAreSkippedAndTheKeysAfterThemKept) {
   EXPECT_EQ(k[0], 27);
   EXPECT_FALSE(r.escape_pending());
   EXPECT_EQ(Keys(&r, "\x1bw"), std::string("\x1b") + "w");  // Esc then a key
-  EXPECT_EQ(Keys(&r, "\x1b[\x03"), std::string("\x03"));    // a control byte ends it: Ctrl-C
+  // Alt+[ or Alt+O then keys: the keys are not swallowed as a sequence's bytes.
+  EXPECT_EQ(Keys(&r, "\x1b[ !"), " !");
+  EXPECT_EQ(Keys(&r, "\x1bO!"), "!");
+  EXPECT_EQ(Keys(&r, "\x1b[+-"), "+-");
+  EXPECT_EQ(Keys(&r, "\x1b[12"), "");  // digits: maybe a sequence, waiting ...
+  EXPECT_TRUE(r.escape_pending());
+  k.clear();
+  r.Flush(&k);  // ... nothing more came: dropped, not the Esc key
+  EXPECT_TRUE(k.empty());
+  EXPECT_EQ(Keys(&r, "w"), "w");
+  EXPECT_EQ(Keys(&r, "\x1b[\x03"), std::string("\x03"));  // a control byte ends it: Ctrl-C
 }
 
 // BASE_CMD as the bridge (and the simulator) read it: the three modes, and an unknown one made

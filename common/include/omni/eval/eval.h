@@ -70,11 +70,12 @@ struct MapCompareOptions {
   int threads = 0;  // threads scoring the rotations of a level; 0: one per core
   // The first level's rotation step is also at most (its shift step) / (the RMS distance of the
   // estimate's occupied cells from its centre), so a large map's walls move by no more than a
-  // shift step per rotation step (more rotations to try on a large map).
+  // shift step per rotation step (more rotations to try on a large map; at most 128 a side).
   bool rotation_step_from_extent = true;
   // > 0: every level but the last scores at most this many of the estimate's occupied cells (a
-  // fixed, evenly spread random subset), so the search's cost stops growing with the map; the
-  // last level and the overlap reported use every cell. 0: every cell at every level.
+  // fixed, evenly spread random subset), so those levels cost what a map of that many cells
+  // would (the rotations still grow with the map's extent, and the last level scores every
+  // cell); the overlap reported uses every cell. 0: every cell at every level.
   int max_cells = 0;
 };
 

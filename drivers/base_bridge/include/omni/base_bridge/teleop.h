@@ -70,18 +70,22 @@ class TeleopState {
 // Splits the bytes a terminal sends into keys. A key such as an arrow sends an escape sequence
 // (ESC [ ... final byte, or ESC O x), which is skipped whole however the bytes are split between
 // reads, and what follows it is read as keys (a batched read over SSH does not lose the space or
-// '!' after an arrow). ESC followed by anything else is the Esc key, then that byte; an ESC at
-// the end of the bytes so far waits for the next read, or for Flush (nothing came: Esc).
+// '!' after an arrow). ESC followed by anything else is the Esc key, then that byte; an ESC or
+// an unfinished sequence at the end of the bytes so far waits for the next read, or for Flush
+// (nothing more came within 50 ms: a lone ESC is the Esc key, an unfinished sequence is dropped).
 class TeleopKeyReader {
  public:
   void Feed(const char* data, size_t n, std::vector<char>* keys);
   // No byte followed a pending ESC: it was the Esc key (appended to `keys`).
   void Flush(std::vector<char>* keys);
-  bool escape_pending() const { return state_ == State::kEscape; }
+  // An ESC or a sequence is waiting for its next byte.
+  bool escape_pending() const { return state_ != State::kKeys; }
 
  private:
   enum class State { kKeys, kEscape, kCsi, kSs3 };
+  static constexpr int kMaxSequenceBytes = 16;
   State state_ = State::kKeys;
+  int sequence_bytes_ = 0;
 };
 
 // The key help printed by `omni drive --keys`.
