@@ -39,7 +39,7 @@ void Usage(std::FILE* f) {
       "                  process answered, or when every mapper whose heartbeat was heard in\n"
       "                  the first %.1f s answered\n"
       "  Exit status: 0 all answers ok, 1 a mapper could not write or did not answer,\n"
-      "  3 nobody answered.\n",
+      "  3 nobody answered, 4 the request could not be sent (the bus, --dir).\n",
       kListenS);
 }
 
@@ -65,7 +65,7 @@ int main(int argc, char** argv) {
   auto bus = omni::bus::Bus::Create(lcm_url);
   if (!bus.ok()) {
     std::fprintf(stderr, "omni-save-map: %s\n", bus.error().message.c_str());
-    return 1;
+    return 4;
   }
   if (!dir.empty() && dir.front() != '/') {
     // The mappers' working folders are theirs (the supervisor's, a service's): a relative
@@ -75,7 +75,7 @@ int main(int argc, char** argv) {
     if (ec) {
       std::fprintf(stderr, "omni-save-map: cannot resolve --dir '%s': %s\n", dir.c_str(),
                    ec.message().c_str());
-      return 1;
+      return 4;
     }
     dir = abs.lexically_normal().string();
   }
@@ -122,7 +122,7 @@ int main(int argc, char** argv) {
       });
   if (!(*bus)->Publish(omni::bus::kMapSaveChannel, req)) {
     std::fprintf(stderr, "omni-save-map: publishing on %s failed\n", omni::bus::kMapSaveChannel);
-    return 1;
+    return 4;
   }
   auto done = [&] {
     const auto now = std::chrono::steady_clock::now();

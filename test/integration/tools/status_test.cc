@@ -59,6 +59,8 @@ TEST(OmniStatus, ShowsEveryProcessOnTheBusAndSaysWhenThereIsNone) {
   // A bus that cannot be opened is its own exit status, not "a process is unhealthy".
   r = testing::Run(testing::Bin("omni-status") + " --url nosuch://x --wait 0.2");
   EXPECT_EQ(r.exit_code, 4) << r.output;
+  r = testing::Run(testing::Bin("omni-save-map") + " --url nosuch://x --wait 0.2");
+  EXPECT_EQ(r.exit_code, 4) << r.output;
 }
 
 // Heartbeats from a recorded log: a process that crashed (its last heartbeat OK, then silence)
