@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "omni/common/cli.h"
 #include "omni/common/geometry.h"
 #include "omni/eval/eval.h"
 #include "omni/io/carmen.h"
@@ -111,12 +112,13 @@ double AlignmentError(const Pair& p, const omni::eval::MapAlignment& a) {
   return worst;
 }
 
-void Usage() {
-  std::cout << "usage: omni-bench-fusion [--datasets DIR] [--out FILE] [--max-cells N]\n"
+void Usage(std::FILE* f) {
+  std::fprintf(f,
+               "usage: omni-bench-fusion [--datasets DIR] [--out FILE] [--max-cells N]\n"
                "  Times map_fusion's alignment search with the shipped bound on the cells it\n"
                "  scores (align.max_cells) beside the unbounded search, on maps of the four\n"
                "  carmen-corrected buildings and the Intel map tiled 3 x 3, each against a copy\n"
-               "  moved by a known transform. Writes out/bench/fusion.jsonl by default.\n";
+               "  moved by a known transform. Writes out/bench/fusion.jsonl by default.\n");
 }
 
 }  // namespace
@@ -126,35 +128,16 @@ int main(int argc, char** argv) {
   std::string datasets = env ? env : "../shared/datasets";
   std::string out_path = "out/bench/fusion.jsonl";
   int max_cells = omni::map_fusion::FusionOptions().align.max_cells;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << "omni-bench-fusion: " << a << " needs a value\n";
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      Usage();
-      return 0;
-    } else if (a == "--datasets") {
-      datasets = next();
-    } else if (a == "--out") {
-      out_path = next();
-    } else if (a == "--max-cells") {
-      const std::string v = next();
-      char* end = nullptr;
-      const long n = std::strtol(v.c_str(), &end, 10);
-      if (end == v.c_str() || *end != '\0' || n <= 0 || n > 100000000) {
-        std::cerr << "omni-bench-fusion: --max-cells expects a whole number in [1, 1e8]\n";
-        return 2;
-      }
-      max_cells = static_cast<int>(n);
+  omni::ArgReader args(argc, argv, "omni-bench-fusion", Usage);
+  while (args.Next()) {
+    if (args.Is("--datasets")) {
+      datasets = args.Value();
+    } else if (args.Is("--out")) {
+      out_path = args.Value();
+    } else if (args.Is("--max-cells")) {
+      max_cells = static_cast<int>(args.Integer(1, 100000000));
     } else {
-      std::cerr << "omni-bench-fusion: unknown option '" << a << "'\n";
-      Usage();
-      return 2;
+      args.Unknown();
     }
   }
   const Pose2 t(0.6, -0.4, 0.15);  // inside map_fusion's default search (±2 m, ±0.35 rad)
