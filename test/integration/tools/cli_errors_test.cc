@@ -168,6 +168,16 @@ TEST(CliErrors, ShippedOdomMapperConfigLoads) {
   EXPECT_EQ(r.exit_code, 0) << r.output;
 }
 
+// A shell line that starts `cmd` in the background and sends it SIGHUP once it has its handler
+// (SigCgt bit 0 = SIGHUP), not after a fixed wait a loaded machine may outlast; its exit status
+// is the process's.
+std::string HangupOnceHandled(const std::string& cmd) {
+  return cmd +
+         " & p=$!; for i in $(seq 200); do m=$(awk '/^SigCgt/{print $2}' /proc/$p/status "
+         "2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 1 )) = 1 ] && break; sleep 0.05; done; "
+         "kill -HUP $p; wait $p";
+}
+
 // A hangup (the terminal or SSH session the process was started from went away) stops the
 // mappers and drivers in order, as SIGTERM does: exit 0 and, for a mapper, its map written.
 // Before, SIGHUP's default killed them at once (octomap_builder: exit 129, no map.bt).
@@ -178,13 +188,7 @@ TEST(CliErrors, AHangupStopsProcessesInOrder) {
                                  Bin("omni-base-bridge") + " --config " + OMNI_SOURCE_DIR +
                                      "/config/base_bridge.yaml --url memq://"}) {
     SCOPED_TRACE(cmd);
-    // The hangup once the process has its handler (SigCgt bit 0 = SIGHUP), not after a fixed
-    // wait a loaded machine may outlast.
-    const auto r = testing::Run(
-        cmd +
-        " & p=$!; for i in $(seq 200); do m=$(awk '/^SigCgt/{print $2}' /proc/$p/status "
-        "2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 1 )) = 1 ] && break; sleep 0.05; done; "
-        "kill -HUP $p; wait $p");
+    const auto r = testing::Run(HangupOnceHandled(cmd));
     EXPECT_EQ(r.exit_code, 0) << r.output;
   }
   EXPECT_TRUE(std::filesystem::exists(dir + "/octo/map.bt"));
@@ -227,11 +231,7 @@ TEST(CliErrors, AHangupStopsTheToolsInOrder) {
                 "[interrupted]"},
        }) {
     SCOPED_TRACE(c.cmd);
-    const auto r = testing::Run(
-        c.cmd +
-        " & p=$!; for i in $(seq 200); do m=$(awk '/^SigCgt/{print $2}' /proc/$p/status "
-        "2>/dev/null); [ -n \"$m\" ] && [ $(( 0x$m & 1 )) = 1 ] && break; sleep 0.05; done; "
-        "kill -HUP $p; wait $p");
+    const auto r = testing::Run(HangupOnceHandled(c.cmd));
     EXPECT_EQ(r.exit_code, c.exit_code) << r.output;
     EXPECT_NE(r.output.find(c.says), std::string::npos) << r.output;
   }
