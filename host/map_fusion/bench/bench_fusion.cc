@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <string>
@@ -175,6 +176,9 @@ int main(int argc, char** argv) {
       }
     pairs.push_back(std::move(big));
   }
+  std::error_code ec;  // out/bench on a fresh checkout, as the other benches make it
+  if (const auto dir = std::filesystem::path(out_path).parent_path(); !dir.empty())
+    std::filesystem::create_directories(dir, ec);
   std::ofstream jsonl(out_path);
   if (!jsonl) std::cerr << "omni-bench-fusion: cannot write " << out_path << " (table only)\n";
   std::printf("map_fusion alignment search, full (the default ranges, 6 levels), 2 threads\n");
