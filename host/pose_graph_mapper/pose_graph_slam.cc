@@ -73,6 +73,12 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("interpolate_scan_poses", &o.interpolate_scan_poses, Optional());
   r.Get("loop_cooldown_keyframes", &o.loop_cooldown_keyframes, Optional(), InRange(0, 100000));
   r.Get("num_threads", &o.num_threads, Optional(), InRange(1, 64));
+  ConfigReader rt = r.Section("retire");
+  rt.Get("enabled", &o.retire.enabled, Optional());
+  rt.Get("distance_m", &o.retire.distance_m, Optional(), NonNegative<double>());
+  rt.Get("angle_rad", &o.retire.angle_rad, Optional(), InRange(0.0, 3.15));
+  rt.Get("loop_reach_keyframes", &o.retire.loop_reach_keyframes, Optional(), InRange(0, 1000));
+  rt.Get("delay_keyframes", &o.retire.delay_keyframes, Optional(), InRange(1, 100000));
   ConfigReader m = r.Section("scan_match");
   m.Get("submap_keyframes", &o.match.submap_keyframes, Optional(), InRange(1, 100));
   m.Get("min_score", &o.match.min_score, Optional(), InRange(0.0, 1.0));
@@ -118,6 +124,11 @@ Status PoseGraphSlamOptions::Validate() const {
     return MakeError(ErrorCode::kOutOfRange, "loop_chi2_gate must be >= 0 (0 disables it)");
   if (!(global_function_tolerance > 0))
     return MakeError(ErrorCode::kOutOfRange, "global_function_tolerance must be > 0");
+  if (retire.enabled && (retire.delay_keyframes <= match.submap_keyframes ||
+                         retire.delay_keyframes < retire.loop_reach_keyframes))
+    return MakeError(ErrorCode::kOutOfRange,
+                     "retire.delay_keyframes must be > scan_match.submap_keyframes (the keyframe "
+                     "matcher's submap) and >= retire.loop_reach_keyframes");
   return Status::Ok();
 }
 
@@ -450,6 +461,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   keyframes_.push_back(std::move(kf));
   kf_scans_.push_back({scan, std::nullopt});
   kf_odom_.push_back(k == 0 ? Pose2() : motion.delta);
+  kf_loop_.push_back(0);
   kf_by_utime_[utime] = k;
   nodes_.push_back({utime, k, Pose2()});
   node_of_kf_.push_back(id);
@@ -492,27 +504,55 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   DrainAbsoluteQueue();
   OptimizeWindow();
 
-  if (k % o_.loop_every_keyframes != 0 || k - last_loop_keyframe_ < o_.loop_cooldown_keyframes) {
-    if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
-      OptimizeGlobal();
-    return;
-  }
-  const auto loops = loop_.OnKeyframe(keyframes_);
-  for (const auto& at : loop_.last_attempts())
-    if (!at.accepted) ++c_.loops_rejected;
-  for (const auto& f : loops) {
-    auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
-    if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
-    pending_loops_.push_back(links_.size());
-    links_.push_back({node_of_kf_[static_cast<size_t>(a->second)],
-                      node_of_kf_[static_cast<size_t>(b->second)], f.delta, f.Information(),
-                      LinkKind::kLoop});
-    ++c_.loops_accepted;
-    loops_pending_ = true;
-    last_loop_keyframe_ = k;
+  if (k % o_.loop_every_keyframes == 0 && k - last_loop_keyframe_ >= o_.loop_cooldown_keyframes) {
+    const auto loops = loop_.OnKeyframe(keyframes_);
+    for (const auto& at : loop_.last_attempts())
+      if (!at.accepted) ++c_.loops_rejected;
+    for (const auto& f : loops) {
+      auto a = kf_by_utime_.find(f.from_utime), b = kf_by_utime_.find(f.to_utime);
+      if (a == kf_by_utime_.end() || b == kf_by_utime_.end()) continue;
+      pending_loops_.push_back(links_.size());
+      links_.push_back({node_of_kf_[static_cast<size_t>(a->second)],
+                        node_of_kf_[static_cast<size_t>(b->second)], f.delta, f.Information(),
+                        LinkKind::kLoop});
+      ++c_.loops_accepted;
+      loops_pending_ = true;
+      last_loop_keyframe_ = k;
+      kf_loop_[static_cast<size_t>(k)] = 1;
+    }
   }
   if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
     OptimizeGlobal();
+  RetireRevisits();
+}
+
+void PoseGraphSlam::RetireRevisits() {
+  // Estimates are trusted only once every accepted loop has been through a global solve.
+  if (!o_.retire.enabled || loops_pending_) return;
+  const int n = static_cast<int>(keyframes_.size());
+  const int last = n - 1 - o_.retire.delay_keyframes;
+  const int reach = o_.retire.loop_reach_keyframes;
+  for (; retire_next_ <= last; ++retire_next_) {
+    const int k = retire_next_;
+    bool near_loop = false;
+    for (int i = std::max(k - reach, 0); i <= k + reach && !near_loop; ++i)
+      near_loop = kf_loop_[static_cast<size_t>(i)] != 0;
+    if (!near_loop) continue;
+    Keyframe& kf = keyframes_[static_cast<size_t>(k)];
+    bool covered = false;
+    for (int j = 0; j <= k - o_.loop.min_index_gap && !covered; ++j) {
+      const Keyframe& old = keyframes_[static_cast<size_t>(j)];
+      if (old.retired || old.points.empty()) continue;
+      const Pose2 d = old.estimate.Between(kf.estimate);
+      covered =
+          std::hypot(d.x, d.y) <= o_.retire.distance_m && std::abs(d.theta) <= o_.retire.angle_rad;
+    }
+    if (!covered) continue;
+    kf.retired = true;
+    std::vector<Eigen::Vector2d>().swap(kf.points);
+    std::vector<float>().swap(kf_scans_[static_cast<size_t>(k)].scan.ranges_m);
+    ++c_.keyframes_retired;
+  }
 }
 
 void PoseGraphSlam::CalibrateOdometry(int64_t t0, int64_t t1, const Pose2& matched) {
@@ -830,6 +870,7 @@ bool PoseGraphSlam::LastScanCovariance(Eigen::Matrix3d* covariance) {
 io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
   io::LogOddsGrid grid(options);
   for (size_t i = 0; i < keyframes_.size(); ++i) {
+    if (keyframes_[i].retired) continue;
     const LaserScan2& s = kf_scans_[i].scan;
     const std::optional<Pose2>& sweep = kf_scans_[i].sweep;
     if (!sweep || s.ranges_m.size() < 2) {

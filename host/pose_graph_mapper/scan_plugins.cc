@@ -223,6 +223,7 @@ std::vector<RelativePoseFactor> LoopClosurePlugin::OnKeyframe(
   std::vector<std::pair<double, int>> cands;
   const Eigen::Vector2d here = keyframes[cur].estimate.translation();
   for (int i = 0; i <= cur - o_.min_index_gap; ++i) {
+    if (keyframes[i].retired) continue;
     const double d = (keyframes[i].estimate.translation() - here).norm();
     if (d <= o_.search_radius_m + grow) cands.emplace_back(d, i);
   }

@@ -101,6 +101,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
   heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
   heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
+  heartbeat_.AddCounter("keyframes_retired", [&c] { return c.keyframes_retired; });
   heartbeat_.AddCounter("scan_match_factors", [&c] { return c.scan_match_factors; });
   heartbeat_.AddCounter("scan_match_failures", [&c] { return c.scan_match_failures; });
   heartbeat_.AddCounter("loops_accepted", [&c] { return c.loops_accepted; });

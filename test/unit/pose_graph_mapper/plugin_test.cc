@@ -469,6 +469,15 @@ TEST(PoseGraphPlugins, LoopCandidatesRespectGapAndRadius) {
       EXPECT_EQ(fac.plugin, "loop_closure");
     }
   EXPECT_TRUE(found2);
+  // A retired keyframe (PoseGraphSlam's `retire`) is no candidate; the next nearest are tried.
+  kfs[2].retired = true;
+  kfs[2].points.clear();
+  LoopClosurePlugin without2(o);
+  (void)without2.OnKeyframe(kfs);
+  tried.clear();
+  for (const auto& at : without2.last_attempts()) tried.push_back(at.candidate);
+  std::sort(tried.begin(), tried.end());
+  EXPECT_EQ(tried, (std::vector<int>{1, 3, 4}));
   // Too early for any loop: nothing tried.
   kfs.resize(20);
   EXPECT_TRUE(lc.OnKeyframe(kfs).empty());

@@ -153,6 +153,12 @@ TEST(PoseGraphSlam, OptionsAreChecked) {
   o = PoseGraphSlamOptions();
   o.global_function_tolerance = 0;
   EXPECT_FALSE(o.Validate().ok());
+  // Retiring must wait until the keyframe has left the keyframe matcher's submap.
+  o = PoseGraphSlamOptions();
+  o.retire.delay_keyframes = o.match.submap_keyframes;
+  EXPECT_FALSE(o.Validate().ok());
+  o.retire.enabled = false;
+  EXPECT_TRUE(o.Validate().ok());
 }
 
 // Back and forth three times along the box room: loops close on the second and third pass. A
@@ -913,6 +919,81 @@ TEST(PoseGraphSlam, SplicedPosesSurviveGlobalOptimisationsAndWindowRebuilds) {
       static_cast<long long>(c.absolute_attached), static_cast<long long>(c.absolute_rejected),
       static_cast<long long>(c.loops_accepted), static_cast<long long>(c.global_optimizations),
       worst);
+}
+
+// Five passes along the box room, back and forth on one line: once loops tie a pass to the
+// first, its keyframes are retired (scan released, pose kept) where a kept keyframe at least
+// min_index_gap older lies within retire.distance_m and retire.angle_rad. The first pass and the
+// newest delay_keyframes are never retired; the map and the trajectory stay those of the run
+// that keeps every scan.
+TEST(PoseGraphSlam, RevisitsAreRetiredWithTheirScansReleased) {
+  auto run = [](bool retire) {
+    PoseGraphSlamOptions o;
+    o.window_size = 5;
+    o.loop.min_index_gap = 10;
+    o.loop.max_ambiguity_ratio = 0;
+    o.loop_every_keyframes = 1;
+    o.global_min_keyframes_between = 0;
+    o.retire.enabled = retire;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    for (int i = 0; i < 5 * 61; ++i) {
+      const int s = i % 61, pass = i / 61;
+      const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
+      const Pose2 p(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
+      const int64_t t = 1000000 + 100000 * int64_t{i};
+      slam->AddOdometry(t, p);
+      slam->AddScan(i, BoxScan(t, p));
+    }
+    slam->Finish();
+    return slam;
+  };
+  const auto kept = run(false);
+  const auto slam = run(true);
+  EXPECT_EQ(kept->counters().keyframes_retired, 0);
+  const SlamCounters& c = slam->counters();
+  const auto& kfs = slam->keyframes();
+  ASSERT_EQ(static_cast<size_t>(c.keyframes), kfs.size());
+  ASSERT_EQ(kfs.size(), kept->keyframes().size());
+  const PoseGraphSlamOptions o;
+  int retired = 0, first_pass = 0;
+  for (size_t k = 0; k < kfs.size(); ++k) {
+    if (kfs[k].utime <= 1000000 + 100000 * 60) ++first_pass;
+    if (!kfs[k].retired) continue;
+    ++retired;
+    EXPECT_TRUE(kfs[k].points.empty()) << k;
+    EXPECT_GT(kfs[k].utime, 1000000 + 100000 * 60) << "first pass retired: " << k;
+    EXPECT_LT(k + static_cast<size_t>(o.retire.delay_keyframes), kfs.size()) << k;
+    bool covered = false;
+    for (size_t j = 0; j + 10 <= k; ++j) {
+      const Pose2 d = kfs[j].estimate.Between(kfs[k].estimate);
+      covered |= !kfs[j].retired && !kfs[j].points.empty() &&
+                 std::hypot(d.x, d.y) <= o.retire.distance_m &&
+                 std::abs(d.theta) <= o.retire.angle_rad;
+    }
+    EXPECT_TRUE(covered) << k;
+  }
+  EXPECT_EQ(retired, c.keyframes_retired);
+  // Most keyframes after the first pass lie on it: at least half of them go.
+  EXPECT_GT(retired, (static_cast<int>(kfs.size()) - first_pass) / 2);
+  for (size_t k = 0; k < kfs.size(); ++k) {
+    EXPECT_TRUE(kfs[k].retired || !kfs[k].points.empty()) << k;
+  }
+  // Same poses (to the matcher's precision) and the same walls.
+  const auto a = slam->Trajectory(), b = kept->Trajectory();
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) EXPECT_LT(Distance(a[i].pose, b[i].pose), 0.02) << i;
+  io::LogOddsOptions lo;
+  lo.resolution_m = 0.1;
+  const io::GridMap ma = slam->RenderMap(lo), mb = kept->RenderMap(lo);
+  auto occupied = [](const io::GridMap& m) {
+    int n = 0;
+    for (int8_t v : m.cells) n += v > 50;
+    return n;
+  };
+  EXPECT_GT(occupied(ma), 0.9 * occupied(mb));
+  EXPECT_LT(occupied(ma), 1.1 * occupied(mb));
+  std::printf("%lld keyframes, %d on the first pass, %d retired; occupied cells %d / %d\n",
+              static_cast<long long>(c.keyframes), first_pass, retired, occupied(ma), occupied(mb));
 }
 
 // The global optimisation sees the pose nodes and the absolute factors: a prior on the last

@@ -53,6 +53,9 @@ struct Keyframe {
   int64_t utime = 0;
   Pose2 estimate;                       // current estimate in the map frame
   std::vector<Eigen::Vector2d> points;  // scan end points in the robot-base frame
+  // Retired (PoseGraphSlam, `slam.retire`): a revisit of ground older keyframes already map.
+  // Its pose stays in the graph; its points are released and it is no loop candidate.
+  bool retired = false;
 };
 
 struct RelativePoseFactor {

@@ -113,6 +113,20 @@ struct PoseGraphSlamOptions {
   // covered (false: it follows keyframe k only, and the poses jump at every keyframe).
   bool interpolate_scan_poses = true;
   int num_threads = 2;
+  // Retiring keyframes that revisit mapped ground, so that a robot driving the same rooms for
+  // hours keeps a graph of poses but stores scans for the ground, not for the time. A keyframe
+  // is retired (its scan released, left out of the map and of loop candidates; its pose and
+  // factors stay) once `delay_keyframes` newer ones exist and every loop closed so far has been
+  // through a global optimisation, when a loop was accepted within `loop_reach_keyframes` of it
+  // and a kept keyframe at least `loop.min_index_gap` older lies within `distance_m` and
+  // `angle_rad` of its estimate.
+  struct RetireOptions {
+    bool enabled = true;
+    double distance_m = 0.4;
+    double angle_rad = 0.35;
+    int loop_reach_keyframes = 3;
+    int delay_keyframes = 15;
+  } retire;
   // The mapper's matchers differ from the plugins' defaults (docs/posegraph.md, "Sparse logs"):
   // submaps follow the surfaces between neighbouring beams, a keyframe match whose optimum is
   // on its window's edge is dropped, and the loop search covers 5 keyframes either side of the
@@ -173,6 +187,7 @@ struct SlamCounters {
   // step then put back in order, and mapped.
   int64_t scans_replayed = 0;
   int64_t keyframes = 0;
+  int64_t keyframes_retired = 0;  // revisits whose scans were released (`slam.retire`)
   int64_t scan_match_factors = 0, scan_match_failures = 0;
   int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
   int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
@@ -321,6 +336,7 @@ class PoseGraphSlam {
   void OptimizeWindow();
   void OptimizeGlobal();
   void ResetWindow();
+  void RetireRevisits();  // `slam.retire`, for keyframes old enough since the last call
   double NowMs() const;
   void TakeOdometry(int64_t utime, const Pose2& raw);  // in order: into the buffer
   // A stamp on the mapper's time line (saturating).
@@ -392,6 +408,8 @@ class PoseGraphSlam {
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;
   std::vector<Pose2> kf_odom_;  // odometry from the previous keyframe (identity for the first)
+  std::vector<char> kf_loop_;   // a loop was accepted at this keyframe
+  int retire_next_ = 0;         // first keyframe not yet considered for retiring
   std::map<int64_t, int> kf_by_utime_;  // keyframe index by time
   std::vector<Node> nodes_;             // by node id
   std::vector<int> node_of_kf_;         // keyframe index -> node id
