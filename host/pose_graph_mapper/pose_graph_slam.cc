@@ -518,7 +518,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
       ++c_.loops_accepted;
       loops_pending_ = true;
       last_loop_keyframe_ = k;
-      kf_loop_[static_cast<size_t>(k)] = 1;
+      ++kf_loop_[static_cast<size_t>(k)];
     }
   }
   if (loops_pending_ && k - last_global_keyframe_ >= o_.global_min_keyframes_between)
@@ -527,15 +527,16 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
 }
 
 void PoseGraphSlam::RetireRevisits() {
-  // Estimates are trusted only once every accepted loop has been through a global solve.
-  if (!o_.retire.enabled || loops_pending_) return;
+  // Estimates are trusted only once every accepted loop has been through a successful global
+  // solve.
+  if (!o_.retire.enabled || loops_pending_ || last_global_failed_) return;
   const int n = static_cast<int>(keyframes_.size());
   const int last = n - 1 - o_.retire.delay_keyframes;
   const int reach = o_.retire.loop_reach_keyframes;
   for (; retire_next_ <= last; ++retire_next_) {
     const int k = retire_next_;
     bool near_loop = false;
-    for (int i = std::max(k - reach, 0); i <= k + reach && !near_loop; ++i)
+    for (int i = std::max(k - reach, 0); i <= std::min(k + reach, n - 1) && !near_loop; ++i)
       near_loop = kf_loop_[static_cast<size_t>(i)] != 0;
     if (!near_loop) continue;
     Keyframe& kf = keyframes_[static_cast<size_t>(k)];
@@ -753,6 +754,7 @@ void PoseGraphSlam::OptimizeGlobal() {
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
   std::vector<size_t> pending;
   pending.swap(pending_loops_);
+  last_global_failed_ = !r.ok();
   if (!r.ok()) {
     ++c_.global_failures;
     return;
@@ -769,13 +771,19 @@ void PoseGraphSlam::OptimizeGlobal() {
   }
   if (!outliers.empty()) {
     std::sort(outliers.rbegin(), outliers.rend());
-    for (size_t i : outliers) links_.erase(links_.begin() + static_cast<std::ptrdiff_t>(i));
+    for (size_t i : outliers) {
+      // The removed loop no longer vouches for its newer keyframe (RetireRevisits).
+      const int kf = nodes_[static_cast<size_t>(links_[i].to)].keyframe;
+      if (kf >= 0 && kf_loop_[static_cast<size_t>(kf)] > 0) --kf_loop_[static_cast<size_t>(kf)];
+      links_.erase(links_.begin() + static_cast<std::ptrdiff_t>(i));
+    }
     const auto n = static_cast<int64_t>(outliers.size());
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
     r = OptimizeGraph(&g, b, priors);
     ++c_.global_optimizations;
+    last_global_failed_ = !r.ok();
     if (!r.ok()) {
       ++c_.global_failures;
       return;

@@ -469,7 +469,7 @@ TEST(PoseGraphPlugins, LoopCandidatesRespectGapAndRadius) {
       EXPECT_EQ(fac.plugin, "loop_closure");
     }
   EXPECT_TRUE(found2);
-  // A retired keyframe (PoseGraphSlam's `retire`) is no candidate; the next nearest are tried.
+  // A retired keyframe (PoseGraphSlam's `retire`) is no candidate; the others in range still are.
   kfs[2].retired = true;
   kfs[2].points.clear();
   LoopClosurePlugin without2(o);

@@ -174,6 +174,7 @@ TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
     o.loop_cooldown_keyframes = 0;
     o.global_min_keyframes_between = 0;
     o.loop_chi2_gate = gate;
+    o.retire.delay_keyframes = 5;  // three short passes: decide early enough to retire some
     auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
     int i = 0;
     for (int pass = 0; pass < 3; ++pass)
@@ -194,6 +195,9 @@ TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
   const SlamCounters& c = gated->counters();
   EXPECT_GT(c.loops_inconsistent, 0);
   EXPECT_EQ(c.loops_accepted, 0);
+  // Removed loops vouch for no keyframe: nothing is retired, where the open run retires some.
+  EXPECT_GT(open->counters().keyframes_retired, 0);
+  EXPECT_EQ(c.keyframes_retired, 0);
   // Only the odometry and scan-match links between consecutive keyframes remain.
   EXPECT_LE(gated->Graph().edges2.size(), static_cast<size_t>(2 * (c.keyframes - 1)));
   EXPECT_GT(open->Graph().edges2.size(), static_cast<size_t>(2 * (open->counters().keyframes - 1)));
@@ -961,6 +965,7 @@ TEST(PoseGraphSlam, RevisitsAreRetiredWithTheirScansReleased) {
     if (!kfs[k].retired) continue;
     ++retired;
     EXPECT_TRUE(kfs[k].points.empty()) << k;
+    EXPECT_EQ(kfs[k].points.capacity(), 0u) << k;  // released, not only cleared
     EXPECT_GT(kfs[k].utime, 1000000 + 100000 * 60) << "first pass retired: " << k;
     EXPECT_LT(k + static_cast<size_t>(o.retire.delay_keyframes), kfs.size()) << k;
     bool covered = false;

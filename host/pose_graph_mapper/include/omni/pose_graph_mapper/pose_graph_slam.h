@@ -408,7 +408,7 @@ class PoseGraphSlam {
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;
   std::vector<Pose2> kf_odom_;  // odometry from the previous keyframe (identity for the first)
-  std::vector<char> kf_loop_;   // a loop was accepted at this keyframe
+  std::vector<int> kf_loop_;    // loops accepted at this keyframe (and still in the graph)
   int retire_next_ = 0;         // first keyframe not yet considered for retiring
   std::map<int64_t, int> kf_by_utime_;  // keyframe index by time
   std::vector<Node> nodes_;             // by node id
@@ -427,6 +427,7 @@ class PoseGraphSlam {
   KeyframeMatchPlugin match_;
   LoopClosurePlugin loop_;
   bool loops_pending_ = false;
+  bool last_global_failed_ = false;    // no keyframe is retired on estimates it did not correct
   std::vector<size_t> pending_loops_;  // links_ indices of loops since the last global
   int last_global_keyframe_ = -1000000;
   std::vector<double> window_ms_, global_ms_;
