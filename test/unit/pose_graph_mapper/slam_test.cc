@@ -49,6 +49,26 @@ std::unique_ptr<PoseGraphSlam> FineKeyframeSlam(bool use_gyro = false) {
   return std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
 }
 
+// Scan i of a drive back and forth along the box room's length at y ~ 3, 61 scans a pass
+// (0.1 m apart, x from 2 to 8 and back), heading near 0.
+Pose2 BackAndForth(int i) {
+  const int s = i % 61, pass = i / 61;
+  const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
+  return Pose2(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
+}
+
+// A small window and loops tried on every keyframe a few keyframes back, with a global
+// optimisation as soon as one is accepted: BackAndForth's passes close loops within seconds.
+PoseGraphSlamOptions LoopingOptions() {
+  PoseGraphSlamOptions o;
+  o.window_size = 5;
+  o.loop.min_index_gap = 10;
+  o.loop.max_ambiguity_ratio = 0;  // the bare room looks alike along its length
+  o.loop_every_keyframes = 1;
+  o.global_min_keyframes_between = 0;
+  return o;
+}
+
 TEST(PoseGraphSlam, KeyframeGatingAndPosePerScan) {
   PoseGraphSlamOptions o;
   o.keyframe_distance_m = 0.5;
@@ -166,25 +186,17 @@ TEST(PoseGraphSlam, OptionsAreChecked) {
 // gate none is removed.
 TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
   auto run = [](double gate) {
-    PoseGraphSlamOptions o;
-    o.window_size = 5;
-    o.loop.min_index_gap = 10;
-    o.loop.max_ambiguity_ratio = 0;  // the bare room looks alike along its length
-    o.loop_every_keyframes = 1;
+    PoseGraphSlamOptions o = LoopingOptions();
     o.loop_cooldown_keyframes = 0;
-    o.global_min_keyframes_between = 0;
     o.loop_chi2_gate = gate;
     o.retire.delay_keyframes = 5;  // three short passes: decide early enough to retire some
     auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
-    int i = 0;
-    for (int pass = 0; pass < 3; ++pass)
-      for (int s = 0; s <= 60; ++s, ++i) {
-        const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
-        const Pose2 p(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
-        const int64_t t = 1000000 + 100000 * i;
-        slam->AddOdometry(t, p);
-        slam->AddScan(i, BoxScan(t, p));
-      }
+    for (int i = 0; i < 3 * 61; ++i) {
+      const Pose2 p = BackAndForth(i);
+      const int64_t t = 1000000 + 100000 * i;
+      slam->AddOdometry(t, p);
+      slam->AddScan(i, BoxScan(t, p));
+    }
     slam->Finish();
     return slam;
   };
@@ -875,19 +887,10 @@ TEST(PoseGraphSlam, AbsolutePoseOutcomesAreCounted) {
 // from their result) while fixes keep being spliced in: nothing fails, the spliced nodes stay in
 // the graph through the rebuilds, and the result stays on the truth.
 TEST(PoseGraphSlam, SplicedPosesSurviveGlobalOptimisationsAndWindowRebuilds) {
-  PoseGraphSlamOptions o;
-  o.window_size = 5;
-  o.loop.min_index_gap = 10;
-  o.loop.max_ambiguity_ratio = 0;
-  o.loop_every_keyframes = 1;
+  PoseGraphSlamOptions o = LoopingOptions();
   o.loop_cooldown_keyframes = 0;
-  o.global_min_keyframes_between = 0;
   PoseGraphSlam slam(o, BatchOptions{}, nullptr);
-  auto truth = [](int i) {
-    const int s = i % 61, pass = i / 61;
-    const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
-    return Pose2(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
-  };
+  const auto truth = BackAndForth;
   const Eigen::Matrix3d info = 400 * Eigen::Matrix3d::Identity();
   for (int i = 0; i < 3 * 61; ++i) {
     const int64_t t = 1000000 + 100000 * int64_t{i};
@@ -932,18 +935,11 @@ TEST(PoseGraphSlam, SplicedPosesSurviveGlobalOptimisationsAndWindowRebuilds) {
 // that keeps every scan.
 TEST(PoseGraphSlam, RevisitsAreRetiredWithTheirScansReleased) {
   auto run = [](bool retire) {
-    PoseGraphSlamOptions o;
-    o.window_size = 5;
-    o.loop.min_index_gap = 10;
-    o.loop.max_ambiguity_ratio = 0;
-    o.loop_every_keyframes = 1;
-    o.global_min_keyframes_between = 0;
+    PoseGraphSlamOptions o = LoopingOptions();
     o.retire.enabled = retire;
     auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
     for (int i = 0; i < 5 * 61; ++i) {
-      const int s = i % 61, pass = i / 61;
-      const double x = pass % 2 == 0 ? 2 + 0.1 * s : 8 - 0.1 * s;
-      const Pose2 p(x, 3 + 0.01 * std::sin(0.2 * i), 0.005 * std::sin(0.1 * i));
+      const Pose2 p = BackAndForth(i);
       const int64_t t = 1000000 + 100000 * int64_t{i};
       slam->AddOdometry(t, p);
       slam->AddScan(i, BoxScan(t, p));
