@@ -1,7 +1,9 @@
 #include "omni/bus/convert.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 #include <vector>
@@ -9,6 +11,7 @@
 #include <zlib.h>
 
 #include "omni/bus/bus.h"
+#include "omni/common/geometry.h"
 #include "omni/common/log.h"
 #include "omni/common/time.h"
 
@@ -179,6 +182,97 @@ Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& g) {
     return MakeError(ErrorCode::kInvalidArgument,
                      "occupancy grid from '" + g.source + "': " + aligned.error().message);
   return aligned;
+}
+
+namespace {
+
+// One greedy pass: from each kept pose, reach as far ahead as the poses in between are
+// reproduced by interpolation within the tolerances and the stamps keep rising within the gap.
+std::vector<size_t> ThinPass(const omni::trajectory_t& m, double tol_m, double tol_rad,
+                             int64_t max_gap_us) {
+  const std::vector<int64_t>& t = m.pose_utime;
+  const size_t n = t.size();
+  auto pose = [&m](size_t i) { return Pose2(m.x_m[i], m.y_m[i], m.yaw_rad[i]); };
+  auto within_gap = [&](size_t a, size_t b) {
+    // t[b] > t[a] here, so the unsigned difference is exact.
+    return max_gap_us <= 0 || static_cast<uint64_t>(t[b]) - static_cast<uint64_t>(t[a]) <=
+                                  static_cast<uint64_t>(max_gap_us);
+  };
+  auto reproduced = [&](size_t a, size_t b) {
+    const Pose2 pa = pose(a), pb = pose(b);
+    const auto span =
+        static_cast<double>(static_cast<uint64_t>(t[b]) - static_cast<uint64_t>(t[a]));
+    for (size_t i = a + 1; i < b; ++i) {
+      const double f =
+          static_cast<double>(static_cast<uint64_t>(t[i]) - static_cast<uint64_t>(t[a])) / span;
+      const Pose2 q = Interpolate(pa, pb, f);
+      if (!(std::hypot(q.x - m.x_m[i], q.y - m.y_m[i]) <= tol_m) ||
+          !(std::abs(WrapAngle(q.theta - m.yaw_rad[i])) <= tol_rad))
+        return false;  // also for a NaN
+    }
+    return true;
+  };
+  std::vector<size_t> keep;
+  if (n == 0) return keep;
+  keep.push_back(0);
+  size_t a = 0;
+  while (a + 1 < n) {
+    size_t j = a + 1;
+    while (j + 1 < n && t[j] > t[a] && t[j + 1] > t[j] && within_gap(a, j + 1) &&
+           reproduced(a, j + 1))
+      ++j;
+    keep.push_back(j);
+    a = j;
+  }
+  return keep;
+}
+
+}  // namespace
+
+int ThinTrajectoryMessage(omni::trajectory_t* m, const TrajectoryThinning& thinning,
+                          size_t max_poses) {
+  const size_t n = m->pose_utime.size();
+  std::vector<size_t> keep;
+  int doublings = 0;
+  double tol_m = thinning.tolerance_m, tol_rad = thinning.tolerance_rad;
+  if (tol_m > 0 && tol_rad > 0 && n > 2) {
+    keep = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us);
+    constexpr double kMaxTolerance = 0.64;  // m and rad: beyond it a path is not worth sending
+    while (max_poses > 0 && keep.size() > max_poses &&
+           (tol_m < kMaxTolerance || tol_rad < kMaxTolerance)) {
+      tol_m = std::min(2 * tol_m, std::max(tol_m, kMaxTolerance));
+      tol_rad = std::min(2 * tol_rad, std::max(tol_rad, kMaxTolerance));
+      ++doublings;
+      keep = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us);
+    }
+  } else {
+    keep.resize(n);
+    for (size_t i = 0; i < n; ++i) keep[i] = i;
+  }
+  if (max_poses > 0 && keep.size() > max_poses) {
+    // Every k-th of the thinned poses, counted from the newest so that it is one of them.
+    const size_t k = (keep.size() + max_poses - 1) / max_poses;
+    std::vector<size_t> strided;
+    strided.reserve(keep.size() / k + 1);
+    for (size_t i = 0; i < keep.size(); ++i)
+      if ((keep.size() - 1 - i) % k == 0) strided.push_back(keep[i]);
+    keep.swap(strided);
+    doublings = -1;
+  }
+  if (keep.size() == n) return doublings;
+  for (size_t out = 0; out < keep.size(); ++out) {
+    const size_t i = keep[out];
+    m->pose_utime[out] = m->pose_utime[i];
+    m->x_m[out] = m->x_m[i];
+    m->y_m[out] = m->y_m[i];
+    m->yaw_rad[out] = m->yaw_rad[i];
+  }
+  m->pose_utime.resize(keep.size());
+  m->x_m.resize(keep.size());
+  m->y_m.resize(keep.size());
+  m->yaw_rad.resize(keep.size());
+  m->num_poses = static_cast<int32_t>(keep.size());
+  return doublings;
 }
 
 }  // namespace omni::bus

@@ -148,6 +148,8 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("grid_render_ms", [this] { return last_grid_render_us_ / 1000; });
+  // Poses in the last TRAJECTORY_PG (thinned, see bus::ThinTrajectoryMessage).
+  heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });
   heartbeat_.AddCounter("max_scans_queued", [this] { return max_queued_scans_; });
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
@@ -312,9 +314,9 @@ void PoseGraphNode::PublishGrid() {
 void PoseGraphNode::PublishTrajectory() {
   const std::vector<ScanPose> traj = slam_.Trajectory();
   if (traj.empty()) return;
-  if (bus_->Publish(o_.trajectory_channel,
-                    bus::ToTrajectoryMessage(traj, o_.map_frame, "posegraph")))
-    ++trajectories_published_;
+  const omni::trajectory_t m = bus::ToTrajectoryMessage(traj, o_.map_frame, "posegraph");
+  last_trajectory_poses_ = m.num_poses;
+  if (bus_->Publish(o_.trajectory_channel, m)) ++trajectories_published_;
 }
 
 void PoseGraphNode::Tick() {
@@ -357,6 +359,7 @@ Status PoseGraphNode::SaveMaps(const std::string& dir, SlamRunInfo info) const {
   info.extra.emplace_back("poses_published", poses_published_);
   info.extra.emplace_back("grids_published", grids_published_);
   info.extra.emplace_back("trajectories_published", trajectories_published_);
+  info.extra.emplace_back("last_trajectory_poses", last_trajectory_poses_);
   return WriteSlamOutputs(slam_, dir, info);
 }
 

@@ -98,6 +98,8 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
       heartbeat_.AddCounter(name, std::move(read));
   }
   heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
+  // Poses in the last TRAJECTORY_RBPF (thinned, see bus::ThinTrajectoryMessage).
+  heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(pending_.size()); });
   heartbeat_.AddCounter("max_scans_queued", [this] { return max_pending_seen_; });
@@ -262,8 +264,9 @@ void RbpfNode::PublishGrid() {
 void RbpfNode::PublishTrajectory() {
   const std::vector<EstimatedPose> traj = slam_.ReportedTrajectory();
   if (traj.empty()) return;
-  if (bus_->Publish(opt_.trajectory_channel, bus::ToTrajectoryMessage(traj, "map", "rbpf")))
-    ++trajectories_published_;
+  const omni::trajectory_t m = bus::ToTrajectoryMessage(traj, "map", "rbpf");
+  last_trajectory_poses_ = m.num_poses;
+  if (bus_->Publish(opt_.trajectory_channel, m)) ++trajectories_published_;
 }
 
 void RbpfNode::Tick() {

@@ -143,9 +143,14 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
     ++grids;
   });
   bool heartbeat_counts = false;
+  int64_t heartbeat_trajectory_poses = -1;
   b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
     EXPECT_EQ(h.process, "pose_graph_mapper");
-    for (const auto& n : h.counter_names) heartbeat_counts |= n == "loops_accepted";
+    for (size_t i = 0; i < h.counter_names.size(); ++i) {
+      heartbeat_counts |= h.counter_names[i] == "loops_accepted";
+      if (h.counter_names[i] == "trajectory_poses")
+        heartbeat_trajectory_poses = h.counter_values[i];
+    }
     ++heartbeats;
   });
   testing::PublishCarmenPrefix(
@@ -201,13 +206,26 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
   EXPECT_TRUE(heartbeat_counts);
   EXPECT_EQ(b.counters().decode_errors.load(), 60);
   EXPECT_EQ(node.scans_lost(), 3);
-  // The last trajectory (published at exit) holds every accepted scan at its final estimate;
-  // its last pose is the final estimate of the newest scan.
-  ASSERT_EQ(last_traj.num_poses, 59);
-  ASSERT_EQ(last_traj.pose_utime.size(), 59u);
-  EXPECT_EQ(last_traj.pose_utime.back(), poses.back().utime);
+  // The last trajectory (published at exit) holds the accepted scans at their final estimates,
+  // thinned (bus::ThinTrajectoryMessage; the unit tests check what it leaves out): the first and
+  // the newest scan are in it, and every pose sent is a scan's final estimate.
   const auto final_traj = node.slam().Trajectory();
-  EXPECT_DOUBLE_EQ(last_traj.x_m.back(), final_traj.back().pose.x);
+  ASSERT_EQ(final_traj.size(), 59u);
+  ASSERT_GE(last_traj.num_poses, 2);
+  ASSERT_LE(last_traj.num_poses, 59);
+  ASSERT_EQ(last_traj.pose_utime.size(), static_cast<size_t>(last_traj.num_poses));
+  EXPECT_EQ(last_traj.pose_utime.front(), final_traj.front().utime);
+  EXPECT_EQ(last_traj.pose_utime.back(), poses.back().utime);
+  size_t k = 0;
+  for (const auto& s : final_traj) {
+    if (k == last_traj.pose_utime.size() || s.utime != last_traj.pose_utime[k]) continue;
+    EXPECT_DOUBLE_EQ(last_traj.x_m[k], s.pose.x);
+    EXPECT_DOUBLE_EQ(last_traj.y_m[k], s.pose.y);
+    EXPECT_DOUBLE_EQ(last_traj.yaw_rad[k], s.pose.theta);
+    ++k;
+  }
+  EXPECT_EQ(k, last_traj.pose_utime.size());
+  EXPECT_EQ(heartbeat_trajectory_poses, last_traj.num_poses);  // the exit heartbeat says it
 }
 
 omni::laser_scan_t RingScan(int64_t utime, int64_t seq) {

@@ -1,5 +1,7 @@
 #include "omni/bus/bus.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -18,6 +20,7 @@
 #include "omni/bus/map_save.h"
 #include "omni/bus/slam_log.h"
 #include "omni/color_image_t.hpp"
+#include "omni/common/geometry.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
@@ -132,31 +135,125 @@ TEST(Bus, HeartbeatCarriesCounters) {
   EXPECT_GT(got[1].rss_mb, 0.f);
 }
 
-// A mapper's whole path as a message stays bounded: past max_poses it goes out as every k-th pose
-// with the newest always in it (10 Hz scans used to grow TRAJECTORY_* by 1.15 MB an hour, beyond
-// a 4 MB receive buffer after about 3.5 h); poses on one stamp go out once (the later one).
-TEST(Bus, TrajectoryMessagesAreDecimatedPastTheirCapAndStampsAreUnique) {
-  struct Stamped {
-    int64_t utime;
-    Pose2 pose;
-  };
+// The receivers' view of a thinned path: interpolated at `utime` between the poses around it,
+// as the OctoMap builder's lookup does.
+Pose2 InterpolatedAt(const omni::trajectory_t& m, int64_t utime) {
+  const auto it = std::lower_bound(m.pose_utime.begin(), m.pose_utime.end(), utime);
+  const size_t b = static_cast<size_t>(it - m.pose_utime.begin());
+  EXPECT_LT(b, m.pose_utime.size());
+  const Pose2 pb(m.x_m[b], m.y_m[b], m.yaw_rad[b]);
+  if (m.pose_utime[b] == utime) return pb;
+  EXPECT_GT(b, 0u);
+  const Pose2 pa(m.x_m[b - 1], m.y_m[b - 1], m.yaw_rad[b - 1]);
+  const double f = static_cast<double>(utime - m.pose_utime[b - 1]) /
+                   static_cast<double>(m.pose_utime[b] - m.pose_utime[b - 1]);
+  return Interpolate(pa, pb, f);
+}
+
+struct Stamped {
+  int64_t utime;
+  Pose2 pose;
+};
+
+// 10 Hz along a straight 5 m, a quarter turn on the spot, then an arc of 1 m radius.
+std::vector<Stamped> DrivenPath() {
   std::vector<Stamped> path;
-  for (int i = 0; i < 1001; ++i) path.push_back({1000 + 100 * i, Pose2(0.01 * i, 0, 0)});
-  auto whole = ToTrajectoryMessage(path, "map", "rbpf");
-  EXPECT_EQ(whole.num_poses, 1001);
-  auto capped = ToTrajectoryMessage(path, "map", "rbpf", 300);
-  EXPECT_LE(capped.num_poses, 300);
-  EXPECT_GE(capped.num_poses, 250);
+  int64_t t = 1000;
+  for (int i = 0; i <= 100; ++i, t += 100000) path.push_back({t, Pose2(0.05 * i, 0, 0)});
+  for (int i = 1; i <= 30; ++i, t += 100000) path.push_back({t, Pose2(5, 0, M_PI / 60 * i)});
+  for (int i = 1; i <= 200; ++i, t += 100000) {
+    const double a = 0.02 * i;
+    path.push_back({t, Pose2(5 - 1 + std::cos(a), std::sin(a), M_PI / 2 + a)});
+  }
+  return path;
+}
+
+// A mapper's path goes out thinned: every pose left out is where the receivers' interpolation
+// puts it, within the tolerances, and no gap between the poses sent is wider than max_gap_us.
+TEST(Bus, TrajectoryMessagesAreThinnedWithinTheirTolerances) {
+  const std::vector<Stamped> path = DrivenPath();
+  const TrajectoryThinning th;  // 5 mm, 0.005 rad, 1 s
+  const auto m = ToTrajectoryMessage(path, "map", "posegraph");
+  EXPECT_EQ(m.num_poses, static_cast<int32_t>(m.pose_utime.size()));
+  EXPECT_EQ(m.x_m.size(), m.pose_utime.size());
+  EXPECT_EQ(m.yaw_rad.size(), m.pose_utime.size());
+  // The straight line and the turn on the spot need a pose a second; the arc (5 cm steps
+  // curving by 0.02 rad) needs more but far from all of its 200.
+  EXPECT_LT(m.num_poses, static_cast<int32_t>(path.size()) / 3);
+  EXPECT_GT(m.num_poses, 30);
+  EXPECT_EQ(m.pose_utime.front(), path.front().utime);
+  EXPECT_EQ(m.pose_utime.back(), path.back().utime);
+  EXPECT_EQ(m.utime, path.back().utime);
+  EXPECT_DOUBLE_EQ(m.yaw_rad.back(), path.back().pose.theta);
+  for (size_t i = 1; i < m.pose_utime.size(); ++i) {
+    EXPECT_GT(m.pose_utime[i], m.pose_utime[i - 1]);
+    EXPECT_LE(m.pose_utime[i] - m.pose_utime[i - 1], th.max_gap_us);
+  }
+  double worst_m = 0, worst_rad = 0;
+  for (const Stamped& s : path) {
+    const Pose2 q = InterpolatedAt(m, s.utime);
+    worst_m = std::max(worst_m, std::hypot(q.x - s.pose.x, q.y - s.pose.y));
+    worst_rad = std::max(worst_rad, std::abs(WrapAngle(q.theta - s.pose.theta)));
+  }
+  EXPECT_LE(worst_m, th.tolerance_m);
+  EXPECT_LE(worst_rad, th.tolerance_rad);
+  EXPECT_GT(worst_m + worst_rad, 0.0);  // something was left out
+
+  // Zero tolerances send the path whole.
+  TrajectoryThinning exact;
+  exact.tolerance_m = 0;
+  const auto whole = ToTrajectoryMessage(path, "map", "posegraph", exact);
+  EXPECT_EQ(whole.num_poses, static_cast<int32_t>(path.size()));
+  // A step back in time and a NaN are kept, never interpolated across.
+  std::vector<Stamped> odd;
+  for (int i = 0; i < 10; ++i) odd.push_back({1000 + 100000 * i, Pose2(0.01 * i, 0, 0)});
+  odd[4].utime = odd[2].utime - 1;
+  odd[7].pose.x = std::nan("");
+  omni::trajectory_t o = ToTrajectoryMessage(odd, "map", "rbpf");
+  EXPECT_NE(std::find(o.pose_utime.begin(), o.pose_utime.end(), odd[4].utime), o.pose_utime.end());
+  EXPECT_EQ(std::count_if(o.x_m.begin(), o.x_m.end(), [](double x) { return std::isnan(x); }), 1);
+}
+
+// Past the cap the tolerances are doubled until the path fits, and a path that cannot fit even so
+// goes out as every k-th thinned pose with the newest in it (10 Hz scans used to grow TRAJECTORY_*
+// by 1.15 MB an hour, beyond a 4 MB receive buffer after about 3.5 h); poses on one stamp go out
+// once (the later one).
+TEST(Bus, TrajectoryMessagesStayUnderTheirCapAndStampsAreUnique) {
+  const std::vector<Stamped> path = DrivenPath();
+  const TrajectoryThinning th;
+  omni::trajectory_t free_run = ToTrajectoryMessage(path, "map", "rbpf");
+  const size_t thinned = free_run.pose_utime.size();
+  const auto m = ToTrajectoryMessage(path, "map", "rbpf", th, thinned);  // fits as it is
+  EXPECT_EQ(m.pose_utime.size(), thinned);
+  // With room in the gap (10 s), a cap of five fewer poses than the first pass sends doubles the
+  // tolerances (d times), and the path is still followed within them.
+  omni::trajectory_t again = ToTrajectoryMessage(path, "map", "rbpf", TrajectoryThinning{0, 0, 0});
+  ASSERT_EQ(again.pose_utime.size(), path.size());
+  TrajectoryThinning wide = th;
+  wide.max_gap_us = 10000000;
+  const size_t thinned_wide = ToTrajectoryMessage(path, "map", "rbpf", wide).pose_utime.size();
+  const int d = ThinTrajectoryMessage(&again, wide, thinned_wide - 5);
+  ASSERT_GE(d, 1);
+  ASSERT_LE(d, 7);
+  EXPECT_LE(again.pose_utime.size(), thinned_wide - 5);
+  EXPECT_EQ(again.pose_utime.back(), path.back().utime);
+  for (const Stamped& s : path) {
+    const Pose2 q = InterpolatedAt(again, s.utime);
+    EXPECT_LE(std::hypot(q.x - s.pose.x, q.y - s.pose.y), th.tolerance_m * (1 << d));
+  }
+  // Nothing fits in 10 poses within a 1 s gap over 33 s: every k-th pose, the newest included.
+  omni::trajectory_t capped = ToTrajectoryMessage(path, "map", "rbpf");
+  EXPECT_EQ(ThinTrajectoryMessage(&capped, th, 10), -1);
+  EXPECT_LE(capped.num_poses, 10);
+  EXPECT_GE(capped.num_poses, 5);
   EXPECT_EQ(capped.num_poses, static_cast<int32_t>(capped.pose_utime.size()));
   EXPECT_EQ(capped.pose_utime.back(), path.back().utime);
   EXPECT_DOUBLE_EQ(capped.x_m.back(), path.back().pose.x);
-  EXPECT_EQ(capped.utime, path.back().utime);
-  for (size_t i = 1; i < capped.pose_utime.size(); ++i)
-    EXPECT_EQ(capped.pose_utime[i] - capped.pose_utime[i - 1], 400);  // every 4th
+
   std::vector<Stamped> repeated = {
       {10, Pose2(0, 0, 0)}, {20, Pose2(1, 0, 0)}, {20, Pose2(2, 0, 0)}, {30, Pose2(3, 0, 0)}};
   auto once = ToTrajectoryMessage(repeated, "map", "rbpf");
-  ASSERT_EQ(once.num_poses, 3);
+  ASSERT_EQ(once.num_poses, 3);  // 1, 2, 3 m at 10, 20, 30 µs: 2 m is not on the line
   EXPECT_EQ(once.pose_utime, (std::vector<int64_t>{10, 20, 30}));
   EXPECT_DOUBLE_EQ(once.x_m[1], 2.0);
 }

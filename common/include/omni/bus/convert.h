@@ -35,32 +35,52 @@ bool PublishGrid(Bus& bus, const std::string& channel, const io::GridMap& map, i
 // (origin_yaw_rad) is resampled onto the frame's axes (io::AxisAligned).
 Result<io::GridMap> FromGridMessage(const omni::occupancy_grid_t& msg);
 
+// How a trajectory is thinned before it goes on the bus. A pose is left out when the receivers'
+// interpolation (linear in time between the poses kept around it, the heading along the shorter
+// arc, as geometry.h's Interpolate) puts it within `tolerance_m` and `tolerance_rad` of where it
+// is, and no two poses kept are more than `max_gap_us` apart unless the input already was (the
+// OctoMap builder interpolates across at most its poser's max_pose_gap_s, 2 s by default).
+struct TrajectoryThinning {
+  double tolerance_m = 0.005;
+  double tolerance_rad = 0.005;
+  int64_t max_gap_us = 1000000;
+};
+
+// A mapper's path as a message holds at most this many poses: 32 bytes a pose, so 1.3 MB.
+inline constexpr size_t kMaxTrajectoryMessagePoses = 40000;
+
+// Thins `m`'s poses in place (they must be in time order with unique stamps; a step back in time
+// is kept, never interpolated across); the first and the newest always stay. A tolerance of zero
+// or less keeps every pose; a max_gap_us of zero or less sets no gap limit. Past `max_poses` (0:
+// no cap) the tolerances are doubled until the path fits (up to 0.64 m and 0.64 rad); a path
+// that still does not fit (a run longer than max_poses x max_gap) goes out as every k-th of the
+// thinned poses, the newest always included. Returns the number of tolerance doublings (0 when
+// the first pass fitted), or -1 when the every-k-th fallback was needed.
+int ThinTrajectoryMessage(omni::trajectory_t* m, const TrajectoryThinning& thinning,
+                          size_t max_poses = kMaxTrajectoryMessagePoses);
+
 // A whole trajectory as a message: `poses` in time order, each with `utime` (µs) and `pose`
 // (a Pose2 in `frame`); the message's utime is the newest pose's. Empty `poses`: no poses, utime 0.
-// A path of more than `max_poses` poses goes out as every k-th pose (k = ceil(n / max_poses)),
-// the newest always included, so that hours of mapping do not make a message larger than a
-// receive buffer (32 bytes a pose: 10 Hz scans grow a whole path by 1.15 MB an hour); receivers
-// interpolate between poses. Of poses on one stamp only the last is sent.
-inline constexpr size_t kMaxTrajectoryMessagePoses = 40000;  // 1.3 MB
+// Of poses on one stamp only the last is sent. The path is then thinned (ThinTrajectoryMessage),
+// so that hours of mapping neither make a message larger than a receive buffer nor send a pose a
+// receiver could interpolate: 10 Hz scans grow a whole path by 1.15 MB an hour; thinned at the
+// defaults, a simulator lap of the pose graph's path shrinks about 7-fold, the RBPF's, whose
+// reported path jitters from scan to scan, about 4-fold.
 template <class Stamped>
 omni::trajectory_t ToTrajectoryMessage(const std::vector<Stamped>& poses, const std::string& frame,
                                        const std::string& source,
+                                       const TrajectoryThinning& thinning = {},
                                        size_t max_poses = kMaxTrajectoryMessagePoses) {
   omni::trajectory_t m;
   m.utime = poses.empty() ? 0 : poses.back().utime;
   m.frame = frame;
   m.source = source;
   const size_t n = poses.size();
-  const size_t stride = max_poses == 0 || n <= max_poses ? 1 : (n + max_poses - 1) / max_poses;
-  const size_t room = n / stride + 2;
-  m.pose_utime.reserve(room);
-  m.x_m.reserve(room);
-  m.y_m.reserve(room);
-  m.yaw_rad.reserve(room);
-  for (size_t i = 0; i < n; ++i) {
-    // Counted from the newest, so the newest pose is always one of those sent.
-    if ((n - 1 - i) % stride != 0) continue;
-    const auto& e = poses[i];
+  m.pose_utime.reserve(n);
+  m.x_m.reserve(n);
+  m.y_m.reserve(n);
+  m.yaw_rad.reserve(n);
+  for (const auto& e : poses) {
     if (!m.pose_utime.empty() && e.utime == m.pose_utime.back()) {  // the later one stays
       m.pose_utime.pop_back();
       m.x_m.pop_back();
@@ -73,6 +93,7 @@ omni::trajectory_t ToTrajectoryMessage(const std::vector<Stamped>& poses, const 
     m.yaw_rad.push_back(e.pose.theta);
   }
   m.num_poses = static_cast<int32_t>(m.pose_utime.size());
+  ThinTrajectoryMessage(&m, thinning, max_poses);
   return m;
 }
 

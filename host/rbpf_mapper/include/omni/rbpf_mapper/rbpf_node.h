@@ -2,9 +2,10 @@
 // (laser_scan_t), WHEEL_ODOM (odometry_t) and IMU (imu_t, when use_imu), publishes POSE_RBPF
 // (pose2d_t, the reported particle's pose at every accepted scan:
 // RbpfOptions::report_switch_log_margin), GRID_RBPF (occupancy_grid_t, at grid_publish_interval_s),
-// TRAJECTORY_RBPF (trajectory_t, the reported particle's path at every accepted scan, at
-// trajectory_publish_interval_s and at exit: earlier poses move when a loop closes or the reported
-// particle changes lineage) and HEARTBEAT with the filter's counters.
+// TRAJECTORY_RBPF (trajectory_t, the reported particle's path at every accepted scan, thinned by
+// bus::ThinTrajectoryMessage, at trajectory_publish_interval_s and at exit: earlier poses move
+// when a loop closes or the reported particle changes lineage) and HEARTBEAT with the filter's
+// counters.
 //
 // Scans wait in a queue until odometry at or after their time has arrived (bus order is not
 // guaranteed), or until they are older than max_odom_gap_s behind the newest message.
@@ -85,6 +86,7 @@ class RbpfNode {
   int64_t grids_published_ = 0;
   int64_t last_grid_utime_ = 0;
   int64_t trajectories_published_ = 0;
+  int64_t last_trajectory_poses_ = 0;  // poses in the last trajectory message (thinned)
   int64_t last_traj_utime_ = 0;
   int64_t processed_at_last_traj_ = 0;
   int64_t pose_seq_ = 0;

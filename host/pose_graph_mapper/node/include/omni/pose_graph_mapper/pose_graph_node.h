@@ -1,7 +1,8 @@
 // The pose_graph_mapper node: bus I/O around the PoseGraphSlam library. Subscribes LIDAR_SCAN
 // (laser_scan_t) and WHEEL_ODOM (odometry_t); publishes POSE_PG (pose2d_t, the estimate of every
-// accepted scan when it is accepted), TRAJECTORY_PG (trajectory_t, every accepted scan at the
-// current optimised estimate: poses move when a loop closes), GRID_PG (occupancy_grid_t rendered
+// accepted scan when it is accepted), TRAJECTORY_PG (trajectory_t, the accepted scans at the
+// current optimised estimate, thinned by bus::ThinTrajectoryMessage: poses move when a loop
+// closes), GRID_PG (occupancy_grid_t rendered
 // from the optimised keyframes) and HEARTBEAT with the mapper's and the plugins' counters.
 // With node.absolute_channel set it also subscribes absolute poses (pose2d_t in map_frame, the
 // covariance's inverse as information); a covariance that is not finite, symmetric and positive
@@ -122,6 +123,7 @@ class PoseGraphNode {
   int64_t scan_index_ = 0;
   int64_t scans_lost_ = 0, scans_forced_ = 0;
   int64_t poses_published_ = 0, grids_published_ = 0, trajectories_published_ = 0;
+  int64_t last_trajectory_poses_ = 0;  // poses in the last trajectory message (thinned)
   int64_t pose_seq_ = 0;
   int64_t absolute_bad_covariance_ = 0, absolute_wrong_frame_ = 0;
   int64_t last_grid_wall_ = 0, last_traj_wall_ = 0;
