@@ -188,43 +188,42 @@ namespace {
 
 // One greedy pass: from each kept pose, reach as far ahead as the poses in between are
 // reproduced by interpolation within the tolerances and the stamps keep rising within the gap.
-std::vector<size_t> ThinPass(const omni::trajectory_t& m, double tol_m, double tol_rad,
-                             int64_t max_gap_us) {
+// With a `limit`, gives up (false) as soon as more than `limit` poses are kept.
+bool ThinPass(const omni::trajectory_t& m, double tol_m, double tol_rad, int64_t max_gap_us,
+              size_t limit, std::vector<size_t>* keep) {
   const std::vector<int64_t>& t = m.pose_utime;
   const size_t n = t.size();
   auto pose = [&m](size_t i) { return Pose2(m.x_m[i], m.y_m[i], m.yaw_rad[i]); };
-  auto within_gap = [&](size_t a, size_t b) {
-    // t[b] > t[a] here, so the unsigned difference is exact.
-    return max_gap_us <= 0 || static_cast<uint64_t>(t[b]) - static_cast<uint64_t>(t[a]) <=
-                                  static_cast<uint64_t>(max_gap_us);
+  // Only called with t[b] > t[a], so the unsigned difference is exact.
+  auto since = [&t](size_t a, size_t b) {
+    return static_cast<uint64_t>(t[b]) - static_cast<uint64_t>(t[a]);
   };
   auto reproduced = [&](size_t a, size_t b) {
     const Pose2 pa = pose(a), pb = pose(b);
-    const auto span =
-        static_cast<double>(static_cast<uint64_t>(t[b]) - static_cast<uint64_t>(t[a]));
+    const auto span = static_cast<double>(since(a, b));
     for (size_t i = a + 1; i < b; ++i) {
-      const double f =
-          static_cast<double>(static_cast<uint64_t>(t[i]) - static_cast<uint64_t>(t[a])) / span;
-      const Pose2 q = Interpolate(pa, pb, f);
+      const Pose2 q = Interpolate(pa, pb, static_cast<double>(since(a, i)) / span);
       if (!(std::hypot(q.x - m.x_m[i], q.y - m.y_m[i]) <= tol_m) ||
           !(std::abs(WrapAngle(q.theta - m.yaw_rad[i])) <= tol_rad))
         return false;  // also for a NaN
     }
     return true;
   };
-  std::vector<size_t> keep;
-  if (n == 0) return keep;
-  keep.push_back(0);
+  keep->clear();
+  if (n == 0) return true;
+  keep->push_back(0);
   size_t a = 0;
   while (a + 1 < n) {
     size_t j = a + 1;
-    while (j + 1 < n && t[j] > t[a] && t[j + 1] > t[j] && within_gap(a, j + 1) &&
+    while (j + 1 < n && t[j] > t[a] && t[j + 1] > t[j] &&
+           (max_gap_us <= 0 || since(a, j + 1) <= static_cast<uint64_t>(max_gap_us)) &&
            reproduced(a, j + 1))
       ++j;
-    keep.push_back(j);
+    keep->push_back(j);
+    if (limit > 0 && keep->size() > limit) return false;
     a = j;
   }
-  return keep;
+  return true;
 }
 
 }  // namespace
@@ -232,30 +231,44 @@ std::vector<size_t> ThinPass(const omni::trajectory_t& m, double tol_m, double t
 int ThinTrajectoryMessage(omni::trajectory_t* m, const TrajectoryThinning& thinning,
                           size_t max_poses) {
   const size_t n = m->pose_utime.size();
+  if (m->x_m.size() != n || m->y_m.size() != n || m->yaw_rad.size() != n) return 0;
   std::vector<size_t> keep;
   int doublings = 0;
   double tol_m = thinning.tolerance_m, tol_rad = thinning.tolerance_rad;
   if (tol_m > 0 && tol_rad > 0 && n > 2) {
-    keep = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us);
+    // The gap alone keeps at least span / max_gap poses: if that is over the cap, no tolerance
+    // makes the path fit, and one whole pass feeds the every-k-th fallback.
+    const std::vector<int64_t>& t = m->pose_utime;
+    const double span_us = static_cast<double>(t.back()) - static_cast<double>(t.front());
+    const bool may_fit =
+        max_poses == 0 || thinning.max_gap_us <= 0 ||
+        span_us / static_cast<double>(thinning.max_gap_us) < static_cast<double>(max_poses);
+    const size_t limit = may_fit ? max_poses : 0;
     constexpr double kMaxTolerance = 0.64;  // m and rad: beyond it a path is not worth sending
-    while (max_poses > 0 && keep.size() > max_poses &&
+    constexpr int kMaxDoublings = 8;
+    bool fitted = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us, limit, &keep);
+    while (!fitted && doublings < kMaxDoublings &&
            (tol_m < kMaxTolerance || tol_rad < kMaxTolerance)) {
       tol_m = std::min(2 * tol_m, std::max(tol_m, kMaxTolerance));
       tol_rad = std::min(2 * tol_rad, std::max(tol_rad, kMaxTolerance));
       ++doublings;
-      keep = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us);
+      fitted = ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us, limit, &keep);
     }
+    if (!fitted) ThinPass(*m, tol_m, tol_rad, thinning.max_gap_us, 0, &keep);  // all of it
   } else {
     keep.resize(n);
     for (size_t i = 0; i < n; ++i) keep[i] = i;
   }
   if (max_poses > 0 && keep.size() > max_poses) {
-    // Every k-th of the thinned poses, counted from the newest so that it is one of them.
-    const size_t k = (keep.size() + max_poses - 1) / max_poses;
+    // Every k-th of the thinned poses, counted from the newest so that it is one of them, and
+    // the first (room for it: k is taken for max_poses - 1).
+    const size_t room = max_poses > 1 ? max_poses - 1 : 1;
+    const size_t k = (keep.size() + room - 1) / room;
     std::vector<size_t> strided;
-    strided.reserve(keep.size() / k + 1);
+    strided.reserve(keep.size() / k + 2);
     for (size_t i = 0; i < keep.size(); ++i)
-      if ((keep.size() - 1 - i) % k == 0) strided.push_back(keep[i]);
+      if (i == 0 || (keep.size() - 1 - i) % k == 0) strided.push_back(keep[i]);
+    if (max_poses == 1) strided.erase(strided.begin());  // only the newest fits
     keep.swap(strided);
     doublings = -1;
   }

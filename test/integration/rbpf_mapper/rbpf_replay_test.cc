@@ -114,8 +114,8 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
     published.push_back(p);
     ++poses;
   });
-  // The reported particle's path: one pose per scan accepted so far, in time order, ending at the
-  // pose just published for the newest scan.
+  // The reported particle's path: scans accepted so far (thinned, at most one pose per scan), in
+  // time order, ending at the pose just published for the newest scan.
   int trajectories = 0, trajectory_ends_checked = 0;
   b.Subscribe<omni::trajectory_t>("TRAJECTORY_RBPF", [&](const omni::trajectory_t& t, int64_t) {
     ++trajectories;

@@ -155,7 +155,8 @@ struct Stamped {
   Pose2 pose;
 };
 
-// 10 Hz along a straight 5 m, a quarter turn on the spot, then an arc of 1 m radius.
+// 10 Hz along a straight 5 m, a quarter turn on the spot, then an arc of 1 m radius whose
+// heading, stored wrapped, crosses +-pi.
 std::vector<Stamped> DrivenPath() {
   std::vector<Stamped> path;
   int64_t t = 1000;
@@ -163,7 +164,7 @@ std::vector<Stamped> DrivenPath() {
   for (int i = 1; i <= 30; ++i, t += 100000) path.push_back({t, Pose2(5, 0, M_PI / 60 * i)});
   for (int i = 1; i <= 200; ++i, t += 100000) {
     const double a = 0.02 * i;
-    path.push_back({t, Pose2(5 - 1 + std::cos(a), std::sin(a), M_PI / 2 + a)});
+    path.push_back({t, Pose2(5 - 1 + std::cos(a), std::sin(a), WrapAngle(M_PI / 2 + a))});
   }
   return path;
 }
@@ -249,11 +250,30 @@ TEST(Bus, TrajectoryMessagesStayUnderTheirCapAndStampsAreUnique) {
   EXPECT_EQ(capped.num_poses, static_cast<int32_t>(capped.pose_utime.size()));
   EXPECT_EQ(capped.pose_utime.back(), path.back().utime);
   EXPECT_DOUBLE_EQ(capped.x_m.back(), path.back().pose.x);
+  EXPECT_EQ(capped.pose_utime.front(), path.front().utime);
+  for (size_t cap : {1, 2, 3}) {
+    omni::trajectory_t tiny = ToTrajectoryMessage(path, "map", "rbpf");
+    EXPECT_EQ(ThinTrajectoryMessage(&tiny, th, cap), -1);
+    ASSERT_EQ(tiny.pose_utime.size(), cap);
+    EXPECT_EQ(tiny.pose_utime.back(), path.back().utime);
+    if (cap > 1) {
+      EXPECT_EQ(tiny.pose_utime.front(), path.front().utime);
+    }
+  }
+  // No cap: the first pass as it is. Nothing to thin in none, one or two poses.
+  omni::trajectory_t uncapped = ToTrajectoryMessage(path, "map", "rbpf");
+  EXPECT_EQ(ThinTrajectoryMessage(&uncapped, th, 0), 0);
+  EXPECT_EQ(uncapped.pose_utime.size(), thinned);
+  for (size_t n : {0, 1, 2}) {
+    const std::vector<Stamped> few(path.begin(), path.begin() + static_cast<std::ptrdiff_t>(n));
+    const omni::trajectory_t f = ToTrajectoryMessage(few, "map", "rbpf", th, 1);
+    EXPECT_EQ(f.pose_utime.size(), std::min<size_t>(n, 1));
+  }
 
   std::vector<Stamped> repeated = {
       {10, Pose2(0, 0, 0)}, {20, Pose2(1, 0, 0)}, {20, Pose2(2, 0, 0)}, {30, Pose2(3, 0, 0)}};
   auto once = ToTrajectoryMessage(repeated, "map", "rbpf");
-  ASSERT_EQ(once.num_poses, 3);  // 1, 2, 3 m at 10, 20, 30 µs: 2 m is not on the line
+  ASSERT_EQ(once.num_poses, 3);  // 0, 2, 3 m at 10, 20, 30 µs: 2 m is not on the line
   EXPECT_EQ(once.pose_utime, (std::vector<int64_t>{10, 20, 30}));
   EXPECT_DOUBLE_EQ(once.x_m[1], 2.0);
 }

@@ -5,8 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include "omni/bus/convert.h"
+#include "omni/common/geometry.h"
 #include "omni/kinect/depth_message.h"
 #include "omni/octomap_builder/octomap_node.h"
+#include "omni/octomap_builder/repose.h"
 
 namespace omni::kinect {
 namespace {
@@ -73,6 +76,35 @@ TEST(DepthMessage, AbsurdIntrinsicsAndNonFiniteTrajectoriesAreRefused) {
   ASSERT_FALSE(poses.ok());
   EXPECT_NE(poses.error().message.find("pose 0 is not finite or beyond 1000 km"), std::string::npos)
       << poses.error().message;
+}
+
+// A mapper's thinned TRAJECTORY_* message, decoded and looked up as the OctoMap builder re-poses
+// its keyframes: every pose of the full path comes back within the thinning's tolerances, also
+// where the heading crosses +-pi.
+TEST(OctomapNodeDecode, ThinnedTrajectoriesComeBackThroughTheBuildersLookup) {
+  struct Stamped {
+    int64_t utime;
+    Pose2 pose;
+  };
+  std::vector<Stamped> path;
+  int64_t t = 1700000000000000;
+  for (int i = 0; i < 300; ++i, t += 100000) {  // 30 s at 10 Hz: a straight run, then an arc
+    const double a = i < 100 ? 0 : 0.015 * (i - 100);
+    path.push_back({t, Pose2(i < 100 ? 0.04 * i : 4 + std::sin(a), i < 100 ? 0 : 1 - std::cos(a),
+                             WrapAngle(3.0 + a))});
+  }
+  const bus::TrajectoryThinning th;
+  const omni::trajectory_t m = bus::ToTrajectoryMessage(path, "map", "rbpf");
+  EXPECT_LT(m.num_poses, static_cast<int32_t>(path.size()) / 3);
+  auto poses = octo::FromTrajectoryMessage(m, "map");
+  ASSERT_TRUE(poses.ok()) << poses.error().message;
+  const octo::TrajectoryLookup lookup(std::move(*poses));
+  for (const Stamped& s : path) {
+    Pose2 p;
+    ASSERT_TRUE(lookup.At(s.utime, 2000000, &p)) << s.utime;  // the poser's default 2 s gap
+    EXPECT_LE(std::hypot(p.x - s.pose.x, p.y - s.pose.y), th.tolerance_m) << s.utime;
+    EXPECT_LE(std::abs(WrapAngle(p.theta - s.pose.theta)), th.tolerance_rad) << s.utime;
+  }
 }
 
 }  // namespace

@@ -119,8 +119,9 @@ struct RbpfOptions {
   std::string imu_channel = "IMU";
   std::string pose_channel = "POSE_RBPF";
   std::string grid_channel = "GRID_RBPF";
-  // The reported particle's whole path (trajectory_t), so a consumer posed by POSE_RBPF can
-  // re-pose what it placed when that path changes (the OctoMap builder's `repose`).
+  // The reported particle's whole path (trajectory_t, thinned by bus::ThinTrajectoryMessage), so
+  // a consumer posed by POSE_RBPF can re-pose what it placed when that path changes (the OctoMap
+  // builder's `repose`).
   std::string trajectory_channel = "TRAJECTORY_RBPF";
   double grid_publish_interval_s = 5.0;
   double trajectory_publish_interval_s = 2.0;  // 0: only at exit
