@@ -176,6 +176,7 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
   so.sparse_linear_algebra_library_type =
       o.sparse_library == "eigen" ? ceres::EIGEN_SPARSE : ceres::SUITE_SPARSE;
   so.max_num_iterations = o.max_iterations;
+  if (o.max_time_s > 0) so.max_solver_time_in_seconds = o.max_time_s;
   so.function_tolerance = o.function_tolerance;
   so.gradient_tolerance = o.gradient_tolerance;
   so.parameter_tolerance = o.parameter_tolerance;
@@ -190,6 +191,10 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
     res.iterations = static_cast<int>(summary.iterations.size()) - 1;  // minus iteration 0
     res.termination = ceres::TerminationTypeToString(summary.termination_type);
     res.converged = summary.termination_type == ceres::CONVERGENCE;
+    // Ceres reports the time limit as NO_CONVERGENCE with this message (iteration limits too,
+    // with another message).
+    res.time_limited = summary.termination_type == ceres::NO_CONVERGENCE &&
+                       summary.message.rfind("Maximum solver time", 0) == 0;
     res.ceres_report = summary.FullReport();
     if (summary.termination_type == ceres::FAILURE)
       return MakeError(ErrorCode::kInternal, "ceres failed: " + summary.message);

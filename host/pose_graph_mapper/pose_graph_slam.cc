@@ -67,6 +67,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("global_function_tolerance", &o.global_function_tolerance, Optional(), Positive<double>());
   r.Get("global_min_keyframes_between", &o.global_min_keyframes_between, Optional(),
         InRange(0, 100000));
+  r.Get("global_max_time_s", &o.global_max_time_s, Optional(), NonNegative<double>());
   r.Get("loop_chi2_gate", &o.loop_chi2_gate, Optional(), NonNegative<double>());
   r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
   r.Get("final_global_optimization", &o.final_global_optimization, Optional());
@@ -734,7 +735,7 @@ io::PoseGraph PoseGraphSlam::Graph() const {
   return g;
 }
 
-void PoseGraphSlam::OptimizeGlobal() {
+void PoseGraphSlam::OptimizeGlobal(bool last) {
   const double t0 = NowMs();
   if (o_.odometry_calibration.enabled && o_.odometry_calibration.relink_on_global &&
       calibrator_.active())
@@ -747,9 +748,12 @@ void PoseGraphSlam::OptimizeGlobal() {
   b.max_iterations = o_.global_max_iterations;
   b.function_tolerance = o_.global_function_tolerance;
   b.num_threads = o_.num_threads;
+  b.max_time_s = last ? 0 : o_.global_max_time_s;
   const std::vector<VertexPrior2>* priors = priors_.empty() ? nullptr : &priors_;
   auto r = OptimizeGraph(&g, b, priors);
   ++c_.global_optimizations;
+  if (r.ok() && r->time_limited) ++c_.global_time_limited;
+  global_cut_short_ = r.ok() && r->time_limited;
   loops_pending_ = false;
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
   std::vector<size_t> pending;
@@ -783,6 +787,8 @@ void PoseGraphSlam::OptimizeGlobal() {
     g = Graph();
     r = OptimizeGraph(&g, b, priors);
     ++c_.global_optimizations;
+    if (r.ok() && r->time_limited) ++c_.global_time_limited;
+    global_cut_short_ = r.ok() && r->time_limited;
     last_global_failed_ = !r.ok();
     if (!r.ok()) {
       ++c_.global_failures;
@@ -826,9 +832,10 @@ void PoseGraphSlam::Finish() {
   // The window after the last global optimisation holds its newest nodes to the scan-match
   // chain (its links only, the oldest anchored): the loops into it are not in the window and
   // their correction of those nodes is undone. A last solve of the whole graph restores it.
-  if (loops_pending_ || (o_.final_global_optimization && c_.loops_accepted > 0 &&
-                         last_global_keyframe_ < static_cast<int>(keyframes_.size()) - 1))
-    OptimizeGlobal();
+  if (loops_pending_ || global_cut_short_ ||
+      (o_.final_global_optimization && c_.loops_accepted > 0 &&
+       last_global_keyframe_ < static_cast<int>(keyframes_.size()) - 1))
+    OptimizeGlobal(/*last=*/true);
 }
 
 std::vector<ScanPose> PoseGraphSlam::Trajectory() const {

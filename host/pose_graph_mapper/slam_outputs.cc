@@ -60,7 +60,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"loops_inconsistent\": %lld, \"window_updates\": %lld, \"window_failures\": %lld, "
       "\"covariance_failures\": %lld, \"latency_p50_ms\": %.3f, "
       "\"latency_p99_ms\": %.3f, \"latency_max_ms\": %.3f, \"global_optimizations\": %lld, "
-      "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f",
+      "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f, "
+      "\"global_recent_p50_ms\": %.3f, \"global_time_limited\": %lld",
       JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
       info.wall_s, ll(c.scans_in), ll(c.scans_used), ll(c.scans_time_backwards),
       ll(c.scans_too_few_beams), ll(c.scans_bad_geometry), ll(c.scans_no_odom), ll(c.invalid_beams),
@@ -69,7 +70,13 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ll(c.loops_accepted), ll(c.loops_rejected), ll(c.loops_inconsistent), ll(c.window_updates),
       ll(c.window_failures), ll(c.covariance_failures), Percentile(lat, 0.5), Percentile(lat, 0.99),
       Percentile(lat, 1.0), ll(c.global_optimizations), ll(c.global_failures),
-      Percentile(glat, 0.5), Percentile(glat, 1.0));
+      Percentile(glat, 0.5), Percentile(glat, 1.0),
+      // The last ten solves: what a global optimisation costs now, the graph as large as it got.
+      Percentile(std::vector<double>(
+                     glat.end() - static_cast<std::ptrdiff_t>(std::min<size_t>(glat.size(), 10)),
+                     glat.end()),
+                 0.5),
+      ll(c.global_time_limited));
   std::fprintf(
       f,
       ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "

@@ -111,6 +111,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("covariance_failures", [&c] { return c.covariance_failures; });
   heartbeat_.AddCounter("global_optimizations", [&c] { return c.global_optimizations; });
   heartbeat_.AddCounter("global_failures", [&c] { return c.global_failures; });
+  heartbeat_.AddCounter("global_time_limited", [&c] { return c.global_time_limited; });
   if (slam.use_gyro) {
     heartbeat_.AddCounter("imu_in", [&c] { return c.imu_in; });
     heartbeat_.AddCounter("imu_rejected", [&c] { return c.imu_rejected; });
@@ -148,6 +149,11 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("grid_render_ms", [this] { return last_grid_render_us_ / 1000; });
+  // The last global optimisation's duration: it grows with the graph and holds up the scans.
+  heartbeat_.AddCounter("global_ms", [this] {
+    const auto& g = slam_.global_latency_ms();
+    return g.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(g.back()));
+  });
   // Poses in the last TRAJECTORY_PG (thinned, see bus::ThinTrajectoryMessage).
   heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });

@@ -928,6 +928,57 @@ TEST(PoseGraphSlam, SplicedPosesSurviveGlobalOptimisationsAndWindowRebuilds) {
       worst);
 }
 
+// A global optimisation's time limit (global_max_time_s) stops the solves while mapping after
+// an iteration or so; the last one, at Finish, has no limit. Odometry over-reading by 4 % makes
+// the solves matter: with every solve cut short the run still ends as close to the truth as the
+// unlimited one, and the cut solves are counted.
+TEST(PoseGraphSlam, TimeLimitedGlobalSolvesEndAsCloseAsUnlimitedOnes) {
+  auto run = [](double max_time_s) {
+    PoseGraphSlamOptions o = LoopingOptions();
+    o.global_max_time_s = max_time_s;
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    Pose2 odom;
+    for (int i = 0; i < 3 * 61; ++i) {
+      const Pose2 p = BackAndForth(i);
+      if (i > 0) {
+        Pose2 d = BackAndForth(i - 1).Between(p);
+        d.x *= 1.04;
+        d.y *= 1.04;
+        odom = odom * d;
+      }
+      const int64_t t = 1000000 + 100000 * int64_t{i};
+      slam->AddOdometry(t, odom);
+      slam->AddScan(i, BoxScan(t, p));
+    }
+    slam->Finish();
+    return slam;
+  };
+  const auto free_run = run(0);
+  const auto limited = run(1e-9);  // every solve while mapping stops at its first check
+  EXPECT_EQ(free_run->counters().global_time_limited, 0);
+  const SlamCounters& c = limited->counters();
+  EXPECT_GT(c.loops_accepted, 0);
+  EXPECT_EQ(c.global_failures, 0);
+  EXPECT_GE(c.global_time_limited, c.global_optimizations - 1);  // all but Finish's
+  EXPECT_GT(c.global_time_limited, 3);
+  // The estimates differ while mapping, so the two runs may accept different loops: both are
+  // held to the truth.
+  auto worst_error = [](const PoseGraphSlam& slam) {
+    double worst = 0;
+    for (const auto& sp : slam.Trajectory()) {
+      const Pose2 want = BackAndForth(0).Between(BackAndForth(static_cast<int>(sp.scan_index)));
+      worst = std::max(worst, Distance(sp.pose, want));
+    }
+    return worst;
+  };
+  const double e_free = worst_error(*free_run), e_limited = worst_error(*limited);
+  EXPECT_LT(e_limited, 0.05);
+  EXPECT_LT(e_limited, e_free + 0.02);
+  std::printf("%lld of %lld global solves cut short; worst error %.4f m (unlimited %.4f m)\n",
+              static_cast<long long>(c.global_time_limited),
+              static_cast<long long>(c.global_optimizations), e_limited, e_free);
+}
+
 // Five passes along the box room, back and forth on one line: once loops tie a pass to the
 // first, its keyframes are retired (scan released, pose kept) where a kept keyframe at least
 // min_index_gap older lies within retire.distance_m and retire.angle_rad. The first pass and the

@@ -20,6 +20,9 @@ namespace omni::pgm {
 struct BatchOptions {
   Initialization initialization = Initialization::kChordal;
   int max_iterations = 100;
+  // Wall-clock limit of the Ceres solve in seconds (checked between iterations, so one
+  // iteration may run past it); 0: none.
+  double max_time_s = 0;
   // Ceres' convergence tests: relative cost decrease, and max |gradient| (tangent space).
   double function_tolerance = 1e-10;
   double gradient_tolerance = 1e-12;
@@ -49,6 +52,7 @@ struct BatchResult {
   double init_s = 0, solve_s = 0;
   std::string termination;  // Ceres' termination type and message
   bool converged = false;
+  bool time_limited = false;  // stopped by max_time_s before converging
   int root_id = 0;
   std::string ceres_report;  // Ceres' FullReport (per-stage times), for --verbose
 };
