@@ -121,6 +121,8 @@ Status PoseGraphSlamOptions::Validate() const {
                      "the window)");
   if (min_beams < 1) return MakeError(ErrorCode::kOutOfRange, "min_beams must be >= 1");
   if (num_threads < 1) return MakeError(ErrorCode::kOutOfRange, "num_threads must be >= 1");
+  if (!(global_max_time_s >= 0))
+    return MakeError(ErrorCode::kOutOfRange, "global_max_time_s must be >= 0 (0: no limit)");
   if (!(loop_chi2_gate >= 0))
     return MakeError(ErrorCode::kOutOfRange, "loop_chi2_gate must be >= 0 (0 disables it)");
   if (!(global_function_tolerance > 0))
@@ -763,6 +765,18 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     ++c_.global_failures;
     return;
   }
+  if (global_cut_short_) {
+    // Not converged: its estimates are taken (every accepted step lowered the cost) and the
+    // window rebuilt from them, but the new loops stay pending, so the next solve comes
+    // global_min_keyframes_between keyframes later even without new loops, the chi-square gate
+    // waits for a converged solution and no keyframe is retired before one.
+    pending_loops_.swap(pending);
+    loops_pending_ = true;
+    for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
+    ResetWindow();
+    if (clock_) global_ms_.push_back(NowMs() - t0);
+    return;
+  }
   // The new loops' whitened residuals at the solution: an outlier is dropped and the graph
   // solved again without it (the robust loss only bounds its pull).
   std::vector<size_t> outliers;
@@ -794,6 +808,7 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
       ++c_.global_failures;
       return;
     }
+    loops_pending_ = global_cut_short_;  // solved again later, nothing retired before
   }
   for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
   ResetWindow();

@@ -123,6 +123,31 @@ TEST(PoseGraphBatchOptimizer, HoldsEveryFixedVertex) {
   }
 }
 
+// max_time_s: a solve cut by it says so and keeps the poses it had (here no step fits); without
+// the limit the same graph is solved and not "time limited".
+TEST(PoseGraphBatchOptimizer, TimeLimitStopsTheSolveAndSaysSo) {
+  std::vector<Pose2> truth;
+  const io::PoseGraph start = SyntheticGraph2(150, &truth);  // every vertex at the origin
+  BatchOptions o;
+  o.initialization = Initialization::kNone;
+  o.max_time_s = 1e-9;
+  io::PoseGraph g = start;
+  auto r = OptimizeGraph(&g, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_TRUE(r->time_limited) << r->termination;
+  EXPECT_FALSE(r->converged);
+  EXPECT_EQ(r->iterations, 0);
+  for (size_t i = 0; i < g.vertices2.size(); ++i)
+    EXPECT_EQ(g.vertices2[i].pose.x, start.vertices2[i].pose.x) << i;
+  o.max_time_s = 0;
+  g = start;
+  r = OptimizeGraph(&g, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_FALSE(r->time_limited) << r->termination;
+  EXPECT_GT(r->iterations, 0);
+  EXPECT_LT(r->chi2_final, r->chi2_initialized);
+}
+
 TEST(PoseGraphBatchOptimizer, RecoversANoisy2DGraph) {
   std::vector<Pose2> truth;
   io::PoseGraph g = SyntheticGraph2(150, &truth);

@@ -98,8 +98,10 @@ struct PoseGraphSlamOptions {
   // (intel-raw 0.8 s) but moves the noisy logs' ATE by up to 0.01 m (docs/posegraph.md).
   double global_function_tolerance = 1e-10;
   int global_min_keyframes_between = 10;  // at most one global optimisation per this many
-  // Wall-clock limit of a global optimisation while mapping (Ceres stops between iterations;
-  // the next one goes on from there); the last one (Finish) has none. A solve holds up the
+  // Wall-clock limit of a global optimisation while mapping (Ceres stops between iterations and
+  // keeps its best step; the next solve, global_min_keyframes_between keyframes later even
+  // without new loops, goes on from there, and nothing is retired or gated before a solve
+  // converges); the last one (Finish) has none. A solve holds up the
   // scans behind it, and its iterations grow with the graph: 0.22 s each at 5840 keyframes
   // (30 simulator laps), up to 5.9 s a solve without the limit. 0: none.
   double global_max_time_s = 1.0;
