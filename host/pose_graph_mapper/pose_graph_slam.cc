@@ -769,13 +769,10 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     // Not converged: its estimates are taken (every accepted step lowered the cost) and the
     // window rebuilt from them, but the new loops stay pending, so the next solve comes
     // global_min_keyframes_between keyframes later even without new loops, the chi-square gate
-    // waits for a converged solution and no keyframe is retired before one.
+    // waits for a converged solution (`pending` is left empty) and no keyframe is retired
+    // before one.
     pending_loops_.swap(pending);
     loops_pending_ = true;
-    for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
-    ResetWindow();
-    if (clock_) global_ms_.push_back(NowMs() - t0);
-    return;
   }
   // The new loops' whitened residuals at the solution: an outlier is dropped and the graph
   // solved again without it (the robust loss only bounds its pull).
