@@ -752,19 +752,22 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   b.num_threads = o_.num_threads;
   b.max_time_s = last ? 0 : o_.global_max_time_s;
   const std::vector<VertexPrior2>* priors = priors_.empty() ? nullptr : &priors_;
-  auto r = OptimizeGraph(&g, b, priors);
-  ++c_.global_optimizations;
-  if (r.ok() && r->time_limited) ++c_.global_time_limited;
-  global_cut_short_ = r.ok() && r->time_limited;
+  // One solve of `g` and its bookkeeping: counted, cut short by the time limit or failed.
+  auto solve = [&]() {
+    auto r = OptimizeGraph(&g, b, priors);
+    ++c_.global_optimizations;
+    global_cut_short_ = r.ok() && r->time_limited;
+    if (global_cut_short_) ++c_.global_time_limited;
+    last_global_failed_ = !r.ok();
+    if (!r.ok()) ++c_.global_failures;
+    return r.ok();
+  };
+  const bool solved = solve();
   loops_pending_ = false;
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
   std::vector<size_t> pending;
   pending.swap(pending_loops_);
-  last_global_failed_ = !r.ok();
-  if (!r.ok()) {
-    ++c_.global_failures;
-    return;
-  }
+  if (!solved) return;
   if (global_cut_short_) {
     // Not converged: its estimates are taken (every accepted step lowered the cost) and the
     // window rebuilt from them, but the new loops stay pending, so the next solve comes
@@ -796,15 +799,7 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
-    r = OptimizeGraph(&g, b, priors);
-    ++c_.global_optimizations;
-    if (r.ok() && r->time_limited) ++c_.global_time_limited;
-    global_cut_short_ = r.ok() && r->time_limited;
-    last_global_failed_ = !r.ok();
-    if (!r.ok()) {
-      ++c_.global_failures;
-      return;
-    }
+    if (!solve()) return;
     loops_pending_ = global_cut_short_;  // solved again later, nothing retired before
   }
   for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
