@@ -14,6 +14,7 @@
 #include "omni/common/scan_checks.h"
 #include "omni/pose_graph_mapper/chi2.h"
 #include "omni/pose_graph_mapper/lie.h"
+#include "omni/pose_graph_mapper/node_removal.h"
 
 namespace omni::pgm {
 namespace {
@@ -80,6 +81,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   rt.Get("angle_rad", &o.retire.angle_rad, Optional(), InRange(0.0, 3.15));
   rt.Get("loop_reach_keyframes", &o.retire.loop_reach_keyframes, Optional(), InRange(0, 1000));
   rt.Get("delay_keyframes", &o.retire.delay_keyframes, Optional(), InRange(1, 100000));
+  rt.Get("remove_poses", &o.retire.remove_poses, Optional());
   ConfigReader m = r.Section("scan_match");
   m.Get("submap_keyframes", &o.match.submap_keyframes, Optional(), InRange(1, 100));
   m.Get("min_score", &o.match.min_score, Optional(), InRange(0.0, 1.0));
@@ -465,6 +467,7 @@ void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const Rel
   kf_scans_.push_back({scan, std::nullopt});
   kf_odom_.push_back(k == 0 ? Pose2() : motion.delta);
   kf_loop_.push_back(0);
+  kf_first_scan_.push_back(scans_.size());  // AcceptScan adds this keyframe's scan next
   kf_by_utime_[utime] = k;
   nodes_.push_back({utime, k, Pose2()});
   node_of_kf_.push_back(id);
@@ -557,6 +560,114 @@ void PoseGraphSlam::RetireRevisits() {
     std::vector<float>().swap(kf_scans_[static_cast<size_t>(k)].scan.ranges_m);
     ++c_.keyframes_retired;
   }
+  RemoveRetired();
+}
+
+void PoseGraphSlam::RemoveRetired() {
+  // Only on estimates a converged global solve left (RetireRevisits' conditions), with no loop
+  // waiting for the gate (pending_loops_ holds links_ indices), and outside the window: a
+  // keyframe with more than window_size keyframes after it, and already decided on.
+  if (!o_.retire.remove_poses || !pending_loops_.empty()) return;
+  const int last =
+      std::min(static_cast<int>(keyframes_.size()) - 2 - o_.window_size, retire_next_ - 1);
+  for (; remove_next_ <= last; ++remove_next_) {
+    if (!keyframes_[static_cast<size_t>(remove_next_)].retired) continue;
+    if (RemoveKeyframe(remove_next_))
+      ++c_.keyframes_removed;
+    else
+      ++c_.removals_refused;
+  }
+}
+
+bool PoseGraphSlam::RemoveKeyframe(int k) {
+  // A retired keyframe is kept when it carries an absolute prior, when the node before it in
+  // time is a pose node (its scans need a keyframe to follow), when a neighbour is still in the
+  // window, when it has more neighbours than a small dense marginal should hold, or when its
+  // factors do not determine the marginal (MarginalizeNode's errors).
+  constexpr size_t kMaxNeighbours = 16;
+  const int r = node_of_kf_[static_cast<size_t>(k)];
+  const Node& node = nodes_[static_cast<size_t>(r)];
+  if (node.removed || window_->InWindow(r)) return false;
+  for (const auto& p : priors_)
+    if (p.id == r) return false;
+  const auto at = node_by_utime_.find(node.utime);
+  if (at == node_by_utime_.end() || at == node_by_utime_.begin()) return false;
+  const int prev = std::prev(at)->second;
+  const int pk = nodes_[static_cast<size_t>(prev)].keyframe;
+  const int qk = NextKeptKeyframe(k);
+  if (pk < 0 || qk < 0) return false;
+
+  std::vector<RelativeFactor2> factors;
+  std::map<int, Pose2> estimates{{r, EstimateOf(r)}};
+  std::map<int, int64_t> order{{r, node.utime}};
+  for (const Link& l : links_) {
+    if (l.from != r && l.to != r) continue;
+    const int other = l.from == r ? l.to : l.from;
+    if (window_->InWindow(other)) return false;
+    // Weighted as the global solve's robust loss weighs it at these estimates (its IRLS weight):
+    // a loop the loss discounts is not marginalised at full strength.
+    const Eigen::Vector3d e = EdgeError2(l.z, EstimateOf(l.from), EstimateOf(l.to));
+    const double s2 = e.dot(l.information * e);
+    const double c2 = o_.global_loss_scale * o_.global_loss_scale;
+    double w = 1;
+    if (o_.global_loss == "cauchy")
+      w = 1 / (1 + s2 / c2);
+    else if (o_.global_loss == "huber" && s2 > c2)
+      w = std::sqrt(c2 / s2);
+    factors.push_back({l.from, l.to, l.z, w * l.information});
+    estimates[other] = EstimateOf(other);
+    order[other] = nodes_[static_cast<size_t>(other)].utime;
+  }
+  if (estimates.size() - 1 > kMaxNeighbours) return false;
+  auto tree = MarginalizeNode(r, factors, estimates, order);
+  if (!tree.ok()) return false;
+
+  // The scans of the previous kept keyframe and of this one, at their poses now, follow the
+  // previous kept keyframe and the next one from here on.
+  const size_t s0 = kf_first_scan_[static_cast<size_t>(pk)];
+  const size_t s1 = kf_first_scan_[static_cast<size_t>(qk)];
+  std::vector<Pose2> poses;
+  poses.reserve(s1 - s0);
+  for (size_t i = s0; i < s1; ++i)
+    poses.push_back(ScanPoseOf(scans_[i], scans_[i].keyframe == pk ? k : qk));
+  const Pose2& p_est = keyframes_[static_cast<size_t>(pk)].estimate;
+  const Pose2 p_inv = p_est.Inverse();
+  for (size_t i = s0; i < s1; ++i) {
+    ScanRef& s = scans_[i];
+    s.keyframe = pk;
+    s.delta = p_inv * poses[i - s0];
+    s.share = static_cast<double>(i - s0) / static_cast<double>(s1 - s0);
+  }
+  kf_odom_[static_cast<size_t>(qk)] = p_est.Between(keyframes_[static_cast<size_t>(qk)].estimate);
+
+  links_.erase(std::remove_if(links_.begin(), links_.end(),
+                              [r](const Link& l) { return l.from == r || l.to == r; }),
+               links_.end());
+  for (const auto& f : *tree) {
+    // One folded link per pair of nodes: a second is merged into the first.
+    auto same = std::find_if(links_.begin(), links_.end(), [&f](const Link& l) {
+      return l.kind == LinkKind::kFolded && l.from == f.from && l.to == f.to;
+    });
+    if (same == links_.end()) {
+      links_.push_back({f.from, f.to, f.z, f.information, LinkKind::kFolded});
+      continue;
+    }
+    const RelativeFactor2 merged =
+        MergeRelativeFactors({same->from, same->to, same->z, same->information}, f,
+                             EstimateOf(f.from), EstimateOf(f.to));
+    same->z = merged.z;
+    same->information = merged.information;
+  }
+  nodes_[static_cast<size_t>(r)].removed = true;
+  node_by_utime_.erase(at);
+  kf_by_utime_.erase(keyframes_[static_cast<size_t>(k)].utime);
+  return true;
+}
+
+int PoseGraphSlam::NextKeptKeyframe(int k) const {
+  for (size_t j = static_cast<size_t>(k) + 1; j < keyframes_.size(); ++j)
+    if (!nodes_[static_cast<size_t>(node_of_kf_[j])].removed) return static_cast<int>(j);
+  return -1;
 }
 
 void PoseGraphSlam::CalibrateOdometry(int64_t t0, int64_t t1, const Pose2& matched) {
@@ -722,9 +833,10 @@ AbsoluteOutcome PoseGraphSlam::ApplyAbsolute(int64_t utime, const Pose2& z,
 
 io::PoseGraph PoseGraphSlam::Graph() const {
   io::PoseGraph g;
-  g.vertices2.reserve(nodes_.size());
+  g.vertices2.reserve(num_live_nodes());
   for (size_t i = 0; i < nodes_.size(); ++i)
-    g.vertices2.push_back({static_cast<int>(i), EstimateOf(static_cast<int>(i))});
+    if (!nodes_[i].removed)
+      g.vertices2.push_back({static_cast<int>(i), EstimateOf(static_cast<int>(i))});
   g.edges2.reserve(links_.size());
   for (const auto& l : links_) {
     io::Edge2 e;
@@ -780,10 +892,14 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   // The new loops' whitened residuals at the solution: an outlier is dropped and the graph
   // solved again without it (the robust loss only bounds its pull).
   std::vector<size_t> outliers;
+  std::vector<int> at(nodes_.size(), -1);  // node id -> g.vertices2 index (removed: -1)
+  for (size_t i = 0; i < g.vertices2.size(); ++i)
+    at[static_cast<size_t>(g.vertices2[i].id)] = static_cast<int>(i);
   for (size_t i : pending) {
     const Link& l = links_[i];
-    const Eigen::Vector3d e = EdgeError2(l.z, g.vertices2[static_cast<size_t>(l.from)].pose,
-                                         g.vertices2[static_cast<size_t>(l.to)].pose);
+    const Eigen::Vector3d e =
+        EdgeError2(l.z, g.vertices2[static_cast<size_t>(at[static_cast<size_t>(l.from)])].pose,
+                   g.vertices2[static_cast<size_t>(at[static_cast<size_t>(l.to)])].pose);
     const double chi2 = e.dot(l.information * e);
     if (o_.loop_chi2_gate > 0 && chi2 > o_.loop_chi2_gate) outliers.push_back(i);
   }
@@ -848,22 +964,35 @@ void PoseGraphSlam::Finish() {
 std::vector<ScanPose> PoseGraphSlam::Trajectory() const {
   std::vector<ScanPose> out;
   out.reserve(scans_.size());
+  // The next kept keyframe after each keyframe (scans are anchored to kept ones only).
+  std::vector<int> next(keyframes_.size(), -1);
+  for (size_t k = keyframes_.size(); k-- > 1;)
+    next[k - 1] =
+        nodes_[static_cast<size_t>(node_of_kf_[k])].removed ? next[k] : static_cast<int>(k);
+  for (const auto& s : scans_)
+    out.push_back({s.scan_index, s.utime, ScanPoseOf(s, next[static_cast<size_t>(s.keyframe)])});
+  return out;
+}
+
+Pose2 PoseGraphSlam::ScanPoseOf(const ScanRef& s, int next_keyframe) const {
+  const Pose2& kf = keyframes_[static_cast<size_t>(s.keyframe)].estimate;
+  const Pose2 pose = kf * s.delta;
+  if (!o_.interpolate_scan_poses || next_keyframe < 0) return pose;
+  const Pose2& ref = kf_odom_[static_cast<size_t>(next_keyframe)];
+  const Pose2& next = keyframes_[static_cast<size_t>(next_keyframe)].estimate;
+  if (s.share >= 0) {
+    // Re-anchored by a removal (RemoveKeyframe): where the scan would be if it moved rigidly with
+    // this keyframe, and with the next one (`ref` was their relative pose then), blended by its
+    // share of the scans between them.
+    return Interpolate(pose, next * ref.Inverse() * s.delta, s.share);
+  }
   // Motion "length" of a step, for the share of the correction: metres plus radians.
   auto length = [](const Pose2& d) { return std::hypot(d.x, d.y) + std::abs(d.theta); };
-  for (const auto& s : scans_) {
-    const auto k = static_cast<size_t>(s.keyframe);
-    Pose2 pose = keyframes_[k].estimate * s.delta;
-    if (o_.interpolate_scan_poses && k + 1 < keyframes_.size()) {
-      // The correction C with estimate_k * odometry * C = estimate_{k+1}, applied in part.
-      const Pose2& odom = kf_odom_[k + 1];
-      const Pose2 c = (keyframes_[k].estimate * odom).Inverse() * keyframes_[k + 1].estimate;
-      const double total = length(odom);
-      const double f = total > 0 ? std::clamp(length(s.delta) / total, 0.0, 1.0) : 0.0;
-      pose = pose * ExpSE2(f * LogSE2(c));
-    }
-    out.push_back({s.scan_index, s.utime, pose});
-  }
-  return out;
+  // The correction C with estimate_k * odometry * C = estimate_{k+1}, applied in part.
+  const Pose2 c = (kf * ref).Inverse() * next;
+  const double total = length(ref);
+  const double f = total > 0 ? std::clamp(length(s.delta) / total, 0.0, 1.0) : 0.0;
+  return pose * ExpSE2(f * LogSE2(c));
 }
 
 bool PoseGraphSlam::LastScanPose(ScanPose* out) const {

@@ -82,10 +82,11 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "
       "\"absolute_queued\": %lld, \"absolute_rejected\": %lld, \"absolute_invalid\": %lld, "
       "\"keyframes_for_absolute\": %lld, \"keyframes_for_odometry\": %lld, "
-      "\"keyframes_retired\": %lld",
+      "\"keyframes_retired\": %lld, \"keyframes_removed\": %lld, \"removals_refused\": %lld",
       ll(c.absolute_in), ll(c.absolute_attached), ll(c.absolute_spliced), ll(c.absolute_queued),
       ll(c.absolute_rejected), ll(c.absolute_invalid), ll(c.keyframes_for_absolute),
-      ll(c.keyframes_for_odometry), ll(c.keyframes_retired));
+      ll(c.keyframes_for_odometry), ll(c.keyframes_retired), ll(c.keyframes_removed),
+      ll(c.removals_refused));
   std::fprintf(f, ", \"clock_steps_back\": %lld, \"scans_replayed\": %lld", ll(c.clock_steps_back),
                ll(c.scans_replayed));
   std::fprintf(f, ", \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld",

@@ -184,13 +184,14 @@ int main(int argc, char** argv) {
   using omni::pgm::Percentile;
   const double wall_s = info.wall_s;
   std::printf(
-      "omni-posegraph-slam: %lld scans (%lld used), %lld keyframes (%lld retired), %lld loops "
+      "omni-posegraph-slam: %lld scans (%lld used), %lld keyframes (%lld retired, %lld removed), "
+      "%lld loops "
       "(%lld rejected), %lld global optimisations, window p50/p99 %.2f/%.2f ms, %.1f s -> "
       "%s/{trajectory.txt,live_trajectory.txt,map.*,graph.g2o,stats.json}\n",
       static_cast<long long>(c.scans_in), static_cast<long long>(c.scans_used),
       static_cast<long long>(c.keyframes), static_cast<long long>(c.keyframes_retired),
-      static_cast<long long>(c.loops_accepted), static_cast<long long>(c.loops_rejected),
-      static_cast<long long>(c.global_optimizations), Percentile(lat, 0.5), Percentile(lat, 0.99),
-      wall_s, out_dir.c_str());
+      static_cast<long long>(c.keyframes_removed), static_cast<long long>(c.loops_accepted),
+      static_cast<long long>(c.loops_rejected), static_cast<long long>(c.global_optimizations),
+      Percentile(lat, 0.5), Percentile(lat, 0.99), wall_s, out_dir.c_str());
   return 0;
 }

@@ -102,6 +102,8 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
   heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
   heartbeat_.AddCounter("keyframes_retired", [&c] { return c.keyframes_retired; });
+  heartbeat_.AddCounter("keyframes_removed", [&c] { return c.keyframes_removed; });
+  heartbeat_.AddCounter("removals_refused", [&c] { return c.removals_refused; });
   heartbeat_.AddCounter("scan_match_factors", [&c] { return c.scan_match_factors; });
   heartbeat_.AddCounter("scan_match_failures", [&c] { return c.scan_match_failures; });
   heartbeat_.AddCounter("loops_accepted", [&c] { return c.loops_accepted; });

@@ -133,6 +133,9 @@ struct PoseGraphSlamOptions {
     double angle_rad = 0.35;
     int loop_reach_keyframes = 3;
     int delay_keyframes = 15;
+    // Retired keyframes older than the window are removed from the graph: marginalised into a
+    // tree of relative factors over their neighbours (node_removal.h).
+    bool remove_poses = true;
   } retire;
   // The mapper's matchers differ from the plugins' defaults (docs/posegraph.md, "Sparse logs"):
   // submaps follow the surfaces between neighbouring beams, a keyframe match whose optimum is
@@ -195,6 +198,8 @@ struct SlamCounters {
   int64_t scans_replayed = 0;
   int64_t keyframes = 0;
   int64_t keyframes_retired = 0;  // revisits whose scans were released (`slam.retire`)
+  int64_t keyframes_removed = 0;  // retired keyframes marginalised out of the graph
+  int64_t removals_refused = 0;   // retired keyframes kept in the graph (see RemoveKeyframe)
   int64_t scan_match_factors = 0, scan_match_failures = 0;
   int64_t loops_accepted = 0, loops_rejected = 0;  // accepted: loops in the graph
   int64_t loops_inconsistent = 0;  // accepted by the matcher, removed by the chi^2 gate
@@ -282,7 +287,10 @@ class PoseGraphSlam {
   // and loop factors. The absolute factors are not g2o edges: absolute_priors().
   io::PoseGraph Graph() const;
   const std::vector<VertexPrior2>& absolute_priors() const { return priors_; }
-  size_t num_nodes() const { return nodes_.size(); }
+  size_t num_nodes() const { return nodes_.size(); }  // ever made (node ids are 0..n-1)
+  size_t num_live_nodes() const {
+    return nodes_.size() - static_cast<size_t>(c_.keyframes_removed);
+  }
   size_t num_pose_nodes() const { return nodes_.size() - keyframes_.size(); }
   size_t absolute_pending() const { return absolute_queue_.size() + held_absolute_.size(); }
   static constexpr size_t kMaxQueuedAbsolute = 1000;
@@ -310,9 +318,11 @@ class PoseGraphSlam {
   struct Node {
     int64_t utime;
     int keyframe;
-    Pose2 estimate;  // pose nodes only
+    Pose2 estimate;        // pose nodes only
+    bool removed = false;  // marginalised out of the graph (RemoveKeyframe)
   };
-  enum class LinkKind { kOdometry, kScanMatch, kLoop };
+  // kFolded: left by removing a node (the tree of node_removal.h), never re-linked.
+  enum class LinkKind { kOdometry, kScanMatch, kLoop, kFolded };
   struct Link {
     int from, to;  // node ids
     Pose2 z;
@@ -327,7 +337,14 @@ class PoseGraphSlam {
     int64_t scan_index, utime;
     int keyframe;
     Pose2 delta;  // pose at the scan in the keyframe's frame (odometry)
+    // >= 0 once re-anchored by a removal: `delta` is then the estimate's, and the scan follows the
+    // keyframe and the next kept one with this share (ScanPoseOf).
+    double share = -1;
   };
+  Pose2 ScanPoseOf(const ScanRef& s, int next_keyframe) const;  // next: -1 if none
+  int NextKeptKeyframe(int k) const;  // the first keyframe after k not removed, or -1
+  void RemoveRetired();               // `slam.retire.remove_poses`
+  bool RemoveKeyframe(int k);         // false: kept (why in the .cc)
   void NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
                    std::vector<Eigen::Vector2d> points);
   // Attaches or splices a measurement at or before the newest node; `optimize`: update the
@@ -416,9 +433,13 @@ class PoseGraphSlam {
   int64_t last_scan_utime_ = INT64_MIN;
   std::vector<Keyframe> keyframes_;
   std::vector<KeyframeScan> kf_scans_;
-  std::vector<Pose2> kf_odom_;  // odometry from the previous keyframe (identity for the first)
-  std::vector<int> kf_loop_;    // loops accepted at this keyframe (and still in the graph)
-  int retire_next_ = 0;         // first keyframe not yet considered for retiring
+  // Odometry from the previous keyframe (identity for the first); after a removal, the
+  // estimated pose from the previous kept keyframe at the time (see ScanPoseOf).
+  std::vector<Pose2> kf_odom_;
+  std::vector<int> kf_loop_;            // loops accepted at this keyframe (and still in the graph)
+  int retire_next_ = 0;                 // first keyframe not yet considered for retiring
+  int remove_next_ = 1;                 // first keyframe not yet considered for removal
+  std::vector<size_t> kf_first_scan_;   // scans_ index of the keyframe's first scan
   std::map<int64_t, int> kf_by_utime_;  // keyframe index by time
   std::vector<Node> nodes_;             // by node id
   std::vector<int> node_of_kf_;         // keyframe index -> node id
