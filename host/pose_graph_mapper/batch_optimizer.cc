@@ -144,10 +144,12 @@ Result<BatchResult> OptimizeGraph(io::PoseGraph* g, const BatchOptions& o,
                                block.at(e.from), block.at(e.to));
     }
   } else {
-    for (const auto& e : g->edges2) {
+    for (size_t i = 0; i < g->edges2.size(); ++i) {
+      const auto& e = g->edges2[i];
       if (e.from == e.to) continue;
-      problem.AddResidualBlock(RelativePose2Cost::Create(e.measurement, e.information), MakeLoss(o),
-                               block.at(e.from), block.at(e.to));
+      problem.AddResidualBlock(RelativePose2Cost::Create(e.measurement, e.information),
+                               i < o.first_plain_edge2 ? MakeLoss(o) : nullptr, block.at(e.from),
+                               block.at(e.to));
     }
     if (priors)
       for (const auto& pr : *priors) {

@@ -198,6 +198,13 @@ Result<std::vector<RelativeFactor2>> MarginalizeNode(int node,
   return out;
 }
 
+double LossWeight(const std::string& loss, double scale, double s2) {
+  const double c2 = scale * scale;
+  if (loss == "cauchy") return 1 / (1 + s2 / c2);             // rho = c2 log(1 + s / c2)
+  if (loss == "huber" && s2 > c2) return std::sqrt(c2 / s2);  // rho = 2 c sqrt(s) - c2
+  return 1;
+}
+
 RelativeFactor2 MergeRelativeFactors(const RelativeFactor2& f1, const RelativeFactor2& f2,
                                      const Pose2& from, const Pose2& to) {
   // Both residuals linearised at the estimates (the same Jacobian to first order): the sum is one

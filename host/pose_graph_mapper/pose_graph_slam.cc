@@ -607,13 +607,10 @@ bool PoseGraphSlam::RemoveKeyframe(int k) {
     // Weighted as the global solve's robust loss weighs it at these estimates (its IRLS weight):
     // a loop the loss discounts is not marginalised at full strength.
     const Eigen::Vector3d e = EdgeError2(l.z, EstimateOf(l.from), EstimateOf(l.to));
-    const double s2 = e.dot(l.information * e);
-    const double c2 = o_.global_loss_scale * o_.global_loss_scale;
-    double w = 1;
-    if (o_.global_loss == "cauchy")
-      w = 1 / (1 + s2 / c2);
-    else if (o_.global_loss == "huber" && s2 > c2)
-      w = std::sqrt(c2 / s2);
+    // A folded link was weighted when it was made and is solved without the loss.
+    const double w = l.kind == LinkKind::kFolded ? 1.0
+                                                 : LossWeight(o_.global_loss, o_.global_loss_scale,
+                                                              e.dot(l.information * e));
     factors.push_back({l.from, l.to, l.z, w * l.information});
     estimates[other] = EstimateOf(other);
     order[other] = nodes_[static_cast<size_t>(other)].utime;
@@ -838,13 +835,17 @@ io::PoseGraph PoseGraphSlam::Graph() const {
     if (!nodes_[i].removed)
       g.vertices2.push_back({static_cast<int>(i), EstimateOf(static_cast<int>(i))});
   g.edges2.reserve(links_.size());
-  for (const auto& l : links_) {
-    io::Edge2 e;
-    e.from = l.from;
-    e.to = l.to;
-    e.measurement = l.z;
-    e.information = 0.5 * (l.information + l.information.transpose());
-    g.edges2.push_back(e);
+  // The folded links last (OptimizeGlobal solves them without the robust loss).
+  for (const bool folded : {false, true}) {
+    for (const auto& l : links_) {
+      if ((l.kind == LinkKind::kFolded) != folded) continue;
+      io::Edge2 e;
+      e.from = l.from;
+      e.to = l.to;
+      e.measurement = l.z;
+      e.information = 0.5 * (l.information + l.information.transpose());
+      g.edges2.push_back(e);
+    }
   }
   return g;
 }
@@ -863,6 +864,12 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   b.function_tolerance = o_.global_function_tolerance;
   b.num_threads = o_.num_threads;
   b.max_time_s = last ? 0 : o_.global_max_time_s;
+  // A folded link's information went through the loss's weight when it was made (RemoveKeyframe),
+  // and its residual is meant to be non-zero (it carries the removed factors' pull): no loss.
+  // Graph() puts them last.
+  const auto folded = static_cast<size_t>(std::count_if(
+      links_.begin(), links_.end(), [](const Link& l) { return l.kind == LinkKind::kFolded; }));
+  b.first_plain_edge2 = g.edges2.size() - folded;
   const std::vector<VertexPrior2>* priors = priors_.empty() ? nullptr : &priors_;
   // One solve of `g` and its bookkeeping: counted, cut short by the time limit or failed.
   auto solve = [&]() {
@@ -915,6 +922,7 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
+    b.first_plain_edge2 = g.edges2.size() - folded;
     if (!solve()) return;
     loops_pending_ = global_cut_short_;  // solved again later, nothing retired before
   }

@@ -4,6 +4,7 @@
 // by chi2.h's evaluator, not by Ceres, so they compare with any other system's output.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -30,6 +31,9 @@ struct BatchOptions {
   std::string sparse_library = "suitesparse";  // sparse Cholesky: suitesparse | eigen
   std::string loss = "none";  // none | huber | cauchy (on the whitened residual norm)
   double loss_scale = 1.0;
+  // 2D edges from this index on take no loss: factors already weighted by it when they were made
+  // (PoseGraphSlam's marginalised ones, node_removal.h). Not read from the config.
+  size_t first_plain_edge2 = SIZE_MAX;
   int num_threads = 1;  // the caller decides (main passes the number of cores)
   // Levenberg-Marquardt's first trust region; large = start close to Gauss-Newton, which
   // suits the good starting points of the linear initialisations.

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <map>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -36,6 +37,12 @@ Result<std::vector<RelativeFactor2>> MarginalizeNode(int node,
                                                      const std::vector<RelativeFactor2>& factors,
                                                      const std::map<int, Pose2>& estimates,
                                                      const std::map<int, int64_t>& order);
+
+// The weight a robust loss ("none", "huber", "cauchy", as BatchOptions::loss) gives a factor
+// whose whitened squared error is s2: rho'(s2), the weight of iteratively reweighted least
+// squares (Ceres' curvature correction rho'' is left out). A factor is marginalised with its
+// information times this weight, as the global solve last saw it.
+double LossWeight(const std::string& loss, double scale, double s2);
 
 // Two factors between the same two nodes as one (their information summed), linearised at the
 // nodes' estimates `from` and `to`: keeps the graph from collecting parallel edges.
