@@ -281,10 +281,13 @@ class PoseGraphSlam {
   // window restarts anchored at its oldest pose, so from then on the covariance is relative to
   // that pose, not to the map origin. False when no scan has been accepted.
   bool LastScanCovariance(Eigen::Matrix3d* covariance);
+  // Every keyframe made; one removed from the graph (`retire.remove_poses`) keeps the estimate it
+  // had then (its scans follow the kept keyframes around it: Trajectory()).
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   // The graph at the current estimates: vertex ids = node ids (keyframes and pose nodes, in
-  // creation order; = keyframe indices when nothing was spliced), edges = odometry, scan-match
-  // and loop factors. The absolute factors are not g2o edges: absolute_priors().
+  // creation order; = keyframe indices when nothing was spliced; removed nodes left out),
+  // edges = odometry, scan-match and loop factors, then the factors removals folded in. The
+  // absolute factors are not g2o edges: absolute_priors().
   io::PoseGraph Graph() const;
   const std::vector<VertexPrior2>& absolute_priors() const { return priors_; }
   size_t num_nodes() const { return nodes_.size(); }  // ever made (node ids are 0..n-1)
