@@ -5,10 +5,12 @@
 // them (Schur complement), and the dense factor this leaves on its neighbours is replaced by a
 // tree of relative-pose factors: a maximum spanning tree over the neighbour pairs, each pair
 // weighted by how well the marginal fixes its relative pose (-log det of that pose's
-// covariance), each tree edge measuring the current relative pose with the marginal's
-// information about it. This is the pairwise-marginal tree of Carlevaris-Bianco, Kaess and
-// Eustice's generic node removal (IEEE T-RO 2014) with a simpler pair weight. For a node between
-// two neighbours only (a chain), it is the exact composition of the two factors.
+// covariance), each tree edge with the marginal's information about that relative pose. This is
+// the pairwise-marginal tree of Carlevaris-Bianco, Kaess and Eustice's generic node removal (IEEE
+// T-RO 2014) with a simpler pair weight. The tree's measurements are chosen so that, at the
+// current estimates, it pulls on the neighbours exactly as the removed factors did: a graph at
+// its optimum stays there (to first order). For a node between two neighbours only (a chain),
+// the result is the exact composition of the two factors.
 #pragma once
 
 #include <map>
