@@ -1,6 +1,7 @@
 #include "omni/base_bridge/teleop.h"
 
 #include <algorithm>
+#include <cmath>
 
 namespace omni::base_bridge {
 
@@ -28,6 +29,16 @@ TeleopAction TeleopState::Key(char c, double now_s) {
       return direction(0, 0, 1);
     case 'e':
       return direction(0, 0, -1);
+    // Diagonals (a terminal repeats only the last key held, so w + a together cannot be told
+    // from a): the ring around i / k of ROS' teleop_twist_keyboard in its holonomic mode.
+    case 'u':
+      return direction(1, 1, 0);
+    case 'o':
+      return direction(1, -1, 0);
+    case 'm':
+      return direction(-1, 1, 0);
+    case '.':
+      return direction(-1, -1, 0);
     case '+':
     case '=':
     case '-':
@@ -68,8 +79,10 @@ TeleopTwist TeleopState::TwistAt(double now_s) const {
   TeleopTwist t;
   if (estopped_) return t;
   if (opt_.key_timeout_s > 0 && now_s - last_key_s_ > opt_.key_timeout_s) return t;
-  t.vx_m_s = dir_x_ * linear_;
-  t.vy_m_s = dir_y_ * linear_;
+  // A diagonal moves at the same speed as a straight key, split between x and y.
+  const double along = (dir_x_ != 0 && dir_y_ != 0) ? linear_ * std::sqrt(0.5) : linear_;
+  t.vx_m_s = dir_x_ * along;
+  t.vy_m_s = dir_y_ * along;
   t.omega_rad_s = dir_turn_ * angular_;
   return t;
 }
@@ -136,9 +149,10 @@ void TeleopKeyReader::Flush(std::vector<char>* keys) {
 }
 
 const char* TeleopHelp() {
-  return "keys: hold w/s forward/back, a/d left/right, q/e turn (the base stops when keys stop\n"
-         "      coming), + / - faster/slower, space stop, ! e-stop, c clear faults,\n"
-         "      Esc or Ctrl-C or Ctrl-D quit\n";
+  return "keys: hold w/s forward/back, a/d left/right, u/o forward-left/right, m/. "
+         "back-left/right,\n"
+         "      q/e turn (the base stops when keys stop coming), + / - faster/slower, space stop,\n"
+         "      ! e-stop, c clear faults, Esc or Ctrl-C or Ctrl-D quit\n";
 }
 
 }  // namespace omni::base_bridge

@@ -1,5 +1,6 @@
 #include "omni/base_bridge/teleop.h"
 
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -37,6 +38,21 @@ TEST(Teleop, AHeldKeyMovesAndTheBaseStopsWhenKeysStop) {
   EXPECT_NEAR(s.TwistAt(4.3).omega_rad_s, -o.angular_speed_rad_s, 1e-12);
   EXPECT_EQ(s.Key(' ', 4.4), TeleopAction::kTwist);
   EXPECT_EQ(s.TwistAt(4.41).omega_rad_s, 0);
+  // Diagonals: u / o / m / . at the straight keys' speed, split between x and y.
+  const double half = o.linear_speed_m_s * std::sqrt(0.5);
+  const struct {
+    char key;
+    double vx, vy;
+  } diagonals[] = {{'u', half, half}, {'o', half, -half}, {'m', -half, half}, {'.', -half, -half}};
+  for (const auto& d : diagonals) {
+    EXPECT_EQ(s.Key(d.key, 4.5), TeleopAction::kTwist) << d.key;
+    const TeleopTwist t = s.TwistAt(4.6);
+    EXPECT_NEAR(t.vx_m_s, d.vx, 1e-12) << d.key;
+    EXPECT_NEAR(t.vy_m_s, d.vy, 1e-12) << d.key;
+    EXPECT_EQ(t.omega_rad_s, 0) << d.key;
+    EXPECT_NEAR(std::hypot(t.vx_m_s, t.vy_m_s), o.linear_speed_m_s, 1e-12) << d.key;
+  }
+  s.Key(' ', 4.7);
   // Without the switch (0) the twist holds, as a planner's would.
   TeleopOptions hold = o;
   hold.key_timeout_s = 0;

@@ -6,6 +6,7 @@
 //   w / s   forward / backward      + / -   faster / slower (both speeds, one step)
 //   a / d   left / right            space   stop now
 //   q / e   turn left / right       !       e-stop (repeated until c; direction keys refused)
+//   u / o   forward-left / -right   m / .   backward-left / -right (at the same speed, split)
 //                                   c       clear faults (the twist stays zero)
 //   Esc, Ctrl-C, Ctrl-D: quit (a zero twist is sent)
 // No I/O in here, so the keys, the timing and the escape-sequence parsing are unit-tested.
