@@ -8,27 +8,25 @@
 #include <Eigen/LU>
 
 #include "omni/pose_graph_mapper/chi2.h"
+#include "omni/pose_graph_mapper/cost_functions.h"
 
 namespace omni::pgm {
 namespace {
 
-// d EdgeError2(z, a, b) / d(a) and d(b), over the optimiser's (x, y, theta) coordinates.
-void ErrorJacobians(const Pose2& z, const Pose2& a, const Pose2& b, Eigen::Matrix3d* ja,
-                    Eigen::Matrix3d* jb) {
-  const double cz = std::cos(z.theta), sz = std::sin(z.theta);
-  const double ca = std::cos(a.theta), sa = std::sin(a.theta);
-  Eigen::Matrix2d rzt, rat, drat;
-  rzt << cz, sz, -sz, cz;
-  rat << ca, sa, -sa, ca;
-  drat << -sa, ca, -ca, -sa;  // d(R_a^T)/d(theta_a)
-  const Eigen::Vector2d d(b.x - a.x, b.y - a.y);
-  ja->setZero();
-  jb->setZero();
-  jb->topLeftCorner<2, 2>() = rzt * rat;
-  (*jb)(2, 2) = 1;
-  ja->topLeftCorner<2, 2>() = -rzt * rat;
-  ja->block<2, 1>(0, 2) = rzt * drat * d;
-  (*ja)(2, 2) = -1;
+// EdgeError2(z, a, b) and its Jacobians over the optimiser's (x, y, theta) blocks of a and b:
+// the global solve's own cost function, with identity information.
+Eigen::Vector3d ErrorJacobians(const Pose2& z, const Pose2& a, const Pose2& b, Eigen::Matrix3d* ja,
+                               Eigen::Matrix3d* jb) {
+  const RelativePose2Cost cost(z, Eigen::Matrix3d::Identity());
+  const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
+  const double* params[2] = {pa, pb};
+  Eigen::Vector3d e;
+  Eigen::Matrix<double, 3, 3, Eigen::RowMajor> ra, rb;
+  double* jacobians[2] = {ra.data(), rb.data()};
+  cost.Evaluate(params, e.data(), jacobians);
+  *ja = ra;
+  *jb = rb;
+  return e;
 }
 
 }  // namespace
@@ -63,9 +61,8 @@ Result<std::vector<RelativeFactor2>> MarginalizeNode(int node,
   for (const auto& f : factors) {
     Eigen::Matrix3d ja, jb;
     const Pose2 &a = *estimate(f.from), &b = *estimate(f.to);
-    ErrorJacobians(f.z, a, b, &ja, &jb);
+    const Eigen::Vector3d e = ErrorJacobians(f.z, a, b, &ja, &jb);
     const Eigen::Matrix3d w = 0.5 * (f.information + f.information.transpose());
-    const Eigen::Vector3d e = EdgeError2(f.z, a, b);
     const int ia = 3 * block.at(f.from), ib = 3 * block.at(f.to);
     grad.segment<3>(ia) += ja.transpose() * w * e;
     grad.segment<3>(ib) += jb.transpose() * w * e;
