@@ -1,8 +1,10 @@
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstddef>
+#include <future>
 #include <iterator>
 #include <limits>
 #include <optional>
@@ -69,6 +71,7 @@ Result<PoseGraphSlamOptions> PoseGraphSlamOptions::Load(ConfigReader& r) {
   r.Get("global_min_keyframes_between", &o.global_min_keyframes_between, Optional(),
         InRange(0, 100000));
   r.Get("global_max_time_s", &o.global_max_time_s, Optional(), NonNegative<double>());
+  r.Get("global_in_background", &o.global_in_background, Optional());
   r.Get("loop_chi2_gate", &o.loop_chi2_gate, Optional(), NonNegative<double>());
   r.Get("loop_every_keyframes", &o.loop_every_keyframes, Optional(), InRange(1, 100000));
   r.Get("final_global_optimization", &o.final_global_optimization, Optional());
@@ -451,6 +454,7 @@ bool PoseGraphSlam::AcceptScan(int64_t scan_index, const LaserScan2& scan) {
 
 void PoseGraphSlam::NewKeyframe(const LaserScan2& scan, int64_t utime, const RelativeMotion& motion,
                                 std::vector<Eigen::Vector2d> points) {
+  JoinGlobal();  // the graph changes from here on
   const int k = static_cast<int>(keyframes_.size());
   const int id = static_cast<int>(nodes_.size());
   Keyframe kf;
@@ -786,6 +790,7 @@ void PoseGraphSlam::DrainAbsoluteQueue() {
 
 AbsoluteOutcome PoseGraphSlam::ApplyAbsolute(int64_t utime, const Pose2& z,
                                              const Eigen::Matrix3d& info, bool optimize) {
+  JoinGlobal();  // the graph may change from here on
   auto reject = [this] {
     ++c_.absolute_rejected;
     return AbsoluteOutcome::kRejected;
@@ -853,13 +858,52 @@ io::PoseGraph PoseGraphSlam::Graph() const {
   return g;
 }
 
+// One global optimisation: the graph as it was when it started, its options and outcome. Owned
+// by the mapper; while in the background only its thread touches g and result.
+struct PoseGraphSlam::GlobalSolve {
+  io::PoseGraph g;
+  BatchOptions b;
+  std::vector<VertexPrior2> priors;
+  std::vector<size_t> pending;  // the loops it is the first solve of (links_ indices)
+  Result<BatchResult> result = MakeError(ErrorCode::kInternal, "global optimisation not run");
+  double solve_ms = 0;  // the solve's own time (steady clock)
+  std::future<void> done;
+
+  void Run() {
+    const auto t0 = std::chrono::steady_clock::now();
+    result = OptimizeGraph(&g, b, priors.empty() ? nullptr : &priors);
+    solve_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
+};
+
+PoseGraphSlam::~PoseGraphSlam() {
+  if (global_ && global_->done.valid()) global_->done.wait();
+}
+
+void PoseGraphSlam::JoinGlobal() {
+  if (!global_) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  global_->done.get();
+  const double waited =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  std::unique_ptr<GlobalSolve> s = std::move(global_);
+  if (clock_) global_wait_ms_.push_back(waited);
+  FinishGlobal(s.get());
+  // What NewKeyframe does after a solve on the spot, on the same keyframes: the graph is then as
+  // an in-line solve would have left it.
+  RetireRevisits();
+}
+
 void PoseGraphSlam::OptimizeGlobal(bool last) {
-  const double t0 = NowMs();
+  JoinGlobal();
   if (o_.odometry_calibration.enabled && o_.odometry_calibration.relink_on_global &&
       calibrator_.active())
     RelinkOdometry();
-  io::PoseGraph g = Graph();
-  BatchOptions b = batch_;
+  auto s = std::make_unique<GlobalSolve>();
+  s->g = Graph();
+  BatchOptions& b = s->b;
+  b = batch_;
   b.initialization = Initialization::kNone;
   b.loss = o_.global_loss;
   b.loss_scale = o_.global_loss_scale;
@@ -872,11 +916,28 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   // Graph() puts them last.
   const auto folded = static_cast<size_t>(std::count_if(
       links_.begin(), links_.end(), [](const Link& l) { return l.kind == LinkKind::kFolded; }));
-  b.first_plain_edge2 = g.edges2.size() - folded;
-  const std::vector<VertexPrior2>* priors = priors_.empty() ? nullptr : &priors_;
-  // One solve of `g` and its bookkeeping: counted, cut short by the time limit or failed.
-  auto solve = [&]() {
-    auto r = OptimizeGraph(&g, b, priors);
+  b.first_plain_edge2 = s->g.edges2.size() - folded;
+  s->priors = priors_;
+  s->pending.swap(pending_loops_);
+  last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
+  if (!last && o_.global_in_background) {
+    // loops_pending_ stays set until it is taken in: nothing is retired or removed meanwhile.
+    GlobalSolve* run = s.get();
+    s->done = std::async(std::launch::async, [run] { run->Run(); });
+    global_ = std::move(s);
+    return;
+  }
+  s->Run();
+  if (clock_) global_wait_ms_.push_back(s->solve_ms);
+  FinishGlobal(s.get());
+}
+
+void PoseGraphSlam::FinishGlobal(GlobalSolve* s) {
+  io::PoseGraph& g = s->g;
+  BatchOptions& b = s->b;
+  double solve_ms = s->solve_ms;
+  // Its bookkeeping: counted, cut short by the time limit or failed.
+  auto count = [&](const Result<BatchResult>& r) {
     ++c_.global_optimizations;
     global_cut_short_ = r.ok() && r->time_limited;
     if (global_cut_short_) ++c_.global_time_limited;
@@ -884,19 +945,22 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     if (!r.ok()) ++c_.global_failures;
     return r.ok();
   };
-  const bool solved = solve();
+  const bool solved = count(s->result);
   loops_pending_ = false;
-  last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
   std::vector<size_t> pending;
-  pending.swap(pending_loops_);
-  if (!solved) return;
+  pending.swap(s->pending);
+  if (!solved) {
+    if (clock_) global_ms_.push_back(solve_ms);
+    return;
+  }
   if (global_cut_short_) {
     // Not converged: its estimates are taken (every accepted step lowered the cost) and the
     // window rebuilt from them, but the new loops stay pending, so the next solve comes
     // global_min_keyframes_between keyframes later even without new loops, the chi-square gate
     // waits for a converged solution (`pending` is left empty) and no keyframe is retired
     // before one.
-    pending_loops_.swap(pending);
+    pending_loops_.insert(pending_loops_.begin(), pending.begin(), pending.end());
+    pending.clear();
     loops_pending_ = true;
   }
   // The new loops' whitened residuals at the solution: an outlier is dropped and the graph
@@ -925,13 +989,22 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
+    const auto folded = static_cast<size_t>(std::count_if(
+        links_.begin(), links_.end(), [](const Link& l) { return l.kind == LinkKind::kFolded; }));
     b.first_plain_edge2 = g.edges2.size() - folded;
-    if (!solve()) return;
+    // On this thread: the graph has just changed and the estimates wait for it.
+    s->Run();
+    solve_ms += s->solve_ms;
+    if (clock_) global_wait_ms_.back() += s->solve_ms;
+    if (!count(s->result)) {
+      if (clock_) global_ms_.push_back(solve_ms);
+      return;
+    }
     loops_pending_ = global_cut_short_;  // solved again later, nothing retired before
   }
   for (const auto& v : g.vertices2) SetEstimate(v.id, v.pose);
   ResetWindow();
-  if (clock_) global_ms_.push_back(NowMs() - t0);
+  if (clock_) global_ms_.push_back(solve_ms);
 }
 
 void PoseGraphSlam::ResetWindow() {
@@ -961,6 +1034,7 @@ void PoseGraphSlam::ResetWindow() {
 }
 
 void PoseGraphSlam::Finish() {
+  JoinGlobal();
   // Fixes still waiting for an odometry run that never decided: placed by the current clock.
   PlaceHeldFixes();
   // The window after the last global optimisation holds its newest nodes to the scan-match

@@ -46,6 +46,7 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
   const SlamCounters& c = slam.counters();
   const auto& lat = slam.window_latency_ms();
   const auto& glat = slam.global_latency_ms();
+  const auto& wait = slam.global_wait_ms();
   auto ll = [](int64_t v) { return static_cast<long long>(v); };
   std::fprintf(
       f,
@@ -61,7 +62,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
       "\"covariance_failures\": %lld, \"latency_p50_ms\": %.3f, "
       "\"latency_p99_ms\": %.3f, \"latency_max_ms\": %.3f, \"global_optimizations\": %lld, "
       "\"global_failures\": %lld, \"global_p50_ms\": %.3f, \"global_max_ms\": %.3f, "
-      "\"global_recent_p50_ms\": %.3f, \"global_time_limited\": %lld",
+      "\"global_recent_p50_ms\": %.3f, \"global_wait_p50_ms\": %.3f, "
+      "\"global_wait_max_ms\": %.3f, \"global_time_limited\": %lld",
       JsonEscape(info.system).c_str(), JsonEscape(info.input).c_str(), info.window_size,
       info.wall_s, ll(c.scans_in), ll(c.scans_used), ll(c.scans_time_backwards),
       ll(c.scans_too_few_beams), ll(c.scans_bad_geometry), ll(c.scans_no_odom), ll(c.invalid_beams),
@@ -76,7 +78,9 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
                      glat.end() - static_cast<std::ptrdiff_t>(std::min<size_t>(glat.size(), 10)),
                      glat.end()),
                  0.5),
-      ll(c.global_time_limited));
+      // How long the mapping waited for them (less than their time when run in the background
+      // and the scans before the next keyframe came in real time; offline, scans come at once).
+      Percentile(wait, 0.5), Percentile(wait, 1.0), ll(c.global_time_limited));
   std::fprintf(
       f,
       ", \"absolute_in\": %lld, \"absolute_attached\": %lld, \"absolute_spliced\": %lld, "

@@ -151,9 +151,15 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("scans_duplicate", [this] { return scans_duplicate_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
   heartbeat_.AddCounter("grid_render_ms", [this] { return last_grid_render_us_ / 1000; });
-  // The last global optimisation's duration: it grows with the graph and holds up the scans.
+  // The last global optimisation's duration (it grows with the graph), and how long the scans
+  // behind it waited: in the background (slam.global_in_background), only for what was left of
+  // it when the next keyframe came.
   heartbeat_.AddCounter("global_ms", [this] {
     const auto& g = slam_.global_latency_ms();
+    return g.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(g.back()));
+  });
+  heartbeat_.AddCounter("global_wait_ms", [this] {
+    const auto& g = slam_.global_wait_ms();
     return g.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(g.back()));
   });
   // Poses in the last TRAJECTORY_PG (thinned, see bus::ThinTrajectoryMessage).

@@ -184,6 +184,68 @@ TEST(PoseGraphSlam, OptionsAreChecked) {
 // Back and forth three times along the box room: loops close on the second and third pass. A
 // chi^2 gate no residual can pass removes every loop from the graph and counts it; without the
 // gate none is removed.
+// A global optimisation in the background (the default) is taken in when the next keyframe
+// comes: until then the scans are accepted and posed on the estimates before it, and nothing is
+// counted. The final graph and trajectory are those of solving in line, where the mapper's thread
+// waits for every solve.
+TEST(PoseGraphSlam, GlobalSolveInTheBackgroundIsTakenInAtTheNextKeyframe) {
+  auto run = [](bool background, int* scans_in_flight) {
+    PoseGraphSlamOptions o = LoopingOptions();
+    o.global_in_background = background;
+    o.retire.delay_keyframes = 5;  // retiring and removal take part too
+    auto slam = std::make_unique<PoseGraphSlam>(o, BatchOptions{}, nullptr);
+    *scans_in_flight = 0;
+    for (int i = 0; i < 3 * 61; ++i) {
+      const Pose2 p = BackAndForth(i);
+      const int64_t t = 1000000 + 100000 * i;
+      slam->AddOdometry(t, p);
+      const size_t keyframes = slam->keyframes().size();
+      const bool was_in_flight = slam->global_in_flight();
+      const int64_t solves = slam->counters().global_optimizations;
+      EXPECT_TRUE(slam->AddScan(i, BoxScan(t, p))) << i;
+      ScanPose last;
+      EXPECT_TRUE(slam->LastScanPose(&last));
+      EXPECT_EQ(last.scan_index, i);
+      if (was_in_flight && slam->keyframes().size() == keyframes) {
+        // A scan between keyframes while the solve runs: it waits for nothing.
+        ++*scans_in_flight;
+        EXPECT_TRUE(slam->global_in_flight());
+        EXPECT_EQ(slam->counters().global_optimizations, solves);
+      }
+      if (was_in_flight && slam->keyframes().size() > keyframes) {
+        EXPECT_GT(slam->counters().global_optimizations, solves);  // taken in
+      }
+      if (!background) {
+        EXPECT_FALSE(slam->global_in_flight());
+      }
+    }
+    slam->Finish();
+    EXPECT_FALSE(slam->global_in_flight());
+    return slam;
+  };
+  int in_flight = 0, in_line = 0;
+  const auto bg = run(true, &in_flight);
+  const auto inline_ = run(false, &in_line);
+  EXPECT_GT(in_flight, 10);
+  EXPECT_EQ(in_line, 0);
+  const SlamCounters &a = bg->counters(), &b = inline_->counters();
+  EXPECT_GT(b.loops_accepted, 0);
+  EXPECT_GT(b.global_optimizations, 5);
+  EXPECT_GT(b.keyframes_retired, 0);
+  EXPECT_EQ(a.global_optimizations, b.global_optimizations);
+  EXPECT_EQ(a.loops_accepted, b.loops_accepted);
+  EXPECT_EQ(a.keyframes_retired, b.keyframes_retired);
+  EXPECT_EQ(a.keyframes_removed, b.keyframes_removed);
+  EXPECT_EQ(bg->Graph().edges2.size(), inline_->Graph().edges2.size());
+  const auto ta = bg->Trajectory(), tb = inline_->Trajectory();
+  ASSERT_EQ(ta.size(), tb.size());
+  for (size_t i = 0; i < ta.size(); ++i) {
+    EXPECT_NEAR(ta[i].pose.x, tb[i].pose.x, 1e-9) << i;
+    EXPECT_NEAR(ta[i].pose.y, tb[i].pose.y, 1e-9) << i;
+    EXPECT_NEAR(ta[i].pose.theta, tb[i].pose.theta, 1e-9) << i;
+  }
+}
+
 TEST(PoseGraphSlam, Chi2GateRemovesAndCountsLoops) {
   auto run = [](double gate) {
     PoseGraphSlamOptions o = LoopingOptions();

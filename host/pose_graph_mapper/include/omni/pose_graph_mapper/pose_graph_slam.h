@@ -101,10 +101,18 @@ struct PoseGraphSlamOptions {
   // Wall-clock limit of a global optimisation while mapping (Ceres stops between iterations and
   // keeps its best step; the next solve, global_min_keyframes_between keyframes later even
   // without new loops, goes on from there, and nothing is retired or gated before a solve
-  // converges); the last one (Finish) has none. A solve holds up the
-  // scans behind it, and its iterations grow with the graph: 0.22 s each at 5840 keyframes
-  // (30 simulator laps), up to 5.9 s a solve without the limit. 0: none.
+  // converges); the last one (Finish) has none. A solve holds up the next keyframe (in the
+  // background) or the scans behind it (in line), and its iterations grow with the graph: 0.22 s
+  // each at 5840 keyframes (30 simulator laps, poses kept), up to 5.9 s a solve without the
+  // limit. 0: none.
   double global_max_time_s = 1.0;
+  // A global optimisation while mapping runs on its own thread, on a copy of the graph, and is
+  // taken in before the graph next changes (the next keyframe, an absolute pose, Finish): the
+  // scans until then are posed and published meanwhile, on the estimates before it. The result
+  // is the same as solving on the spot, taken in one keyframe later; the last solve (Finish) and
+  // a re-solve after the loop gate dropped a loop run on the mapper's thread. false: every solve
+  // holds up the scans behind it.
+  bool global_in_background = true;
   // Consistency gate: after a global optimisation, a loop closure added since the previous one
   // whose whitened residual e^T Omega e exceeds this is an outlier the robust loss gave up on:
   // it is removed (counted in loops_inconsistent) and the graph optimised again. 0 disables.
@@ -240,6 +248,9 @@ class PoseGraphSlam {
  public:
   // `clock` (may be null) times the window updates for the latency figures.
   PoseGraphSlam(const PoseGraphSlamOptions& options, const BatchOptions& batch, const Clock* clock);
+  ~PoseGraphSlam();  // waits for a global optimisation still running
+  PoseGraphSlam(const PoseGraphSlam&) = delete;
+  PoseGraphSlam& operator=(const PoseGraphSlam&) = delete;
 
   // Odometry pose of the robot base in the odometry frame. Stamps are the sources' own; the
   // mapper keeps its own time line, equal to them until the odometry's clock is set back
@@ -308,7 +319,14 @@ class PoseGraphSlam {
   // The odometry self-calibration (enabled or not: its counters stay 0 when off).
   const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   const std::vector<double>& window_latency_ms() const { return window_ms_; }
+  // Each global optimisation's own time (its solves, on whichever thread ran them).
   const std::vector<double>& global_latency_ms() const { return global_ms_; }
+  // How long the mapper's thread waited for each one: the whole solve when it ran on the spot,
+  // what was left of it at the next keyframe when it ran in the background.
+  const std::vector<double>& global_wait_ms() const { return global_wait_ms_; }
+  // A global optimisation launched in the background and not yet taken in (the estimates,
+  // counters and latencies are those from before it until the graph next changes).
+  bool global_in_flight() const { return global_ != nullptr; }
   std::map<std::string, int64_t> PluginCounters() const;
 
  private:
@@ -362,8 +380,14 @@ class PoseGraphSlam {
   // Every odometry factor still covered by the buffer, recomputed with the current calibration.
   void RelinkOdometry();
   void OptimizeWindow();
-  // `last`: the final solve of Finish, without global_max_time_s.
+  // `last`: the final solve of Finish, without global_max_time_s (and on this thread).
   void OptimizeGlobal(bool last = false);
+  struct GlobalSolve;  // one global optimisation: its copy of the graph, options and result
+  // Counts, gates and takes in a finished global optimisation.
+  void FinishGlobal(GlobalSolve* s);
+  // Waits for the global optimisation in the background, if any, and takes it in. Called before
+  // anything changes the graph.
+  void JoinGlobal();
   void ResetWindow();
   void RetireRevisits();  // `slam.retire`, for keyframes old enough since the last call
   double NowMs() const;
@@ -464,8 +488,9 @@ class PoseGraphSlam {
   std::vector<size_t> pending_loops_;  // links_ indices of loops since the last global
   int last_global_keyframe_ = -1000000;
   bool global_cut_short_ = false;  // the last global optimisation stopped at its time limit
-  std::vector<double> window_ms_, global_ms_;
+  std::vector<double> window_ms_, global_ms_, global_wait_ms_;
   SlamCounters c_;
+  std::unique_ptr<GlobalSolve> global_;  // in the background, not yet taken in
 };
 
 }  // namespace omni::pgm
