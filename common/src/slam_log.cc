@@ -1,6 +1,8 @@
 #include "omni/bus/slam_log.h"
 
+#include <cmath>
 #include <cstdio>
+#include <deque>
 #include <fstream>
 
 #include "omni/bus/bus.h"
@@ -44,6 +46,53 @@ void ReportSlamLogProblems(const char* program, const std::string& input, const 
 
 namespace {
 
+// Scans held for the odometry of their sweep's end, in file order (ReadLcm).
+class ScanHold {
+ public:
+  explicit ScanHold(const SlamLogHandlers& h) : h_(h) {}
+  // The newest odometry stamp so far.
+  void Odometry(int64_t utime) {
+    have_odom_ = true;
+    newest_odom_ = utime;
+  }
+  // False when the scan handler asked to stop.
+  bool Add(SlamScan s) {
+    held_.push_back(std::move(s));
+    return Release(false);
+  }
+  // Hands over the scans that are due (all with `all`); false when the handler asked to stop.
+  bool Release(bool all) {
+    while (!held_.empty() && (all || Due(held_.front()))) {
+      SlamScan s = std::move(held_.front());
+      held_.pop_front();
+      if (!h_.scan(s)) return false;
+    }
+    return true;
+  }
+
+ private:
+  // A lidar's scan message comes at the end of its sweep, and the odometry sample covering that
+  // end may come just after it: the mapper could not undo the sweep's motion. A scan waits for
+  // odometry at or after its end, as the live mappers' queues make it; not when there is no
+  // odometry, when its end is more than kMaxWaitUs past the newest (a stream that stopped, a
+  // stamp in the future, a clock set back: the mapper decides), or behind kMaxHeld others.
+  bool Due(const SlamScan& s) const {
+    static constexpr int64_t kMaxWaitUs = 500000;
+    static constexpr size_t kMaxHeld = 64;
+    if (!have_odom_ || held_.size() > kMaxHeld) return true;
+    // (Stamps may be anything a log holds: a sum that overflows is far from any odometry.)
+    int64_t end = 0, ahead = 0;
+    if (__builtin_add_overflow(s.utime, std::llround(s.scan_time_s * 1e6), &end) ||
+        __builtin_sub_overflow(end, newest_odom_, &ahead))
+      return true;
+    return ahead <= 0 || ahead > kMaxWaitUs;
+  }
+  const SlamLogHandlers& h_;
+  std::deque<SlamScan> held_;
+  bool have_odom_ = false;
+  int64_t newest_odom_ = 0;
+};
+
 Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& channels,
                               const SlamLogHandlers& handlers) {
   auto reader = io::LcmLogReader::Open(path);
@@ -51,6 +100,8 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
   SlamLogResult out;
   io::LcmLogEvent ev;
   int64_t last_seq = -1, last_utime = 0;
+  ScanHold hold(handlers);
+  bool go_on = true;
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
     if (!more.ok()) {
@@ -82,7 +133,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       s.range_max_m = m.range_max_m;
       s.ranges_m = std::move(m.ranges_m);
       s.scan_time_s = SweepTime(m.scan_time_s);
-      if (!handlers.scan(s)) break;
+      if (!(go_on = hold.Add(std::move(s)))) break;
     } else if (ev.channel == channels.odom) {
       omni::odometry_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
@@ -91,6 +142,8 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
         continue;
       }
       handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
+      hold.Odometry(m.utime);
+      if (!(go_on = hold.Release(false))) break;
     } else if (handlers.imu && ev.channel == channels.imu) {
       omni::imu_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {
@@ -101,6 +154,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
       handlers.imu(m.utime, m.angular_velocity_rad_s[2]);
     }
   }
+  if (go_on) hold.Release(true);  // the log ended: nothing more will cover them
   out.skipped_bytes = reader->skipped_bytes();
   return out;
 }
