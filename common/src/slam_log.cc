@@ -50,13 +50,22 @@ namespace {
 class ScanHold {
  public:
   explicit ScanHold(const SlamLogHandlers& h) : h_(h) {}
-  // The newest odometry stamp so far.
+  // Odometry stamped `utime`, before it is handed over: a sample older than the latest (a clock
+  // set back, or a stale one) first hands over every scan held, which came before it, as the
+  // live node does (the mapper decides about a step back from the scans it has). False when the
+  // scan handler asked to stop.
+  bool BeforeOdometry(int64_t utime) {
+    return !(have_odom_ && utime < newest_odom_) || Release(true);
+  }
+  // The latest odometry stamp handed over (after a step back, the new clock's).
   void Odometry(int64_t utime) {
     have_odom_ = true;
     newest_odom_ = utime;
   }
   // False when the scan handler asked to stop.
   bool Add(SlamScan s) {
+    // The latest stamp, not the largest: a future one holds nothing up for long.
+    newest_scan_ = s.utime;
     held_.push_back(std::move(s));
     return Release(false);
   }
@@ -74,23 +83,25 @@ class ScanHold {
   // A lidar's scan message comes at the end of its sweep, and the odometry sample covering that
   // end may come just after it: the mapper could not undo the sweep's motion. A scan waits for
   // odometry at or after its end, as the live mappers' queues make it; not when there is no
-  // odometry, when its end is more than kMaxWaitUs past the newest (a stream that stopped, a
-  // stamp in the future, a clock set back: the mapper decides), or behind kMaxHeld others.
+  // odometry, when its end is more than kMaxWaitUs past the newest odometry (a stamp in the
+  // future) or kMaxWaitUs before the latest scan's stamp (the odometry stopped: the mapper
+  // decides), or behind kMaxHeld others.
   bool Due(const SlamScan& s) const {
     static constexpr int64_t kMaxWaitUs = 500000;
     static constexpr size_t kMaxHeld = 64;
     if (!have_odom_ || held_.size() > kMaxHeld) return true;
     // (Stamps may be anything a log holds: a sum that overflows is far from any odometry.)
-    int64_t end = 0, ahead = 0;
+    int64_t end = 0, ahead = 0, behind = 0;
     if (__builtin_add_overflow(s.utime, std::llround(s.scan_time_s * 1e6), &end) ||
-        __builtin_sub_overflow(end, newest_odom_, &ahead))
+        __builtin_sub_overflow(end, newest_odom_, &ahead) ||
+        __builtin_sub_overflow(newest_scan_, end, &behind))
       return true;
-    return ahead <= 0 || ahead > kMaxWaitUs;
+    return ahead <= 0 || ahead > kMaxWaitUs || behind > kMaxWaitUs;
   }
   const SlamLogHandlers& h_;
   std::deque<SlamScan> held_;
   bool have_odom_ = false;
-  int64_t newest_odom_ = 0;
+  int64_t newest_odom_ = 0, newest_scan_ = 0;
 };
 
 Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& channels,
@@ -141,6 +152,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
         ++out.decode_errors_by_channel[ev.channel];
         continue;
       }
+      if (!(go_on = hold.BeforeOdometry(m.utime))) break;
       handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
       hold.Odometry(m.utime);
       if (!(go_on = hold.Release(false))) break;

@@ -8,6 +8,7 @@
 #include <iterator>
 #include <limits>
 #include <optional>
+#include <system_error>
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
@@ -883,11 +884,11 @@ PoseGraphSlam::~PoseGraphSlam() {
 
 void PoseGraphSlam::JoinGlobal() {
   if (!global_) return;
+  std::unique_ptr<GlobalSolve> s = std::move(global_);
   const auto t0 = std::chrono::steady_clock::now();
-  global_->done.get();
+  s->done.get();
   const double waited =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  std::unique_ptr<GlobalSolve> s = std::move(global_);
   if (clock_) global_wait_ms_.push_back(waited);
   FinishGlobal(s.get());
   // What NewKeyframe does after a solve on the spot, on the same keyframes: the graph is then as
@@ -923,9 +924,13 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   if (!last && o_.global_in_background) {
     // loops_pending_ stays set until it is taken in: nothing is retired or removed meanwhile.
     GlobalSolve* run = s.get();
-    s->done = std::async(std::launch::async, [run] { run->Run(); });
-    global_ = std::move(s);
-    return;
+    try {
+      s->done = std::async(std::launch::async, [run] { run->Run(); });
+      global_ = std::move(s);
+      return;
+    } catch (const std::system_error& e) {  // no thread to be had: solved here instead
+      LOG_WARN << "global optimisation in line: no thread for it (" << e.what() << ")";
+    }
   }
   s->Run();
   if (clock_) global_wait_ms_.push_back(s->solve_ms);

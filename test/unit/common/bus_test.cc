@@ -565,7 +565,8 @@ TEST(SlamLog, RepeatedAndMissingScansAndBadMessagesAreCounted) {
 // against the 100 Hz odometry, as the simulator's does after 85 minutes): it is handed over after
 // the odometry sample that covers its end, as the live mappers' queues do, so the mapper can undo
 // the sweep. A scan stamped far ahead of the odometry, and the scans of a stream whose odometry
-// stopped, are not held back for long; the scan at the log's end is not lost.
+// stopped, are not held back for long, a clock set back hands over every scan held first, and
+// the scan waiting at the log's end is not lost.
 TEST(SlamLog, AScanWaitsForTheOdometryCoveringItsSweep) {
   const std::string path = ::testing::TempDir() + "/slam_hold.lcmlog";
   {
@@ -597,7 +598,13 @@ TEST(SlamLog, AScanWaitsForTheOdometryCoveringItsSweep) {
     odom(1210000);
     scan(2, 9000000000);  // hours ahead of the odometry: not held
     odom(1220000);
-    scan(3, 1215000);  // the odometry stops here: handed over at the log's end
+    scan(3, 1215000);  // the odometry stops here: handed over once a scan 0.5 s newer came
+    for (int64_t i = 4; i <= 10; ++i) scan(i, 1315000 + 100000 * (i - 4));  // to 1.915 s
+    odom(1230000);  // scan 4 (to 1.415 s) still waits
+    odom(1000000);  // the clock set back: every scan held is handed over first
+    scan(11, 905000);
+    odom(1010000);      // covers scan 11
+    scan(12, 1015000);  // waits for odometry that never comes: handed over at the log's end
     ASSERT_TRUE(w->Close().ok());
   }
   std::vector<std::pair<char, int64_t>> order;
@@ -606,14 +613,14 @@ TEST(SlamLog, AScanWaitsForTheOdometryCoveringItsSweep) {
     order.emplace_back('s', s.utime);
     return true;
   };
-  h.odom = [&](int64_t utime, const Pose2&) {
-    if (utime >= 1190000) order.emplace_back('o', utime);
-  };
+  h.odom = [&](int64_t utime, const Pose2&) { order.emplace_back('o', utime); };
   auto r = ReadSlamLog(path, SlamLogChannels{}, h);
   ASSERT_TRUE(r.ok()) << r.error().message;
   const std::vector<std::pair<char, int64_t>> want = {
-      {'o', 1190000},    {'o', 1200000}, {'o', 1210000}, {'s', 1105000},
-      {'s', 9000000000}, {'o', 1220000}, {'s', 1215000}};
+      {'o', 1190000}, {'o', 1200000}, {'o', 1210000}, {'s', 1105000}, {'s', 9000000000},
+      {'o', 1220000}, {'s', 1215000}, {'o', 1230000}, {'s', 1315000}, {'s', 1415000},
+      {'s', 1515000}, {'s', 1615000}, {'s', 1715000}, {'s', 1815000}, {'s', 1915000},
+      {'o', 1000000}, {'o', 1010000}, {'s', 905000},  {'s', 1015000}};
   // The first scan, covered when it came, is before all of these.
   ASSERT_GE(order.size(), want.size());
   const std::vector<std::pair<char, int64_t>> tail(order.end() - static_cast<long>(want.size()),

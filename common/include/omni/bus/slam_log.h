@@ -59,7 +59,8 @@ void ReportSlamLogProblems(const char* program, const std::string& input, const 
 // Reads `path` and calls the handlers in file order, except that an LCM log's scan is handed
 // over once odometry at or after its sweep's last beam has been, as the live mappers' queues do
 // (the sample covering it may come just after the scan); it is not held for odometry more than
-// 0.5 s past the newest, nor behind 64 others, nor past the log's end. An unreadable file or a
+// 0.5 s past the newest, nor 0.5 s before the latest scan, nor behind 64 others, nor past an
+// older odometry stamp (a clock set back), nor past the log's end. An unreadable file or a
 // bad CARMEN line is an error. Inside an LCM log a corrupt region is skipped to the next event
 // (counted in `skipped_bytes`: the events in it are lost, callers must say so) and a truncated
 // last event ends the reading (said in `stopped_early`).
