@@ -866,6 +866,7 @@ struct PoseGraphSlam::GlobalSolve {
   BatchOptions b;
   std::vector<VertexPrior2> priors;
   std::vector<size_t> pending;  // the loops it is the first solve of (links_ indices)
+  size_t folded = 0;            // folded links (solved without the loss, last in g.edges2)
   Result<BatchResult> result = MakeError(ErrorCode::kInternal, "global optimisation not run");
   double solve_ms = 0;  // the solve's own time (steady clock)
   std::future<void> done;
@@ -915,9 +916,9 @@ void PoseGraphSlam::OptimizeGlobal(bool last) {
   // A folded link's information went through the loss's weight when it was made (RemoveKeyframe),
   // and its residual is meant to be non-zero (it carries the removed factors' pull): no loss.
   // Graph() puts them last.
-  const auto folded = static_cast<size_t>(std::count_if(
+  s->folded = static_cast<size_t>(std::count_if(
       links_.begin(), links_.end(), [](const Link& l) { return l.kind == LinkKind::kFolded; }));
-  b.first_plain_edge2 = s->g.edges2.size() - folded;
+  b.first_plain_edge2 = s->g.edges2.size() - s->folded;
   s->priors = priors_;
   s->pending.swap(pending_loops_);
   last_global_keyframe_ = static_cast<int>(keyframes_.size()) - 1;
@@ -994,9 +995,7 @@ void PoseGraphSlam::FinishGlobal(GlobalSolve* s) {
     c_.loops_inconsistent += n;
     c_.loops_accepted -= n;
     g = Graph();
-    const auto folded = static_cast<size_t>(std::count_if(
-        links_.begin(), links_.end(), [](const Link& l) { return l.kind == LinkKind::kFolded; }));
-    b.first_plain_edge2 = g.edges2.size() - folded;
+    b.first_plain_edge2 = g.edges2.size() - s->folded;  // the dropped loops were not folded
     // On this thread: the graph has just changed and the estimates wait for it.
     s->Run();
     solve_ms += s->solve_ms;
