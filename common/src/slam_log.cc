@@ -50,17 +50,16 @@ namespace {
 class ScanHold {
  public:
   explicit ScanHold(const SlamLogHandlers& h) : h_(h) {}
-  // Odometry stamped `utime`, before it is handed over: a sample older than the latest (a clock
-  // set back, or a stale one) first hands over every scan held, which came before it, as the
-  // live node does (the mapper decides about a step back from the scans it has). False when the
-  // scan handler asked to stop.
-  bool BeforeOdometry(int64_t utime) {
-    return !(have_odom_ && utime < newest_odom_) || Release(true);
-  }
-  // The latest odometry stamp handed over (after a step back, the new clock's).
-  void Odometry(int64_t utime) {
+  // Hands odometry over. A sample older than the latest (a clock set back, or a stale one) first
+  // hands over every scan held, which came before it, as the live node does (the mapper decides
+  // about a step back from the scans it has); then the scans it covers follow it. False when
+  // the scan handler asked to stop.
+  bool Odometry(int64_t utime, const Pose2& pose) {
+    if (have_odom_ && utime < newest_odom_ && !Release(true)) return false;
+    h_.odom(utime, pose);
     have_odom_ = true;
-    newest_odom_ = utime;
+    newest_odom_ = utime;  // the latest (after a step back, the new clock's)
+    return Release(false);
   }
   // False when the scan handler asked to stop.
   bool Add(SlamScan s) {
@@ -152,10 +151,7 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
         ++out.decode_errors_by_channel[ev.channel];
         continue;
       }
-      if (!(go_on = hold.BeforeOdometry(m.utime))) break;
-      handlers.odom(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
-      hold.Odometry(m.utime);
-      if (!(go_on = hold.Release(false))) break;
+      if (!(go_on = hold.Odometry(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad)))) break;
     } else if (handlers.imu && ev.channel == channels.imu) {
       omni::imu_t m;
       if (omni::bus::DecodeMessage(&m, ev.data.data(), size) < 0) {

@@ -154,14 +154,13 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   // The last global optimisation's duration (it grows with the graph), and how long the scans
   // behind it waited: in the background (slam.global_in_background), only for what was left of
   // it when the next keyframe came.
-  heartbeat_.AddCounter("global_ms", [this] {
-    const auto& g = slam_.global_latency_ms();
-    return g.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(g.back()));
-  });
-  heartbeat_.AddCounter("global_wait_ms", [this] {
-    const auto& g = slam_.global_wait_ms();
-    return g.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(g.back()));
-  });
+  auto last_ms = [](const std::vector<double>& v) {
+    return v.empty() ? int64_t{0} : static_cast<int64_t>(std::llround(v.back()));
+  };
+  heartbeat_.AddCounter("global_ms",
+                        [this, last_ms] { return last_ms(slam_.global_latency_ms()); });
+  heartbeat_.AddCounter("global_wait_ms",
+                        [this, last_ms] { return last_ms(slam_.global_wait_ms()); });
   // Poses in the last TRAJECTORY_PG (thinned, see bus::ThinTrajectoryMessage).
   heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(queued_scans_); });
