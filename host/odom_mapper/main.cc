@@ -14,6 +14,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
@@ -127,6 +128,7 @@ int main(int argc, char** argv) {
   };
   omni::bus::MapSaveService saver(&bus, "odom_mapper", out_dir, &clock, &hb);
   omni::bus::InstallStopSignals();
+  omni::FixMallocThresholds();  // large buffers go back to the system when freed
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << ")";
   // The callbacks map as messages arrive; the loop only ticks and publishes.

@@ -13,6 +13,7 @@
 #include "omni/common/cli.h"
 #include "omni/common/config.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/rbpf_mapper/rbpf_node.h"
 
@@ -77,6 +78,7 @@ int main(int argc, char** argv) {
   omni::SystemClock clock;
   omni::rbpf::RbpfNode node(&bus, opt, &clock);
   omni::bus::InstallStopSignals();
+  omni::FixMallocThresholds();  // large buffers go back to the system when freed
   LOG_INFO << "listening on " << opt.scan_channel << " + " << opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << "), " << opt.particles << " particles";
   node.set_deferred(true);

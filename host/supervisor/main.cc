@@ -12,6 +12,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/supervisor/supervisor.h"
@@ -101,6 +102,7 @@ int main(int argc, char** argv) {
   hb.AddCounter("gave_up", [&] { return sup.gave_up(); });
   hb.AddCounter("foreign_heartbeats", [&] { return sup.foreign_heartbeats(); });
   omni::bus::InstallStopSignals();
+  omni::FixMallocThresholds();  // large buffers go back to the system when freed
   // A log line written to a pipe whose reader is gone (`supervisor | tee`, with tee ended by the
   // same hangup) must not end the stop half way: the write fails instead. (A handler, not
   // SIG_IGN, so that the children get the default back at exec.)

@@ -12,6 +12,7 @@
 #include "omni/can/can_bus.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 
 namespace {
 std::atomic<bool> g_stop{false};
@@ -64,6 +65,7 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
+  omni::FixMallocThresholds();            // large buffers go back to the system when freed
   omni::SystemClock clock;
   omni::base_bridge::BaseBridgeNode node(*opts, bus->get(), &clock);
   node.Run(&g_stop, duration_s);

@@ -19,6 +19,7 @@
 #include "omni/common/driver_args.h"
 
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/imu/imu_node.h"
 
 namespace {
@@ -126,6 +127,7 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
+  omni::FixMallocThresholds();            // large buffers go back to the system when freed
   omni::imu::ImuNode node(bus->get(), &driver, nopt, &clock);
   node.Run(&g_stop, duration_s);
   LOG_INFO << "published " << node.published() << " IMU messages";

@@ -16,6 +16,7 @@
 #include "omni/common/driver_args.h"
 
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/kinect/kinect_node.h"
 #include "omni/kinect/openni2_source.h"
 
@@ -82,6 +83,7 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
+  omni::FixMallocThresholds();            // large buffers go back to the system when freed
   omni::kinect::KinectNode node(bus->get(), &driver, nopt, &clock);
   node.Run(&g_stop, duration_s);
   LOG_INFO << "published " << node.depth_published() << " depth and " << node.color_published()

@@ -12,6 +12,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/map_fusion/map_fusion_node.h"
 
 namespace {
@@ -118,6 +119,7 @@ int main(int argc, char** argv) {
   omni::SystemClock clock;
   omni::map_fusion::MapFusionNode node(&bus, opt, &clock);
   omni::bus::InstallStopSignals();
+  omni::FixMallocThresholds();  // large buffers go back to the system when freed
   std::string chans;
   for (const auto& c : opt.grid_channels) chans += (chans.empty() ? "" : " + ") + c;
   LOG_INFO << "listening on " << chans << " (bus " << (url.empty() ? "default" : url) << ")";

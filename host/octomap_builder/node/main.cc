@@ -10,6 +10,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/octomap_node.h"
@@ -73,6 +74,7 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   omni::bus::AlsoStopOnHangup(OnSignal);  // and SIGPIPE ignored (node_loop.h)
+  omni::FixMallocThresholds();            // large buffers go back to the system when freed
   std::signal(SIGUSR1, OnCloudRequest);
   omni::bus::MapSaveService saver(bus_or->get(), "octomap_builder", opt->out_dir, &clock,
                                   &node.heartbeat());

@@ -12,6 +12,7 @@
 #include "omni/bus/node_loop.h"
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
+#include "omni/common/malloc_setup.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/pose_graph_mapper/pose_graph_node.h"
@@ -73,6 +74,7 @@ int main(int argc, char** argv) {
   omni::SystemClock clock;
   omni::pgm::PoseGraphNode node(&bus, node_opt, slam_opt, batch, &clock);
   omni::bus::InstallStopSignals();
+  omni::FixMallocThresholds();  // large buffers go back to the system when freed
   LOG_INFO << "listening on " << node_opt.scan_channel << " + " << node_opt.odom_channel << " (bus "
            << (url.empty() ? "default" : url) << "), window of " << slam_opt.window_size
            << " keyframes";
