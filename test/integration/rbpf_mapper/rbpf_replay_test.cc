@@ -105,7 +105,7 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   ManualClock clock(1000000);
   rbpf::RbpfNode node(&b, opt, &clock);
   int poses = 0, grids = 0, heartbeats = 0;
-  int64_t cal_pairs = -1, cell_mm = -1, switched = -1;
+  int64_t cal_pairs = -1, cell_mm = -1, switched = -1, map_tiles = -1;
   double first_grid_resolution = 0, last_grid_resolution = 0;
   std::vector<omni::pose2d_t> published;
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
@@ -148,6 +148,8 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
         cell_mm = h.counter_values[static_cast<size_t>(i)];
       else if (h.counter_names[static_cast<size_t>(i)] == "resolution_switched")
         switched = h.counter_values[static_cast<size_t>(i)];
+      else if (h.counter_names[static_cast<size_t>(i)] == "map_tiles")
+        map_tiles = h.counter_values[static_cast<size_t>(i)];
   });
   testing::PublishCarmenPrefix(
       clf, 60, b, clock, node,
@@ -172,6 +174,9 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   // One scan per 0.5-0.7 m: after the first 20 m the node maps on 5 cm cells, and says so.
   EXPECT_EQ(cell_mm, 50);
   EXPECT_EQ(switched, 1);
+  // The last heartbeat's count of distinct tiles: at most as many as the particles reference.
+  EXPECT_GT(map_tiles, 0);
+  EXPECT_LE(map_tiles, static_cast<int64_t>(node.slam().total_tile_refs()));
   EXPECT_FLOAT_EQ(static_cast<float>(first_grid_resolution), 0.025f);  // before the 20 m
   EXPECT_FLOAT_EQ(static_cast<float>(last_grid_resolution), 0.05f);
   EXPECT_EQ(node.slam().counters().scans_in, 60);
