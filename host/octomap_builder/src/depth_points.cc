@@ -43,14 +43,20 @@ Status CheckDepthFrame(const DepthImage& image, const DepthToPointsOptions& opti
 
 Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
                                                    const DepthToPointsOptions& options) {
-  if (Status s = CheckDepthFrame(image, options); !s.ok()) return s.error();
   std::vector<Eigen::Vector3f> points;
-  const int stride = options.pixel_stride;
-  points.reserve(static_cast<size_t>(image.width / stride + 1) * (image.height / stride + 1));
-  ForEachDepthPoint(image, options, [&points](int, int, float x, float y, float z) {
-    points.emplace_back(x, y, z);
-  });
+  if (Status s = DepthToPoints(image, options, &points); !s.ok()) return s.error();
   return points;
+}
+
+Status DepthToPoints(const DepthImage& image, const DepthToPointsOptions& options,
+                     std::vector<Eigen::Vector3f>* out) {
+  out->clear();
+  if (Status s = CheckDepthFrame(image, options); !s.ok()) return s;
+  const int stride = options.pixel_stride;
+  out->reserve(static_cast<size_t>(image.width / stride + 1) * (image.height / stride + 1));
+  ForEachDepthPoint(image, options,
+                    [out](int, int, float x, float y, float z) { out->emplace_back(x, y, z); });
+  return Status::Ok();
 }
 
 std::vector<Eigen::Vector3f> VoxelDownsample(const std::vector<Eigen::Vector3f>& points,

@@ -386,37 +386,58 @@ int64_t ParallelKeySetInserter::NowMicros() {
       .count();
 }
 
-std::vector<Eigen::Vector3f> ParallelKeySetInserter::Discretize(
-    const std::vector<Eigen::Vector3f>& points) const {
+namespace {
+// Per-frame working memory, kept between frames by the thread that inserts them. Allocated anew
+// for every frame, the tables and the reduced cloud (about 2 MB for a 320x240 depth frame) are
+// mapped blocks: fresh zeroed pages each time (see omni/common/malloc_setup.h), a page fault per
+// 4 KiB touched.
+struct SubvoxelAcc {
+  double x = 0, y = 0, z = 0;
+  int n = 0;
+};
+struct FrameScratch {
+  std::vector<uint64_t> slot_key;
+  std::vector<uint32_t> slot_val;
+  std::vector<SubvoxelAcc> acc;
+  std::vector<Eigen::Vector3f> reduced;
+  std::vector<uint64_t> order, sort_tmp;
+};
+FrameScratch& ThreadScratch() {
+  static thread_local FrameScratch scratch;
+  return scratch;
+}
+}  // namespace
+
+void ParallelKeySetInserter::Discretize(const std::vector<Eigen::Vector3f>& points,
+                                        std::vector<Eigen::Vector3f>* out) const {
   KeyHashSet seen(points.size() / 8 + 64);
-  std::vector<Eigen::Vector3f> out;
-  out.reserve(points.size() / 4 + 16);
+  out->clear();
+  out->reserve(points.size() / 4 + 16);
   for (const auto& p : points) {
     octomap::OcTreeKey k;
     if (!keyer_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), k)) continue;
     if (!seen.Insert(PackKey(k))) continue;
     const octomap::point3d c = keyer_.keyToCoord(k);
-    out.emplace_back(c.x(), c.y(), c.z());
+    out->emplace_back(c.x(), c.y(), c.z());
   }
-  return out;
 }
 
-std::vector<Eigen::Vector3f> ParallelKeySetInserter::SubvoxelCentroids(
-    const std::vector<Eigen::Vector3f>& points) const {
+void ParallelKeySetInserter::SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points,
+                                               std::vector<Eigen::Vector3f>* out) const {
   // Cell index per axis: floor(coord * n / resolution), offset into 20 bits (+-2^19 cells).
   const double scale = options_.subvoxel / keyer_.getResolution();
   constexpr int64_t kOffset = int64_t{1} << 19;
-  struct Acc {
-    double x = 0, y = 0, z = 0;
-    int n = 0;
-  };
+  FrameScratch& scratch = ThreadScratch();
   // Open-addressing map cell -> index of its accumulator (first-appearance order).
-  std::vector<Acc> acc;
+  std::vector<SubvoxelAcc>& acc = scratch.acc;
+  acc.clear();
   acc.reserve(points.size() / 4 + 64);
   size_t cap = 64;
   while (cap < points.size() / 2) cap *= 2;
-  std::vector<uint64_t> slot_key(cap * 2, ~uint64_t{0});
-  std::vector<uint32_t> slot_val(cap * 2, 0);
+  std::vector<uint64_t>& slot_key = scratch.slot_key;
+  std::vector<uint32_t>& slot_val = scratch.slot_val;
+  slot_key.assign(cap * 2, ~uint64_t{0});
+  slot_val.assign(cap * 2, 0);
   size_t mask = cap * 2 - 1;
   auto grow = [&]() {
     std::vector<uint64_t> nk(slot_key.size() * 2, ~uint64_t{0});
@@ -452,45 +473,51 @@ std::vector<Eigen::Vector3f> ParallelKeySetInserter::SubvoxelCentroids(
       j = Mix(k) & mask;
       while (slot_key[j] != k) j = (j + 1) & mask;
     }
-    Acc& a = acc[slot_val[j]];
+    SubvoxelAcc& a = acc[slot_val[j]];
     a.x += p.x();
     a.y += p.y();
     a.z += p.z();
     ++a.n;
   }
-  std::vector<Eigen::Vector3f> out;
-  out.reserve(acc.size());
-  for (const Acc& a : acc)
-    out.emplace_back(static_cast<float>(a.x / a.n), static_cast<float>(a.y / a.n),
-                     static_cast<float>(a.z / a.n));
-  return out;
+  out->clear();
+  out->reserve(acc.size());
+  for (const SubvoxelAcc& a : acc)
+    out->emplace_back(static_cast<float>(a.x / a.n), static_cast<float>(a.y / a.n),
+                      static_cast<float>(a.z / a.n));
 }
 
 KeySets ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f>& input,
                                                const Eigen::Vector3f& origin_in,
                                                InsertStats* stats) const {
+  KeySets out;
+  ComputeKeySets(input, origin_in, &out, stats);
+  return out;
+}
+
+void ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f>& input,
+                                            const Eigen::Vector3f& origin_in, KeySets* out,
+                                            InsertStats* stats) const {
   const int64_t t0 = NowMicros();
-  std::vector<Eigen::Vector3f> discrete;
+  std::vector<Eigen::Vector3f>& reduced = ThreadScratch().reduced;
   const bool reduce = options_.discretize || options_.subvoxel > 1;
   if (options_.discretize)
-    discrete = Discretize(input);
+    Discretize(input, &reduced);
   else if (options_.subvoxel > 1)
-    discrete = SubvoxelCentroids(input);
-  const std::vector<Eigen::Vector3f>& points = reduce ? discrete : input;
+    SubvoxelCentroids(input, &reduced);
+  const std::vector<Eigen::Vector3f>& points = reduce ? reduced : input;
   const int64_t t_reduced = NowMicros();
 
-  KeySets out;
+  out->updates.clear();  // keeps its capacity for this frame's updates
   if (stats) {
     stats->points = input.size();
     stats->rays = points.size();
   }
-  const bool done = options_.max_bitmap_bytes > 0 && BitmapKeySets(points, origin_in, &out, stats);
-  if (!done) HashKeySets(points, origin_in, &out, stats);
+  const bool done = options_.max_bitmap_bytes > 0 && BitmapKeySets(points, origin_in, out, stats);
+  if (!done) HashKeySets(points, origin_in, out, stats);
   if (stats) {
     stats->rays_us += t_reduced - t0;  // the reduction is counted with the rays
     stats->keys_us = NowMicros() - t0;
   }
-  return out;
 }
 
 bool ParallelKeySetInserter::BitmapKeySets(const std::vector<Eigen::Vector3f>& points,
@@ -562,13 +589,12 @@ bool ParallelKeySetInserter::BitmapKeySets(const std::vector<Eigen::Vector3f>& p
   const int64_t t_rays = NowMicros();
 
   // Phase 2: the touched bricks in Morton order of their position; in each, the bits in order.
-  std::vector<uint64_t> order;
+  FrameScratch& scratch = ThreadScratch();
+  std::vector<uint64_t>& order = scratch.order;
+  order.clear();
   for (const auto& list : touched_lists)
     for (uint32_t b : list) order.push_back(box.BrickMorton(b));
-  {
-    std::vector<uint64_t> tmp;
-    RadixSort49(&order, &tmp);  // brick Morton codes have at most 39 bits
-  }
+  RadixSort49(&order, &scratch.sort_tmp);  // brick Morton codes have at most 39 bits
   // Thread t writes the updates of bricks [first[t], first[t+1]) at offset[t]: counted first.
   std::vector<size_t> first(static_cast<size_t>(nt) + 1), offset(static_cast<size_t>(nt) + 1, 0);
   std::vector<size_t> n_free(static_cast<size_t>(nt), 0), n_occ(static_cast<size_t>(nt), 0);

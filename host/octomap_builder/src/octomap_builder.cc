@@ -165,13 +165,12 @@ OctomapBuilder::OctomapBuilder(const OctomapBuilderOptions& options)
 Result<FrameStats> OctomapBuilder::InsertDepth(const DepthImage& image,
                                                const Eigen::Isometry3d& camera_in_map,
                                                ColoredPoints* kept) {
-  auto pts = DepthToPoints(image, options_.depth);
-  if (!pts.ok()) return pts.error();
+  if (Status s = DepthToPoints(image, options_.depth, &camera_points_); !s.ok()) return s.error();
   if (kept) {
-    kept->points = *pts;
+    kept->points = camera_points_;
     kept->colors.clear();
   }
-  return InsertPoints(*pts, camera_in_map);
+  return InsertPoints(camera_points_, camera_in_map);
 }
 
 Result<FrameStats> OctomapBuilder::InsertDepthColor(const DepthImage& image,
@@ -208,7 +207,8 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
       camera_in_map.translation().cwiseAbs().maxCoeff() >= half_extent)
     return st;
   const Eigen::Isometry3f t = camera_in_map.cast<float>();
-  std::vector<Eigen::Vector3f> world;
+  std::vector<Eigen::Vector3f>& world = world_;
+  world.clear();
   world.reserve(points_camera.size());
   for (const auto& p : points_camera) world.push_back(t * p);
   // The colours belong to the points before filtering: keep those for the colour scan.
@@ -238,7 +238,8 @@ FrameStats OctomapBuilder::InsertPoints(const std::vector<Eigen::Vector3f>& poin
       ++c.n;
     }
   }
-  const KeySets sets = inserter_.ComputeKeySets(world, t.translation(), &st.insert);
+  inserter_.ComputeKeySets(world, t.translation(), &sets_, &st.insert);
+  const KeySets& sets = sets_;
   const int64_t t0 = ParallelKeySetInserter::NowMicros();
   ParallelKeySetInserter::Apply(tree_.get(), sets);
   const int64_t t1 = ParallelKeySetInserter::NowMicros();

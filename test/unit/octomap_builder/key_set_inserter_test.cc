@@ -107,6 +107,40 @@ TEST(KeySets, BitmapTooLargeFallsBackToHashSets) {
   EXPECT_GT(a.updates.size(), 10000u);
 }
 
+TEST(KeySets, ReusedStorageGivesWhatAFreshComputationGives) {
+  // The builder keeps one KeySets and the reductions' tables from frame to frame: a large frame,
+  // then a small one, then a large one again give exactly what fresh computations give, whatever
+  // the reduction and the way the sets are computed.
+  const double res = 0.05;
+  const std::vector<std::vector<Eigen::Vector3f>> frames = {BoxScan(20000, 11, {0.1f, 0.f, 0.f}),
+                                                            BoxScan(300, 12, {1.f, -0.5f, 0.2f}),
+                                                            BoxScan(8000, 13, {-0.4f, 0.3f, 0.f})};
+  for (int reduction = 0; reduction < 3; ++reduction) {
+    for (bool bitmap : {true, false}) {
+      KeySetOptions o;
+      o.num_threads = 2;
+      o.max_range_m = 4.0;
+      o.discretize = reduction == 1;
+      o.subvoxel = reduction == 2 ? 2 : 0;
+      if (!bitmap) o.max_bitmap_bytes = 0;
+      const ParallelKeySetInserter ins(res, o);
+      KeySets kept;
+      for (size_t f = 0; f < frames.size(); ++f) {
+        const Eigen::Vector3f origin(0.05f * f, 0.f, 0.3f);
+        InsertStats st_kept, st_fresh;
+        ins.ComputeKeySets(frames[f], origin, &kept, &st_kept);
+        const KeySets fresh =
+            ParallelKeySetInserter(res, o).ComputeKeySets(frames[f], origin, &st_fresh);
+        EXPECT_EQ(kept.updates, fresh.updates)
+            << "reduction " << reduction << " bitmap " << bitmap << " frame " << f;
+        EXPECT_EQ(st_kept.rays, st_fresh.rays);
+        EXPECT_EQ(st_kept.bitmap, bitmap);
+        EXPECT_GT(kept.updates.size(), 100u);
+      }
+    }
+  }
+}
+
 TEST(KeySets, TreeEqualsInsertPointCloudOverSeveralScans) {
   const double res = 0.1;
   for (bool discretize : {false, true}) {

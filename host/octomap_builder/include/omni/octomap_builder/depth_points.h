@@ -64,6 +64,10 @@ inline Eigen::Vector3d PixelToPoint(double u, double v, double d, const DepthInt
 // Fails when the intrinsics or options are unusable or the data size does not match.
 Result<std::vector<Eigen::Vector3f>> DepthToPoints(const DepthImage& image,
                                                    const DepthToPointsOptions& options);
+// The same into `out` (replaced; its storage reused from frame to frame). On failure `out` is
+// left empty.
+Status DepthToPoints(const DepthImage& image, const DepthToPointsOptions& options,
+                     std::vector<Eigen::Vector3f>* out);
 
 // The checks DepthToPoints makes before converting (intrinsics, size, options).
 Status CheckDepthFrame(const DepthImage& image, const DepthToPointsOptions& options);

@@ -79,6 +79,9 @@ class ParallelKeySetInserter {
   // Key sets of one scan. `points` and `origin` are in the map (tree) frame, metres.
   KeySets ComputeKeySets(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& origin,
                          InsertStats* stats) const;
+  // The same into `out`, whose storage is reused (a builder keeps one KeySets across frames).
+  void ComputeKeySets(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& origin,
+                      KeySets* out, InsertStats* stats) const;
 
   // Applies the updates to `tree` (OcTree, ColorOcTree, ...: any OccupancyOcTreeBase of the
   // same resolution), each key once with the tree's hit/miss log-odds and clamping.
@@ -126,8 +129,11 @@ class ParallelKeySetInserter {
   template <class Tree, class Node, class Hook>
   static void ApplyRecurs(Tree* tree, Node* node, bool just_created, unsigned depth,
                           const uint64_t* begin, const uint64_t* end, Hook& hook);
-  std::vector<Eigen::Vector3f> Discretize(const std::vector<Eigen::Vector3f>& points) const;
-  std::vector<Eigen::Vector3f> SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points) const;
+  // The reductions write into `out` (the calling thread's scratch, reused from frame to frame).
+  void Discretize(const std::vector<Eigen::Vector3f>& points,
+                  std::vector<Eigen::Vector3f>* out) const;
+  void SubvoxelCentroids(const std::vector<Eigen::Vector3f>& points,
+                         std::vector<Eigen::Vector3f>* out) const;
   // The two ways of computing the key sets of `points` (already reduced).
   bool BitmapKeySets(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& origin,
                      KeySets* out, InsertStats* stats) const;

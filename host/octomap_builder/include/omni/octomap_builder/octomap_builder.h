@@ -131,6 +131,10 @@ class OctomapBuilder {
   };
   std::unordered_map<uint64_t, CloudCell> cloud_;
   int64_t frames_inserted_ = 0;
+  // Per-frame working memory kept between frames (a depth frame's clouds and key sets are
+  // about 3 MB; allocated anew they would be mapped blocks, page-faulted in every frame).
+  std::vector<Eigen::Vector3f> camera_points_, world_;
+  KeySets sets_;
 };
 
 // The process logic without the bus: depth frames and 2D poses in, posed frames inserted.
