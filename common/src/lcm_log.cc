@@ -53,6 +53,10 @@ Result<LcmLogReader> LcmLogReader::Open(const std::string& path) {
   return LcmLogReader(f, path);
 }
 
+LcmLogReader LcmLogReader::FromStream(std::FILE* f, std::string name) {
+  return LcmLogReader(f, std::move(name));
+}
+
 LcmLogReader::LcmLogReader(LcmLogReader&& o) noexcept
     : f_(o.f_),
       path_(std::move(o.path_)),
@@ -90,8 +94,32 @@ bool LcmLogReader::SyncWordAfter(uint64_t from) {
 
 Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
   auto where = [&](uint64_t off) { return path_ + ": byte offset " + std::to_string(off) + ": "; };
+  // A read that fails (a failing disk, a network file system gone) is an I/O error, never taken
+  // for the end of the file or for a truncated event; the next call tries again from the event
+  // the failure was in.
+  int read_errno = 0;
+  auto failed = [&]() {
+    if (!std::ferror(f_)) return false;
+    if (read_errno == 0) read_errno = errno != 0 ? errno : EIO;
+    return true;
+  };
+  // The error for a failed read in the event at `start`, where the next call starts again.
+  auto read_error = [&](uint64_t start) {
+    const long pos = std::ftell(f_);
+    offset_ = start;
+    return MakeError(ErrorCode::kIo,
+                     where(start) + "read error" +
+                         (pos >= 0 ? " (near byte offset " + std::to_string(pos) + ")" : "") +
+                         ": " + std::strerror(read_errno));
+  };
+  if (std::ferror(f_)) {
+    std::clearerr(f_);
+    if (std::fseek(f_, static_cast<long>(offset_), SEEK_SET) != 0)
+      return MakeError(ErrorCode::kIo, where(offset_) + "cannot seek back after a read error");
+  }
+  errno = 0;
   // Resync: from `from`, forward to the next sync word; the bytes from `start` on are counted as
-  // skipped. False at the end of the file.
+  // skipped. False at the end of the file or on a read error (failed() tells which).
   auto scan_from = [&](uint64_t start, uint64_t from) {
     offset_ = from;
     if (std::fseek(f_, static_cast<long>(from), SEEK_SET) != 0) return false;
@@ -104,6 +132,7 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
       if (++have >= 4 && window == kSync) break;
     }
     if (c == EOF) {
+      if (failed()) return false;  // the bytes not read are not counted as skipped
       skipped_bytes_ += offset_ - start;
       return false;
     }
@@ -116,8 +145,7 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     const uint64_t start = offset_;
     uint8_t hdr[28];
     const size_t n = std::fread(hdr, 1, sizeof(hdr), f_);
-    if (n == 0 && std::ferror(f_))  // a read error (a folder, a failing disk) is not an end
-      return MakeError(ErrorCode::kIo, where(start) + "read error: " + std::strerror(errno));
+    if (n < sizeof(hdr) && failed()) return read_error(start);  // a folder, a failing disk
     if (n == 0) return false;
     if (n < sizeof(hdr)) {
       truncated_tail_ = true;
@@ -130,7 +158,10 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     const std::string problem = CheckHeader(hdr, &chan_len, &data_len);
     if (!problem.empty()) {
       if (!resync) return MakeError(ErrorCode::kParse, where(start) + problem);
-      if (!scan_from(start, start + 1)) return false;
+      if (!scan_from(start, start + 1)) {
+        if (failed()) return read_error(start);
+        return false;
+      }
       continue;
     }
     ev->event_number = static_cast<int64_t>(Be(hdr + 4, 8));
@@ -158,10 +189,13 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
                                   std::to_string(data_len) + " bytes announced";
     if (std::fread(ev->channel.data(), 1, ev->channel.size(), f_) != ev->channel.size() ||
         !read_data()) {
+      if (failed()) return read_error(start);
       // Past the end of the file: a truncated last event, or a corrupt length with intact
       // events after it, which a resync finds.
       if (resync && scan_from(start, start + 1)) continue;
-      if (resync || !SyncWordAfter(start + 1)) {
+      const bool events_follow = !resync && SyncWordAfter(start + 1);
+      if (failed()) return read_error(start);
+      if (!events_follow) {
         truncated_tail_ = true;
         return MakeError(ErrorCode::kParse, where(start) + "event truncated: " + announced +
                                                 ": the log ends inside it");
@@ -176,6 +210,7 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     // as its data.
     uint8_t next[4];
     const size_t got = std::fread(next, 1, sizeof(next), f_);
+    if (got < sizeof(next) && failed()) return read_error(start);
     if (got > 0 && std::fseek(f_, -static_cast<long>(got), SEEK_CUR) != 0)
       return MakeError(ErrorCode::kIo, where(offset_) + "cannot seek back");
     if (got < sizeof(next) || Be(next, 4) == kSync) return true;
@@ -192,7 +227,10 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
                            ") holds event headers and is not followed by another event: its "
                            "length is corrupt");
     }
-    if (!scan_from(start, start + 1)) return false;
+    if (!scan_from(start, start + 1)) {
+      if (failed()) return read_error(start);
+      return false;
+    }
   }
 }
 

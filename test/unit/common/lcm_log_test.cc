@@ -1,5 +1,9 @@
 #include "omni/io/lcm_log.h"
 
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 
@@ -225,6 +229,114 @@ TEST(LcmLog, ALengthPastTheEndWithEventsAfterIsNotATail) {
   EXPECT_EQ(ev.utime, 300);
   EXPECT_FALSE(*s->Next(&ev, true));
   EXPECT_FALSE(s->truncated_tail());
+}
+
+// A log in memory behind a stdio stream (fopencookie) whose reads fail with EIO over
+// [fail_from, fail_to) while `failing` is set: a disk or network file system that fails and
+// comes back. Reads stop short of the failing range, as the kernel returns what it could read.
+struct FailingLog {
+  std::string bytes;
+  long pos = 0;
+  long fail_from = 0, fail_to = 0;
+  bool failing = true;
+  int failed_reads = 0;
+
+  static ssize_t Read(void* cookie, char* buf, size_t size) {
+    auto* m = static_cast<FailingLog*>(cookie);
+    if (m->failing && m->pos >= m->fail_from && m->pos < m->fail_to) {
+      ++m->failed_reads;
+      errno = EIO;
+      return -1;
+    }
+    long end = std::min<long>(static_cast<long>(m->bytes.size()), m->pos + static_cast<long>(size));
+    if (m->failing && m->pos < m->fail_from) end = std::min(end, m->fail_from);
+    const long n = std::max<long>(0, end - m->pos);
+    std::copy_n(m->bytes.data() + m->pos, n, buf);
+    m->pos += n;
+    return n;
+  }
+  static int Seek(void* cookie, off64_t* offset, int whence) {
+    auto* m = static_cast<FailingLog*>(cookie);
+    const long base = whence == SEEK_SET   ? 0
+                      : whence == SEEK_CUR ? m->pos
+                                           : static_cast<long>(m->bytes.size());
+    if (base + *offset < 0) return -1;
+    m->pos = static_cast<long>(base + *offset);
+    *offset = m->pos;
+    return 0;
+  }
+  LcmLogReader Reader() {
+    pos = 0;
+    cookie_io_functions_t io{};
+    io.read = &FailingLog::Read;
+    io.seek = &FailingLog::Seek;
+    std::FILE* f = fopencookie(this, "rb", io);
+    EXPECT_NE(f, nullptr);
+    return LcmLogReader::FromStream(f, "failing.lcmlog");
+  }
+};
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), {});
+}
+
+// Events of the sample: [0, 34) "A" 100, [34, 70) "BB" 200, [70, 104) "A" 300.
+TEST(LcmLog, AFailedReadIsAnIoErrorAndTheEventIsReadWhenTheDeviceComesBack) {
+  for (const bool resync : {false, true}) {
+    FailingLog log;
+    log.bytes = ReadAll(WriteSample(omni::testing::TempDir()));
+    ASSERT_EQ(log.bytes.size(), 104u);
+    log.fail_from = 64;  // inside the second event's data
+    log.fail_to = 66;
+    LcmLogReader r = log.Reader();
+    LcmLogEvent ev;
+    ASSERT_TRUE(*r.Next(&ev, resync));
+    EXPECT_EQ(ev.utime, 100);
+    auto bad = r.Next(&ev, resync);
+    ASSERT_FALSE(bad.ok()) << "resync " << resync << ": taken for an end or a truncation";
+    EXPECT_EQ(bad.error().code, ErrorCode::kIo) << bad.error().message;
+    EXPECT_NE(bad.error().message.find("byte offset 34: read error"), std::string::npos)
+        << bad.error().message;
+    EXPECT_NE(bad.error().message.find(std::strerror(EIO)), std::string::npos);
+    EXPECT_FALSE(r.truncated_tail());
+    EXPECT_GT(log.failed_reads, 0);
+    // Still failing: the same error again, nothing skipped.
+    EXPECT_FALSE(r.Next(&ev, resync).ok());
+    log.failing = false;  // the device is back: the event the failure was in, then the rest
+    auto again = r.Next(&ev, resync);
+    ASSERT_TRUE(again.ok()) << again.error().message;
+    ASSERT_TRUE(*again);
+    EXPECT_EQ(ev.utime, 200);
+    EXPECT_EQ(std::string(ev.data.begin(), ev.data.end()), "world!");
+    ASSERT_TRUE(*r.Next(&ev, resync));
+    EXPECT_EQ(ev.utime, 300);
+    EXPECT_FALSE(*r.Next(&ev, resync));
+    EXPECT_EQ(r.skipped_bytes(), 0u);
+  }
+}
+
+TEST(LcmLog, AFailedReadWhileResynchronisingIsNotTheEndOfTheLog) {
+  FailingLog log;
+  log.bytes = ReadAll(WriteSample(omni::testing::TempDir()));
+  log.bytes[34] = 0;  // no sync word at the second event, nor at the third:
+  log.bytes[70] = 0;  // the resync scans to the end of the file
+  log.fail_from = 80;
+  log.fail_to = 90;
+  LcmLogReader r = log.Reader();
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r.Next(&ev, true));
+  auto bad = r.Next(&ev, true);
+  ASSERT_FALSE(bad.ok()) << "a read error inside the resync's scan was taken for the end";
+  EXPECT_EQ(bad.error().code, ErrorCode::kIo);
+  EXPECT_NE(bad.error().message.find("byte offset 34: read error"), std::string::npos)
+      << bad.error().message;
+  EXPECT_EQ(r.skipped_bytes(), 0u) << "bytes not read are not counted as skipped";
+  log.failing = false;
+  auto end = r.Next(&ev, true);
+  ASSERT_TRUE(end.ok()) << end.error().message;
+  EXPECT_FALSE(*end);
+  EXPECT_EQ(r.skipped_bytes(), 104u - 34);
 }
 
 }  // namespace

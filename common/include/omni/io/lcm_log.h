@@ -25,13 +25,18 @@ struct LcmLogEvent {
 class LcmLogReader {
  public:
   static Result<LcmLogReader> Open(const std::string& path);
+  // A reader of an open, seekable stdio stream (a file, or a stream of fopencookie's), which it
+  // closes; `name` stands for the path in errors.
+  static LcmLogReader FromStream(std::FILE* f, std::string name);
   LcmLogReader(LcmLogReader&&) noexcept;
   LcmLogReader& operator=(LcmLogReader&&) noexcept;
   ~LcmLogReader();
   // Reads the next event. Returns true with an event, false at a clean end of file, or an
   // error naming the file and byte offset for a corrupt or truncated event. With
   // `resync` set, a corrupt region is skipped to the next sync word instead (counted in
-  // skipped_bytes()) and only a truncated final event is an error.
+  // skipped_bytes()) and only a truncated final event is an error. A failed read is an I/O
+  // error (ErrorCode::kIo) either way, never an end of file or a truncation; the next call
+  // reads again from the start of the event it happened in.
   Result<bool> Next(LcmLogEvent* event, bool resync = false);
   uint64_t skipped_bytes() const { return skipped_bytes_; }
   // After an error from Next: the file ends inside the event (a recording cut short, the
