@@ -53,7 +53,8 @@ Result<LcmLogReader> LcmLogReader::Open(const std::string& path) {
   return LcmLogReader(f, path);
 }
 
-LcmLogReader LcmLogReader::FromStream(std::FILE* f, std::string name) {
+Result<LcmLogReader> LcmLogReader::FromStream(std::FILE* f, std::string name) {
+  if (!f) return MakeError(ErrorCode::kInvalidArgument, "no stream to read '" + name + "' from");
   return LcmLogReader(f, std::move(name));
 }
 
@@ -62,7 +63,9 @@ LcmLogReader::LcmLogReader(LcmLogReader&& o) noexcept
       path_(std::move(o.path_)),
       offset_(o.offset_),
       skipped_bytes_(o.skipped_bytes_),
-      truncated_tail_(o.truncated_tail_) {
+      truncated_tail_(o.truncated_tail_),
+      reseek_(o.reseek_),
+      seek_failed_(o.seek_failed_) {
   o.f_ = nullptr;
 }
 LcmLogReader& LcmLogReader::operator=(LcmLogReader&& o) noexcept {
@@ -73,6 +76,8 @@ LcmLogReader& LcmLogReader::operator=(LcmLogReader&& o) noexcept {
     offset_ = o.offset_;
     skipped_bytes_ = o.skipped_bytes_;
     truncated_tail_ = o.truncated_tail_;
+    reseek_ = o.reseek_;
+    seek_failed_ = o.seek_failed_;
     o.f_ = nullptr;
   }
   return *this;
@@ -81,8 +86,14 @@ LcmLogReader::~LcmLogReader() {
   if (f_) std::fclose(f_);
 }
 
+bool LcmLogReader::Seek(uint64_t offset) {
+  if (fseeko(f_, static_cast<off_t>(offset), SEEK_SET) == 0) return true;
+  seek_failed_ = true;
+  return false;
+}
+
 bool LcmLogReader::SyncWordAfter(uint64_t from) {
-  if (std::fseek(f_, static_cast<long>(from), SEEK_SET) != 0) return false;
+  if (!Seek(from)) return false;
   uint32_t window = 0;
   int have = 0, c;
   while ((c = std::fgetc(f_)) != EOF) {
@@ -99,30 +110,34 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
   // the failure was in.
   int read_errno = 0;
   auto failed = [&]() {
-    if (!std::ferror(f_)) return false;
+    if (!std::ferror(f_) && !seek_failed_) return false;
     if (read_errno == 0) read_errno = errno != 0 ? errno : EIO;
     return true;
   };
-  // The error for a failed read in the event at `start`, where the next call starts again.
+  // The error for a failed read or seek in the event at `start`, where the next call starts
+  // again.
   auto read_error = [&](uint64_t start) {
-    const long pos = std::ftell(f_);
+    const off_t pos = ftello(f_);
+    const char* what = seek_failed_ ? "seek error" : "read error";
     offset_ = start;
+    reseek_ = true;
+    seek_failed_ = false;
     return MakeError(ErrorCode::kIo,
-                     where(start) + "read error" +
+                     where(start) + what +
                          (pos >= 0 ? " (near byte offset " + std::to_string(pos) + ")" : "") +
                          ": " + std::strerror(read_errno));
   };
-  if (std::ferror(f_)) {
-    std::clearerr(f_);
-    if (std::fseek(f_, static_cast<long>(offset_), SEEK_SET) != 0)
-      return MakeError(ErrorCode::kIo, where(offset_) + "cannot seek back after a read error");
-  }
   errno = 0;
+  if (reseek_) {  // after an I/O error: from the start of the event it happened in
+    std::clearerr(f_);
+    if (!Seek(offset_)) return read_error(offset_);
+    reseek_ = false;
+  }
   // Resync: from `from`, forward to the next sync word; the bytes from `start` on are counted as
   // skipped. False at the end of the file or on a read error (failed() tells which).
   auto scan_from = [&](uint64_t start, uint64_t from) {
     offset_ = from;
-    if (std::fseek(f_, static_cast<long>(from), SEEK_SET) != 0) return false;
+    if (!Seek(from)) return false;
     uint32_t window = 0;
     int c;
     int have = 0;
@@ -137,8 +152,8 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
       return false;
     }
     offset_ -= 4;
+    if (!Seek(offset_)) return false;
     skipped_bytes_ += offset_ - start;
-    std::fseek(f_, static_cast<long>(offset_), SEEK_SET);
     return true;
   };
   for (;;) {
@@ -211,8 +226,7 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     uint8_t next[4];
     const size_t got = std::fread(next, 1, sizeof(next), f_);
     if (got < sizeof(next) && failed()) return read_error(start);
-    if (got > 0 && std::fseek(f_, -static_cast<long>(got), SEEK_CUR) != 0)
-      return MakeError(ErrorCode::kIo, where(offset_) + "cannot seek back");
+    if (got > 0 && !Seek(offset_)) return read_error(start);
     if (got < sizeof(next) || Be(next, 4) == kSync) return true;
     // Not followed by an event. When the data holds a sync word, the length is the likely
     // culprit (it swallowed the events after it): an error naming this event, or with resync a

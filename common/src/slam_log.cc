@@ -115,6 +115,9 @@ Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& ch
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
     if (!more.ok()) {
+      // A truncated last event ends the reading; a failed read is an error (the rest of the log
+      // is there, unread).
+      if (!reader->truncated_tail()) return more.error();
       out.stopped_early = more.error().message;
       break;
     }

@@ -132,6 +132,7 @@ int Extract(int argc, char** argv) {
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
     if (!more.ok()) {
+      if (!reader->truncated_tail()) return Fail(more.error().message);  // a failed read
       std::fprintf(stderr, "omni-octomap extract: %s (reading stops there)\n",
                    more.error().message.c_str());
       break;
@@ -522,8 +523,9 @@ int main(int argc, char** argv) {
   for (;;) {
     auto more = reader->Next(&ev, /*resync=*/true);
     if (!more.ok()) {
-      // With resync only a final event cut short is an error (a logger killed, power lost):
-      // map what came before it, as `extract` and the 2D mappers do.
+      // With resync the errors are a final event cut short (a logger killed, power lost): map
+      // what came before it, as `extract` and the 2D mappers do; and a failed read: an error.
+      if (!reader->truncated_tail()) return Fail(more.error().message);
       std::fprintf(stderr, "omni-octomap build: %s (reading stops there; %lld events read)\n",
                    more.error().message.c_str(), static_cast<long long>(events));
       break;

@@ -507,7 +507,9 @@ void ParallelKeySetInserter::ComputeKeySets(const std::vector<Eigen::Vector3f>& 
   const std::vector<Eigen::Vector3f>& points = reduce ? reduced : input;
   const int64_t t_reduced = NowMicros();
 
-  out->updates.clear();  // keeps its capacity for this frame's updates
+  // The bitmap path fills the kept storage in place; the hash-set fallback and the rare merge of
+  // keys outside the box replace it.
+  out->updates.clear();
   if (stats) {
     stats->points = input.size();
     stats->rays = points.size();

@@ -239,6 +239,7 @@ struct FailingLog {
   long pos = 0;
   long fail_from = 0, fail_to = 0;
   bool failing = true;
+  bool seeks_fail = false;
   int failed_reads = 0;
 
   static ssize_t Read(void* cookie, char* buf, size_t size) {
@@ -257,6 +258,10 @@ struct FailingLog {
   }
   static int Seek(void* cookie, off64_t* offset, int whence) {
     auto* m = static_cast<FailingLog*>(cookie);
+    if (m->seeks_fail) {
+      errno = EIO;
+      return -1;
+    }
     const long base = whence == SEEK_SET   ? 0
                       : whence == SEEK_CUR ? m->pos
                                            : static_cast<long>(m->bytes.size());
@@ -270,9 +275,9 @@ struct FailingLog {
     cookie_io_functions_t io{};
     io.read = &FailingLog::Read;
     io.seek = &FailingLog::Seek;
-    std::FILE* f = fopencookie(this, "rb", io);
-    EXPECT_NE(f, nullptr);
-    return LcmLogReader::FromStream(f, "failing.lcmlog");
+    auto r = LcmLogReader::FromStream(fopencookie(this, "rb", io), "failing.lcmlog");
+    if (!r.ok()) ADD_FAILURE() << r.error().message;
+    return std::move(*r);
   }
 };
 
@@ -337,6 +342,71 @@ TEST(LcmLog, AFailedReadWhileResynchronisingIsNotTheEndOfTheLog) {
   ASSERT_TRUE(end.ok()) << end.error().message;
   EXPECT_FALSE(*end);
   EXPECT_EQ(r.skipped_bytes(), 104u - 34);
+}
+
+// The other places a read can fail: the four bytes after an event (read to check that an event
+// follows it), and the middle of an event header.
+TEST(LcmLog, AFailedReadAfterAnEventOrInAHeaderIsAnIoErrorToo) {
+  struct Case {
+    long fail_from;
+    uint64_t event_at;  // the event the error names (and the next call reads again)
+    int64_t utime;      // that event's
+  };
+  for (const Case c : {Case{34, 0, 100}, Case{40, 34, 200}}) {
+    for (const bool resync : {false, true}) {
+      FailingLog log;
+      log.bytes = ReadAll(WriteSample(omni::testing::TempDir()));
+      log.fail_from = c.fail_from;
+      log.fail_to = c.fail_from + 2;
+      LcmLogReader r = log.Reader();
+      LcmLogEvent ev;
+      if (c.event_at > 0) {
+        ASSERT_TRUE(*r.Next(&ev, resync));
+      }
+      auto bad = r.Next(&ev, resync);
+      ASSERT_FALSE(bad.ok()) << "fail at " << c.fail_from << " resync " << resync;
+      EXPECT_EQ(bad.error().code, ErrorCode::kIo);
+      EXPECT_NE(bad.error().message.find("byte offset " + std::to_string(c.event_at) + ": read"),
+                std::string::npos)
+          << bad.error().message;
+      log.failing = false;
+      ASSERT_TRUE(*r.Next(&ev, resync));
+      EXPECT_EQ(ev.utime, c.utime) << "the event is read again, not lost";
+      int rest = 0;
+      while (*r.Next(&ev, resync)) ++rest;
+      EXPECT_EQ(rest, c.event_at > 0 ? 1 : 2);
+      EXPECT_EQ(r.skipped_bytes(), 0u);
+    }
+  }
+}
+
+TEST(LcmLog, AFailedSeekIsAnIoError) {
+  FailingLog log;
+  log.bytes = ReadAll(WriteSample(omni::testing::TempDir()));
+  log.failing = false;
+  log.seeks_fail = true;  // the reader seeks back after looking past each event
+  LcmLogReader r = log.Reader();
+  LcmLogEvent ev;
+  auto bad = r.Next(&ev);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.error().code, ErrorCode::kIo);
+  EXPECT_NE(bad.error().message.find("byte offset 0: seek error"), std::string::npos)
+      << bad.error().message;
+  EXPECT_FALSE(r.Next(&ev).ok()) << "still failing";
+  log.seeks_fail = false;
+  int n = 0;
+  for (;;) {
+    auto more = r.Next(&ev);
+    ASSERT_TRUE(more.ok()) << more.error().message;
+    if (!*more) break;
+    EXPECT_EQ(ev.utime, 100 * (n + 1));
+    ++n;
+  }
+  EXPECT_EQ(n, 3);
+}
+
+TEST(LcmLog, NoStreamIsAnError) {
+  EXPECT_FALSE(LcmLogReader::FromStream(nullptr, "x.lcmlog").ok());
 }
 
 }  // namespace

@@ -3,6 +3,7 @@
 #include <limits>
 #include <random>
 #include <set>
+#include <thread>
 #include <tuple>
 
 #include <gtest/gtest.h>
@@ -129,8 +130,11 @@ TEST(KeySets, ReusedStorageGivesWhatAFreshComputationGives) {
         const Eigen::Vector3f origin(0.05f * f, 0.f, 0.3f);
         InsertStats st_kept, st_fresh;
         ins.ComputeKeySets(frames[f], origin, &kept, &st_kept);
-        const KeySets fresh =
-            ParallelKeySetInserter(res, o).ComputeKeySets(frames[f], origin, &st_fresh);
+        // Fresh: a new inserter on a new thread (so with its own, empty scratch).
+        KeySets fresh;
+        std::thread([&] {
+          fresh = ParallelKeySetInserter(res, o).ComputeKeySets(frames[f], origin, &st_fresh);
+        }).join();
         EXPECT_EQ(kept.updates, fresh.updates)
             << "reduction " << reduction << " bitmap " << bitmap << " frame " << f;
         EXPECT_EQ(st_kept.rays, st_fresh.rays);

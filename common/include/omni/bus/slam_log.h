@@ -63,7 +63,7 @@ void ReportSlamLogProblems(const char* program, const std::string& input, const 
 // older odometry stamp (a clock set back), nor past the log's end. An unreadable file or a
 // bad CARMEN line is an error. Inside an LCM log a corrupt region is skipped to the next event
 // (counted in `skipped_bytes`: the events in it are lost, callers must say so) and a truncated
-// last event ends the reading (said in `stopped_early`).
+// last event ends the reading (said in `stopped_early`); a read that fails is an error.
 Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
                                   const SlamLogHandlers& handlers);
 

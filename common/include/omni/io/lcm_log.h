@@ -27,7 +27,7 @@ class LcmLogReader {
   static Result<LcmLogReader> Open(const std::string& path);
   // A reader of an open, seekable stdio stream (a file, or a stream of fopencookie's), which it
   // closes; `name` stands for the path in errors.
-  static LcmLogReader FromStream(std::FILE* f, std::string name);
+  static Result<LcmLogReader> FromStream(std::FILE* f, std::string name);
   LcmLogReader(LcmLogReader&&) noexcept;
   LcmLogReader& operator=(LcmLogReader&&) noexcept;
   ~LcmLogReader();
@@ -51,6 +51,9 @@ class LcmLogReader {
   uint64_t offset_ = 0;
   uint64_t skipped_bytes_ = 0;
   bool truncated_tail_ = false;
+  bool reseek_ = false;               // an I/O error happened: seek to offset_ before reading on
+  bool seek_failed_ = false;          // a seek failed in this call of Next (an I/O error)
+  bool Seek(uint64_t offset);         // sets seek_failed_ when it fails
   bool SyncWordAfter(uint64_t from);  // moves the file position
 };
 
