@@ -90,9 +90,12 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
   // Max-pooling, separably: first along x, then along y, each a sliding maximum of width k over
   // a zero-padded copy (pooled(ix, iy) for ix in [-k, w), iy in [-k, h)).
   const int pw = w_ + k_, ph = h_ + k_;
-  // Rows of the x-pooled field, with k zero rows above and k - 1 below for the y pass.
-  std::vector<float> rows(static_cast<size_t>(h_ + 2 * k_ - 1) * pw, 0.f);
-  std::vector<float> line(static_cast<size_t>(w_ + 2 * k_ - 1), 0.f);
+  // Rows of the x-pooled field, with k zero rows above and k - 1 below for the y pass. Working
+  // memory as large as the field, kept by the thread between fields: allocated per field it
+  // would be a fresh mapping (page-faulted in) every time (omni/common/malloc_setup.h).
+  static thread_local std::vector<float> rows, line;
+  rows.assign(static_cast<size_t>(h_ + 2 * k_ - 1) * pw, 0.f);
+  line.assign(static_cast<size_t>(w_ + 2 * k_ - 1), 0.f);
   for (int y = 0; y < h_; ++y) {
     std::fill(line.begin(), line.end(), 0.f);  // SlidingMax overwrites its input
     std::copy(fine_.begin() + static_cast<std::ptrdiff_t>(y) * w_,
@@ -101,6 +104,9 @@ LikelihoodField::LikelihoodField(const std::vector<Eigen::Vector2d>& points,
   }
   pooled_.assign(static_cast<size_t>(pw) * ph, 0.f);
   SlidingMax(rows.data(), ph, k_, pw, pooled_.data());
+  // A field over a large submap (up to kMaxFieldCells) does not keep its working memory.
+  constexpr size_t kKeepFloats = size_t{4} << 20;  // 16 MB
+  if (rows.capacity() > kKeepFloats) std::vector<float>().swap(rows);
   zero_border_ = BorderIsZero(fine_, w_, h_) && BorderIsZero(pooled_, pw, ph);
 }
 
