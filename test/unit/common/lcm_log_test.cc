@@ -44,6 +44,11 @@ std::string WriteSample(const std::string& dir) {
   return dir + "/s.lcmlog";
 }
 
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), {});
+}
+
 TEST(LcmLog, RoundTrip) {
   const std::string path = WriteSample(omni::testing::TempDir());
   auto r = LcmLogReader::Open(path);
@@ -85,8 +90,7 @@ TEST(LcmLog, CorruptionNamesOffsetAndResyncSkipsIt) {
 TEST(LcmLog, FramingCheckNamesTheFirstBrokenEvent) {
   const std::string path = WriteSample(omni::testing::TempDir());
   EXPECT_TRUE(CheckLcmLogFraming(path).ok());
-  std::ifstream in(path, std::ios::binary);
-  const std::string all((std::istreambuf_iterator<char>(in)), {});
+  const std::string all = ReadAll(path);
   {
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
     out.write(all.data(), static_cast<std::streamsize>(all.size() - 3));
@@ -130,8 +134,7 @@ TEST(LcmLog, ACorruptLengthLosesOnlyItsEvent) {
     }
     ASSERT_TRUE(w->Close().ok());
   }
-  std::ifstream in(path, std::ios::binary);
-  const std::string good((std::istreambuf_iterator<char>(in)), {});
+  const std::string good = ReadAll(path);
   auto corrupt = [&](uint32_t data_len) {
     std::string bytes = good;
     const uint64_t at = offsets[10] + 24;  // event 10's data length
@@ -175,8 +178,7 @@ TEST(LcmLog, ACorruptLengthLosesOnlyItsEvent) {
 
 TEST(LcmLog, TruncationIsAnError) {
   const std::string path = WriteSample(omni::testing::TempDir());
-  std::ifstream in(path, std::ios::binary);
-  std::string all((std::istreambuf_iterator<char>(in)), {});
+  std::string all = ReadAll(path);
   {
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
     out.write(all.data(), static_cast<std::streamsize>(all.size() - 3));
@@ -208,8 +210,7 @@ TEST(LcmLog, TruncationIsAnError) {
 // next event is read.
 TEST(LcmLog, ALengthPastTheEndWithEventsAfterIsNotATail) {
   const std::string path = WriteSample(omni::testing::TempDir());
-  std::ifstream in(path, std::ios::binary);
-  std::string all((std::istreambuf_iterator<char>(in)), {});
+  std::string all = ReadAll(path);
   ASSERT_EQ(all.size(), 104u);
   all[34 + 27] = 100;  // second event's data length 6 -> 100, past the end
   {
@@ -280,11 +281,6 @@ struct FailingLog {
     return std::move(*r);
   }
 };
-
-std::string ReadAll(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), {});
-}
 
 // Events of the sample: [0, 34) "A" 100, [34, 70) "BB" 200, [70, 104) "A" 300.
 TEST(LcmLog, AFailedReadIsAnIoErrorAndTheEventIsReadWhenTheDeviceComesBack) {
