@@ -9,14 +9,63 @@
 
 namespace omni::rbpf {
 
-TrajectoryNode::~TrajectoryNode() {
+PathSegment::~PathSegment() {
   // Unlink the chain iteratively: a long path would otherwise be released recursively.
-  std::shared_ptr<const TrajectoryNode> p = std::move(parent);
+  std::shared_ptr<PathSegment> p = std::move(parent);
   while (p && p.use_count() == 1) {
-    std::shared_ptr<const TrajectoryNode> next =
-        std::move(const_cast<TrajectoryNode*>(p.get())->parent);
+    std::shared_ptr<PathSegment> next = std::move(p->parent);
     p = std::move(next);
   }
+}
+
+void ParticlePath::Append(const Pose2& pose) {
+  // In place only when no other path or segment can see this segment. During an update the
+  // particles append on several threads; a segment two particles hold stays at a count of at
+  // least two for both (a new segment keeps its parent), so neither writes to it.
+  if (!seg_ || seg_.use_count() != 1 || len_ != seg_->entries.size() || len_ >= kMaxSegment) {
+    auto next = std::make_shared<PathSegment>();
+    next->parent = std::move(seg_);
+    next->parent_len = len_;
+    seg_ = std::move(next);
+    len_ = 0;
+  }
+  seg_->entries.push_back(pose);
+  ++len_;
+  ++size_;
+}
+
+void ParticlePath::Freeze() {
+  if (seg_ && seg_.use_count() == 1 && len_ == seg_->entries.size()) seg_->entries.shrink_to_fit();
+}
+
+const Pose2* ParticlePath::At(size_t from_end) const {
+  const PathSegment* s = seg_.get();
+  size_t len = len_;
+  while (s) {
+    if (from_end <= len) return &s->entries[len - from_end];
+    from_end -= len;
+    len = s->parent_len;
+    s = s->parent.get();
+  }
+  return nullptr;
+}
+
+size_t ParticlePath::segments() const {
+  size_t n = 0;
+  for (const PathSegment* s = seg_.get(); s; s = s->parent.get()) ++n;
+  return n;
+}
+
+std::vector<Pose2> ParticlePath::Poses() const {
+  std::vector<Pose2> out(size_);
+  size_t end = size_;
+  size_t len = len_;
+  for (const PathSegment* s = seg_.get(); s; len = s->parent_len, s = s->parent.get()) {
+    end -= len;
+    std::copy(s->entries.begin(), s->entries.begin() + static_cast<std::ptrdiff_t>(len),
+              out.begin() + static_cast<std::ptrdiff_t>(end));
+  }
+  return out;
 }
 
 double EffectiveSampleSize(const std::vector<double>& w) {
@@ -414,7 +463,7 @@ ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
     }
   }
   if (process) {
-    Update(scan, *odom, index, first);
+    Update(scan, *odom, first);
     ++counters_.scans_processed;
     records_.push_back({index, scan.utime, *odom, true});
     res.processed = true;
@@ -428,7 +477,7 @@ ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
   return res;
 }
 
-void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first) {
+void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, bool first) {
   // End points in the sensor frame (shared by all particles).
   std::vector<Eigen::Vector2d> points;
   std::vector<uint8_t> hit;
@@ -519,11 +568,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
       p.path_log_weight += log_w;
     }
     p.map.IntegrateScan(p.pose * scan.sensor_in_base, points, hit);
-    auto node = std::make_shared<TrajectoryNode>();
-    node->pose = p.pose;
-    node->scan_index = index;
-    node->parent = std::move(p.node);
-    p.node = std::move(node);
+    p.path.Append(p.pose);
   });
   for (int i = 0; i < n; ++i) {
     counters_.match_failures += failed[static_cast<size_t>(i)];
@@ -547,8 +592,8 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, int64_t index, b
       !failed[static_cast<size_t>(best_lineage_)]) {
     // The best particle's matched increment against the raw odometry of the same interval.
     const Particle& b = particles_[static_cast<size_t>(best_lineage_)];
-    if (b.node && b.node->parent)
-      calibrator_.AddPair(raw_delta, b.node->parent->pose.Between(b.pose));
+    if (const Pose2* before = b.path.BeforeLast())
+      calibrator_.AddPair(raw_delta, before->Between(b.pose));
   }
   if (!first) Resample();
 }
@@ -578,6 +623,11 @@ void RbpfSlam::Resample() {
   const auto reported_child = std::find(pick.begin(), pick.end(), reported_lineage_);
   const bool reported_lost = reported_child == pick.end();
   if (!reported_lost) reported_lineage_ = static_cast<int>(reported_child - pick.begin());
+  // A lineage picked more than once is shared from now on: its segment gives back its slack.
+  std::vector<int> picked(n, 0);
+  for (int j : pick) ++picked[static_cast<size_t>(j)];
+  for (size_t i = 0; i < n; ++i)
+    if (picked[i] > 1) particles_[i].path.Freeze();
   std::vector<Particle> next;
   next.reserve(n);
   for (size_t j = 0; j < n; ++j) {
@@ -587,7 +637,7 @@ void RbpfSlam::Resample() {
     c.log_weight = 0;
     c.path_log_weight = src.path_log_weight;
     c.map = src.map;  // shares every tile
-    c.node = src.node;
+    c.path = src.path;
     c.rng.seed(master_rng_());
     next.push_back(std::move(c));
   }
@@ -630,10 +680,7 @@ std::vector<EstimatedPose> RbpfSlam::TrajectoryOf(int particle) const {
     return out;
   const Particle& b = particles_[static_cast<size_t>(particle)];
   // Processed scan index -> pose on the particle's path.
-  std::vector<std::pair<int64_t, Pose2>> path;
-  for (const TrajectoryNode* n = b.node.get(); n; n = n->parent.get())
-    path.emplace_back(n->scan_index, n->pose);
-  std::reverse(path.begin(), path.end());
+  const std::vector<Pose2> path = b.path.Poses();
   size_t k = 0;  // index into path of the processed record at or before the current one
   // Processed records in order, to pair with the path.
   std::vector<size_t> processed;
@@ -647,7 +694,7 @@ std::vector<EstimatedPose> RbpfSlam::TrajectoryOf(int particle) const {
     const ScanRecord& r = records_[i];
     while (k + 1 < processed.size() && processed[k + 1] <= i) ++k;
     const ScanRecord& anchor = records_[processed[k]];
-    const Pose2 pose = path[k].second * CalibratedStep(anchor.odom.Between(r.odom));
+    const Pose2 pose = path[k] * CalibratedStep(anchor.odom.Between(r.odom));
     out.push_back({r.index, r.utime, pose});
   }
   return out;

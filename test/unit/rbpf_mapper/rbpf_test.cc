@@ -256,6 +256,108 @@ std::vector<CorrectedScan> LoadCorrected(const std::string& path, size_t count) 
   return out;
 }
 
+namespace {
+bool SamePoses(const std::vector<Pose2>& a, const std::vector<Pose2>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (a[i].x != b[i].x || a[i].y != b[i].y || a[i].theta != b[i].theta) return false;
+  return true;
+}
+Pose2 Numbered(int i) { return Pose2(i, -i, 0.001 * i); }
+}  // namespace
+
+TEST(ParticlePath, CopiesShareTheirPastAndGoOnApart) {
+  ParticlePath a;
+  EXPECT_EQ(a.Last(), nullptr);
+  std::vector<Pose2> expect_a;
+  for (int i = 0; i < 10; ++i) {
+    a.Append(Numbered(i));
+    expect_a.push_back(Numbered(i));
+  }
+  EXPECT_EQ(a.segments(), 1u);  // a sole owner appends in place
+  ParticlePath b = a;           // a resampling's child
+  EXPECT_TRUE(a.SameAs(b));
+  b.Append(Numbered(100));
+  EXPECT_FALSE(a.SameAs(b));
+  EXPECT_EQ(b.segments(), 2u);  // the shared segment is not written
+  EXPECT_TRUE(SamePoses(a.Poses(), expect_a));
+  a.Append(Numbered(200));  // a's segment is b's parent now: a goes on in its own
+  EXPECT_EQ(a.segments(), 2u);
+  std::vector<Pose2> expect_b = expect_a;
+  expect_b.push_back(Numbered(100));
+  expect_a.push_back(Numbered(200));
+  EXPECT_TRUE(SamePoses(a.Poses(), expect_a));
+  EXPECT_TRUE(SamePoses(b.Poses(), expect_b));
+  ASSERT_NE(b.BeforeLast(), nullptr);  // across the segment boundary
+  EXPECT_EQ(b.BeforeLast()->x, 9.0);
+  EXPECT_EQ(b.Last()->x, 100.0);
+  EXPECT_EQ(b.size(), 11u);
+  {
+    ParticlePath c = b;  // a copy that dies before b moves: b still appends in place
+    c.Append(Numbered(300));
+  }
+  b.Append(Numbered(101));
+  EXPECT_EQ(b.segments(), 2u);
+  // A long path is cut into segments of kMaxSegment poses, in order.
+  ParticlePath d;
+  std::vector<Pose2> expect_d;
+  const int n = static_cast<int>(ParticlePath::kMaxSegment) * 2 + 5;
+  for (int i = 0; i < n; ++i) {
+    d.Append(Numbered(i));
+    expect_d.push_back(Numbered(i));
+  }
+  EXPECT_EQ(d.segments(), 3u);
+  EXPECT_TRUE(SamePoses(d.Poses(), expect_d));
+  d.Freeze();
+  EXPECT_TRUE(SamePoses(d.Poses(), expect_d));
+}
+
+// Thirty particles appending on two threads between resamplings, against plain copied vectors;
+// then a path with a resampling after every update (one segment per update) is released
+// without recursing down the chain.
+TEST(ParticlePath, ParallelAppendsBetweenResamplingsKeepEveryPath) {
+  constexpr int kParticles = 30;
+  std::vector<ParticlePath> paths(kParticles);
+  std::vector<std::vector<Pose2>> expect(kParticles);
+  ThreadPool pool(2);
+  std::mt19937_64 rng(7);
+  int k = 0;
+  for (int round = 0; round < 400; ++round) {
+    pool.ParallelFor(kParticles, [&](int i) {
+      const Pose2 p = Numbered(round * kParticles + i);
+      paths[static_cast<size_t>(i)].Append(p);
+      expect[static_cast<size_t>(i)].push_back(p);
+    });
+    if (round % 7 == 3) {  // resample: random parents, some picked several times
+      std::uniform_int_distribution<int> pick(0, kParticles / 3);
+      std::vector<ParticlePath> next;
+      std::vector<std::vector<Pose2>> next_expect;
+      for (int j = 0; j < kParticles; ++j) {
+        const int src = pick(rng);
+        paths[static_cast<size_t>(src)].Freeze();
+        next.push_back(paths[static_cast<size_t>(src)]);
+        next_expect.push_back(expect[static_cast<size_t>(src)]);
+      }
+      paths = std::move(next);
+      expect = std::move(next_expect);
+      ++k;
+    }
+  }
+  ASSERT_GT(k, 50);
+  for (int i = 0; i < kParticles; ++i) {
+    EXPECT_TRUE(SamePoses(paths[static_cast<size_t>(i)].Poses(), expect[static_cast<size_t>(i)]))
+        << i;
+    EXPECT_EQ(paths[static_cast<size_t>(i)].size(), 400u);
+  }
+  ParticlePath chain;
+  for (int i = 0; i < 300000; ++i) {
+    ParticlePath sibling = chain;  // shared at every update: each append opens a segment
+    chain.Append(Numbered(i));
+  }
+  EXPECT_EQ(chain.segments(), 300000u);
+  chain = ParticlePath();  // would overflow the stack if released recursively
+}
+
 TEST(ScanMatcher, RecoversAKnownOffsetBetweenTwoCorrectedScans) {
   OMNI_REQUIRE_DATASET(path, "carmen-corrected/intel-corrected.log.gz");
   const auto scans = LoadCorrected(path, 40);
@@ -682,7 +784,7 @@ TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
     for (size_t i = 0; i < ps.size(); ++i) {
       heaviest = std::max(heaviest, ps[i].path_log_weight);
       for (size_t j = i + 1; j < ps.size(); ++j)
-        if (ps[i].log_weight == 0 && ps[i].node == ps[j].node) {  // children of one parent
+        if (ps[i].log_weight == 0 && ps[i].path.SameAs(ps[j].path)) {  // children of one parent
           ++sibling_pairs;
           EXPECT_EQ(ps[i].path_log_weight, ps[j].path_log_weight) << r.scan_index;
         }

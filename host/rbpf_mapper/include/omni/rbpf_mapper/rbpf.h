@@ -8,7 +8,7 @@
 // the scan likelihood at that pose and integrates the scan into its map. Then, when the
 // effective sample size Neff falls below `resample_threshold * particles`, the particles are
 // resampled with the low-variance resampler. Maps are TiledGrids (copy-on-write tiles shared
-// between particles); paths live in a trajectory tree shared the same way.
+// between particles); paths live in a trajectory tree shared the same way (ParticlePath).
 #pragma once
 
 #include <cstdint>
@@ -194,11 +194,44 @@ struct ScanInput {
   std::optional<Pose2> odom;  // the base's odometry pose at this scan, when the source has it
 };
 
-struct TrajectoryNode {
-  Pose2 pose;
-  int64_t scan_index = 0;
-  std::shared_ptr<const TrajectoryNode> parent;
-  ~TrajectoryNode();  // releases long parent chains iteratively (no deep recursion)
+// A stretch of consecutive updates of one lineage (the particle's pose after each). It continues
+// `parent`'s first `parent_len` entries. Only a particle that holds it alone appends to it; once
+// resampling gives it to several children it is never changed again, and each child goes on in a
+// new segment.
+struct PathSegment {
+  std::shared_ptr<PathSegment> parent;
+  size_t parent_len = 0;
+  std::vector<Pose2> entries;
+  ~PathSegment();  // releases long parent chains iteratively (no deep recursion)
+};
+
+// A particle's path: its pose after every filter update, as a chain of segments shared with the
+// other particles of its ancestry (the trajectory tree). Copying it (resampling) is O(1);
+// appending is amortised O(1) and allocates nothing per update between resamplings. A pose costs
+// 24 bytes; a tree node per update and particle cost about 80 (with its control block) before.
+class ParticlePath {
+ public:
+  void Append(const Pose2& pose);
+  size_t size() const { return size_; }
+  // The last pose and the one before it; null when the path is shorter.
+  const Pose2* Last() const { return At(1); }
+  const Pose2* BeforeLast() const { return At(2); }
+  // Every pose, oldest first.
+  std::vector<Pose2> Poses() const;
+  // The same path (siblings right after a resampling, before either moves on).
+  bool SameAs(const ParticlePath& o) const { return seg_ == o.seg_ && len_ == o.len_; }
+  // Before the path is shared: its own segment gives back its spare capacity.
+  void Freeze();
+  // Segments on the path (for tests and memory accounting).
+  size_t segments() const;
+  // A segment's length is capped so that growing one never copies much at once.
+  static constexpr size_t kMaxSegment = 1024;
+
+ private:
+  const Pose2* At(size_t from_end) const;
+  std::shared_ptr<PathSegment> seg_;
+  size_t len_ = 0;   // poses of seg_ on this path
+  size_t size_ = 0;  // poses on the whole path
 };
 
 struct Particle {
@@ -206,7 +239,7 @@ struct Particle {
   double log_weight = 0;       // since the last resampling
   double path_log_weight = 0;  // every update's factor over the whole ancestry (shifted together)
   TiledGrid map;
-  std::shared_ptr<const TrajectoryNode> node;
+  ParticlePath path;
   std::mt19937_64 rng;
 };
 
@@ -337,7 +370,7 @@ class RbpfSlam {
   // The gyro's heading change over [t0, t1] with its bias taken out; as measured (Raw).
   std::optional<double> ImuYawIncrement(int64_t t0, int64_t t1) const;
   std::optional<double> ImuRawIncrement(int64_t t0, int64_t t1) const;
-  void Update(const ScanInput& scan, const Pose2& odom, int64_t index, bool first);
+  void Update(const ScanInput& scan, const Pose2& odom, bool first);
   void Resample();
   // The particle with the largest weight now (the first on a tie).
   int HeaviestIndex() const;
