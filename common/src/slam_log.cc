@@ -103,10 +103,8 @@ class ScanHold {
   int64_t newest_odom_ = 0, newest_scan_ = 0;
 };
 
-Result<SlamLogResult> ReadLcm(const std::string& path, const SlamLogChannels& channels,
+Result<SlamLogResult> ReadLcm(io::LcmLogReader* reader, const SlamLogChannels& channels,
                               const SlamLogHandlers& handlers) {
-  auto reader = io::LcmLogReader::Open(path);
-  if (!reader.ok()) return reader.error();
   SlamLogResult out;
   io::LcmLogEvent ev;
   int64_t last_seq = -1, last_utime = 0;
@@ -196,7 +194,15 @@ Result<SlamLogResult> ReadCarmen(const std::string& path, const SlamLogHandlers&
 
 Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
                                   const SlamLogHandlers& handlers) {
-  return IsLcmLogFile(path) ? ReadLcm(path, channels, handlers) : ReadCarmen(path, handlers);
+  if (!IsLcmLogFile(path)) return ReadCarmen(path, handlers);
+  auto reader = io::LcmLogReader::Open(path);
+  if (!reader.ok()) return reader.error();
+  return ReadLcm(&*reader, channels, handlers);
+}
+
+Result<SlamLogResult> ReadSlamLcmLog(io::LcmLogReader reader, const SlamLogChannels& channels,
+                                     const SlamLogHandlers& handlers) {
+  return ReadLcm(&reader, channels, handlers);
 }
 
 }  // namespace omni::bus

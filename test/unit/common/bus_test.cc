@@ -14,6 +14,7 @@
 
 #include "omni/io/lcm_log.h"
 
+#include "../common/failing_log.h"
 #include "../common/test_paths.h"
 #include "omni/bus/convert.h"
 #include "omni/bus/heartbeat.h"
@@ -485,6 +486,74 @@ TEST(Bus, ACountBeyondTheMessageIsRefusedBeforeAnythingIsAllocated) {
   int rc = 0;
   EXPECT_NO_THROW(rc = out.decode(buf.data(), 0, static_cast<int>(buf.size())));
   EXPECT_EQ(rc, -1);
+}
+
+// The offline mappers' reader (ReadSlamLog on an LCM log) on a stream whose reads fail: an I/O
+// error, never the end of the log or a truncated tail, also when it happens while skipping a
+// corrupt region; a log that really is cut short still ends with `stopped_early`.
+TEST(SlamLog, AFailedReadOfAnLcmLogIsAnErrorNotItsEnd) {
+  const std::string path = ::testing::TempDir() + "/slam_failing.lcmlog";
+  size_t event_bytes = 0;
+  {
+    auto w = io::LcmLogWriter::Open(path);
+    ASSERT_TRUE(w.ok());
+    for (int i = 0; i < 5; ++i) {
+      omni::odometry_t m{};
+      m.utime = 1000000 * (i + 1);
+      m.x_m = i;
+      std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+      m.encode(buf.data(), 0, static_cast<int>(buf.size()));
+      ASSERT_TRUE(w->Write(m.utime, "WHEEL_ODOM", buf.data(), buf.size()).ok());
+      event_bytes = 28 + std::string("WHEEL_ODOM").size() + buf.size();
+    }
+    ASSERT_TRUE(w->Close().ok());
+  }
+  std::string bytes;
+  {
+    std::ifstream in(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  ASSERT_EQ(bytes.size(), 5 * event_bytes);
+  const long ev = static_cast<long>(event_bytes);
+  auto read = [&](::omni::testing::FailingLog& log, std::vector<double>* xs) {
+    SlamLogHandlers h;
+    h.scan = [](const SlamScan&) { return true; };
+    h.odom = [xs](int64_t, const Pose2& p) { xs->push_back(p.x); };
+    return ReadSlamLcmLog(log.Reader(), SlamLogChannels{}, h);
+  };
+  {  // a read inside the third event fails and the device does not come back
+    ::omni::testing::FailingLog log;
+    log.bytes = bytes;
+    log.fail_from = 2 * ev + 30;
+    log.fail_to = 5 * ev;
+    std::vector<double> xs;
+    auto r = read(log, &xs);
+    ASSERT_FALSE(r.ok()) << "a failed read was taken for the end of the log";
+    EXPECT_EQ(r.error().code, ErrorCode::kIo) << r.error().message;
+    EXPECT_EQ(xs, (std::vector<double>{0.0, 1.0}));
+  }
+  {  // the second event's sync word is corrupt, and the read fails while skipping to the next
+    ::omni::testing::FailingLog log;
+    log.bytes = bytes;
+    log.bytes[static_cast<size_t>(ev)] = '\x00';
+    log.fail_from = ev + 20;
+    log.fail_to = 5 * ev;
+    std::vector<double> xs;
+    auto r = read(log, &xs);
+    ASSERT_FALSE(r.ok()) << "a failed read while resynchronising was taken for the end";
+    EXPECT_EQ(r.error().code, ErrorCode::kIo) << r.error().message;
+    EXPECT_EQ(xs, (std::vector<double>{0.0}));
+  }
+  {  // cut inside the last event: the reading ends there, said so, nothing before it lost
+    ::omni::testing::FailingLog log;
+    log.bytes = bytes.substr(0, bytes.size() - 5);
+    log.failing = false;
+    std::vector<double> xs;
+    auto r = read(log, &xs);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_FALSE(r->stopped_early.empty());
+    EXPECT_EQ(xs, (std::vector<double>{0.0, 1.0, 2.0, 3.0}));
+  }
 }
 
 TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {

@@ -12,6 +12,7 @@
 
 #include "omni/common/geometry.h"
 #include "omni/common/result.h"
+#include "omni/io/lcm_log.h"
 
 namespace omni::bus {
 
@@ -66,5 +67,8 @@ void ReportSlamLogProblems(const char* program, const std::string& input, const 
 // last event ends the reading (said in `stopped_early`); a read that fails is an error.
 Result<SlamLogResult> ReadSlamLog(const std::string& path, const SlamLogChannels& channels,
                                   const SlamLogHandlers& handlers);
+// The same on an LCM log already open (any seekable stream, LcmLogReader::FromStream).
+Result<SlamLogResult> ReadSlamLcmLog(io::LcmLogReader reader, const SlamLogChannels& channels,
+                                     const SlamLogHandlers& handlers);
 
 }  // namespace omni::bus
