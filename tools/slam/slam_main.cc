@@ -270,6 +270,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "omni-slam: %s\n", s.message().c_str());
     return 1;
   }
+  const omni::rbpf::RbpfSlam::PathMemory paths = slam.path_memory();
   std::FILE* f = std::fopen((out_dir + "/stats.json").c_str(), "w");
   if (!f) {
     std::fprintf(stderr, "omni-slam: cannot write %s/stats.json: %s\n", out_dir.c_str(),
@@ -287,7 +288,8 @@ int main(int argc, char** argv) {
       "\"reported_switches\": %lld, \"match_failures\": "
       "%lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
-      "\"tile_refs\": %zu, \"sweeps_corrected\": %lld, \"sweeps_uncorrected\": %lld, "
+      "\"tile_refs\": %zu, \"path_poses\": %zu, \"path_bytes\": %zu, \"sweeps_corrected\": %lld, "
+      "\"sweeps_uncorrected\": %lld, "
       "\"skipped_bytes\": %llu, \"stopped_early\": %s, \"scans_repeated\": %lld, "
       "\"scans_lost_in_log\": %lld",
       input.c_str(), static_cast<unsigned long long>(opt.seed), opt.particles, opt.threads, wall_s,
@@ -300,7 +302,7 @@ int main(int argc, char** argv) {
       static_cast<long long>(decode_errors), static_cast<long long>(c.resamplings),
       static_cast<long long>(c.reported_switches), static_cast<long long>(c.match_failures),
       static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
-      slam.total_tile_refs(), static_cast<long long>(c.sweeps_corrected),
+      slam.total_tile_refs(), paths.poses, paths.bytes, static_cast<long long>(c.sweeps_corrected),
       static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes),
       read->stopped_early.empty() ? "false" : "true", static_cast<long long>(read->scans_repeated),

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <unordered_set>
 
 #include "omni/common/scan_checks.h"
 
@@ -711,6 +712,18 @@ size_t RbpfSlam::distinct_tiles() const {
   for (const auto& p : particles_) p.map.CollectTiles(&all);
   std::sort(all.begin(), all.end());
   return static_cast<size_t>(std::unique(all.begin(), all.end()) - all.begin());
+}
+
+RbpfSlam::PathMemory RbpfSlam::path_memory() const {
+  PathMemory m;
+  std::unordered_set<const PathSegment*> seen;
+  for (const auto& p : particles_)
+    for (const PathSegment* s = p.path.tip(); s && seen.insert(s).second; s = s->parent.get()) {
+      ++m.segments;
+      m.poses += s->entries.size();
+      m.bytes += sizeof(PathSegment) + s->entries.capacity() * sizeof(Pose2);
+    }
+  return m;
 }
 
 }  // namespace omni::rbpf

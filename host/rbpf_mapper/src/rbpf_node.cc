@@ -96,6 +96,9 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   // The particles' maps in memory: distinct copy-on-write tiles, 17 KiB each (64 x 64 cells).
   heartbeat_.AddCounter("map_tiles",
                         [this] { return static_cast<int64_t>(slam_.distinct_tiles()); });
+  // The particles' paths (the trajectory tree) in memory, KiB.
+  heartbeat_.AddCounter("path_kib",
+                        [this] { return static_cast<int64_t>(slam_.path_memory().bytes / 1024); });
   if (slam_.options().odometry_calibration.enabled) {
     for (auto& [name, read] : OdometryCalibrationCounters(slam_.odometry_calibrator()))
       heartbeat_.AddCounter(name, std::move(read));

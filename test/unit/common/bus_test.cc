@@ -533,15 +533,20 @@ TEST(SlamLog, AFailedReadOfAnLcmLogIsAnErrorNotItsEnd) {
     EXPECT_EQ(xs, (std::vector<double>{0.0, 1.0}));
   }
   {  // the second event's sync word is corrupt, and the read fails while skipping to the next
+     // (after the whole header was read, so in the scan for the next sync word)
     ::omni::testing::FailingLog log;
     log.bytes = bytes;
     log.bytes[static_cast<size_t>(ev)] = '\x00';
-    log.fail_from = ev + 20;
+    ASSERT_GT(ev, 40 + 4);
+    log.fail_from = ev + 40;
     log.fail_to = 5 * ev;
     std::vector<double> xs;
     auto r = read(log, &xs);
     ASSERT_FALSE(r.ok()) << "a failed read while resynchronising was taken for the end";
     EXPECT_EQ(r.error().code, ErrorCode::kIo) << r.error().message;
+    EXPECT_NE(r.error().message.find("byte offset " + std::to_string(ev) + ": read error"),
+              std::string::npos)
+        << r.error().message;
     EXPECT_EQ(xs, (std::vector<double>{0.0}));
   }
   {  // cut inside the last event: the reading ends there, said so, nothing before it lost

@@ -310,6 +310,12 @@ TEST(ParticlePath, CopiesShareTheirPastAndGoOnApart) {
   EXPECT_TRUE(SamePoses(d.Poses(), expect_d));
   d.Freeze();
   EXPECT_TRUE(SamePoses(d.Poses(), expect_d));
+  ParticlePath e = std::move(d);
+  EXPECT_TRUE(SamePoses(e.Poses(), expect_d));
+  EXPECT_EQ(d.size(), 0u);  // NOLINT(bugprone-use-after-move): a moved-from path is empty
+  d.Append(Numbered(7));
+  EXPECT_TRUE(SamePoses(d.Poses(), {Numbered(7)}));
+  EXPECT_EQ(d.segments(), 1u);
 }
 
 // Thirty particles appending on two threads between resamplings, against plain copied vectors;
@@ -765,17 +771,25 @@ TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
   o.threads = 2;
   o.resample_threshold = 0.0;  // never resample: both weights sum the same factors
   int updates = 0;
+  RbpfSlam::PathMemory paths;
   RunPrefixWith(path, 80, o, [&](const RbpfSlam& slam, const ScanResult& r) {
     if (!r.processed) return;
     ++updates;
     EXPECT_EQ(slam.final_index(), slam.best_index()) << r.scan_index;
+    paths = slam.path_memory();
   });
   EXPECT_GT(updates, 20);
+  // Without resamplings every particle has its own path, one segment each.
+  EXPECT_EQ(paths.poses, static_cast<size_t>(8 * updates));
+  EXPECT_EQ(paths.segments, 8u);
+  EXPECT_GE(paths.bytes, paths.poses * sizeof(Pose2));
 
   o.resample_threshold = 1.0;  // resample after (nearly) every update
   int differs = 0, sibling_pairs = 0;
   int64_t last_processed = -1;
   Pose2 final_pose;  // the final particle's pose after the last update
+  RbpfSlam::PathMemory run_paths;
+  int run_updates = 0;
   const PrefixRun run = RunPrefixWith(path, 150, o, [&](const RbpfSlam& slam, const ScanResult& r) {
     if (!r.processed) return;
     last_processed = r.scan_index;
@@ -792,9 +806,14 @@ TEST(RbpfSlam, TheFinalParticleIsTheHeaviestOverItsWholeAncestry) {
     EXPECT_EQ(ps[static_cast<size_t>(slam.final_index())].path_log_weight, heaviest);
     differs += slam.final_index() != slam.best_index();
     final_pose = ps[static_cast<size_t>(slam.final_index())].pose;
+    run_paths = slam.path_memory();
+    ++run_updates;
   });
   EXPECT_GT(run.counters.resamplings, 20);
   EXPECT_GT(sibling_pairs, 5);
+  // Resampled lineages share their past: fewer poses than particles x updates.
+  EXPECT_LT(run_paths.poses, static_cast<size_t>(8 * run_updates));
+  EXPECT_GE(run_paths.poses, static_cast<size_t>(run_updates));
   EXPECT_GT(differs, 5);  // the weight since the last resampling is one update's
   // The final trajectory is the final particle's path: its pose at the last update.
   ASSERT_GT(last_processed, 0);

@@ -17,6 +17,7 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -207,10 +208,24 @@ struct PathSegment {
 
 // A particle's path: its pose after every filter update, as a chain of segments shared with the
 // other particles of its ancestry (the trajectory tree). Copying it (resampling) is O(1);
-// appending is amortised O(1) and allocates nothing per update between resamplings. A pose costs
-// 24 bytes; a tree node per update and particle cost about 80 (with its control block) before.
+// appending is amortised O(1). Between resamplings a pose costs 24 bytes (a tree node per update
+// and particle cost about 80 with its control block before); each child a resampling branches
+// off opens a segment (about 100 bytes with its first pose), so a filter that resamples after
+// nearly every update costs about as much per pose as the node did.
 class ParticlePath {
  public:
+  ParticlePath() = default;
+  ParticlePath(const ParticlePath&) = default;
+  ParticlePath& operator=(const ParticlePath&) = default;
+  // A moved-from path is empty.
+  ParticlePath(ParticlePath&& o) noexcept
+      : seg_(std::move(o.seg_)), len_(std::exchange(o.len_, 0)), size_(std::exchange(o.size_, 0)) {}
+  ParticlePath& operator=(ParticlePath&& o) noexcept {
+    seg_ = std::move(o.seg_);
+    len_ = std::exchange(o.len_, 0);
+    size_ = std::exchange(o.size_, 0);
+    return *this;
+  }
   void Append(const Pose2& pose);
   size_t size() const { return size_; }
   // The last pose and the one before it; null when the path is shorter.
@@ -222,8 +237,9 @@ class ParticlePath {
   bool SameAs(const ParticlePath& o) const { return seg_ == o.seg_ && len_ == o.len_; }
   // Before the path is shared: its own segment gives back its spare capacity.
   void Freeze();
-  // Segments on the path (for tests and memory accounting).
+  // Segments on the path (for tests and memory accounting); the newest, null when empty.
   size_t segments() const;
+  const PathSegment* tip() const { return seg_.get(); }
   // A segment's length is capped so that growing one never copies much at once.
   static constexpr size_t kMaxSegment = 1024;
 
@@ -336,6 +352,14 @@ class RbpfSlam {
   // Tiles referenced by all particles, and distinct tile objects among them.
   size_t total_tile_refs() const;
   size_t distinct_tiles() const;
+  // The particles' paths in memory: distinct poses and segments, and the bytes they hold (with
+  // the segments' spare capacity; malloc's own headers not counted).
+  struct PathMemory {
+    size_t poses = 0;
+    size_t segments = 0;
+    size_t bytes = 0;
+  };
+  PathMemory path_memory() const;
 
  private:
   struct ScanRecord {
