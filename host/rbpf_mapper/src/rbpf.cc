@@ -146,12 +146,13 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   g.Get("sparse_resolution_m", &o.sparse_resolution_m, Optional(), InRange(0.005, 1.0));
   g.Get("sparse_scan_spacing_m", &o.sparse_scan_spacing_m, Optional(), InRange(0.0, 100.0));
   g.Get("spacing_decision_m", &o.spacing_decision_m, Optional(), InRange(0.1, 10000.0));
-  g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), Positive<float>());
-  g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-100.f, -1e-6f));
-  g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-100.f, -1e-6f));
-  g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), Positive<float>());
-  g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional());
-  g.Get("free_threshold", &o.grid.free_threshold, Optional());
+  // The grid keeps log odds in thousandths within +-30 (tiled_grid.h).
+  g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), InRange(0.001f, 30.f));
+  g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-30.f, -0.001f));
+  g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-30.f, -0.001f));
+  g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), InRange(0.001f, 30.f));
+  g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional(), InRange(-30.f, 30.f));
+  g.Get("free_threshold", &o.grid.free_threshold, Optional(), InRange(-30.f, 30.f));
   auto m = r.Section("motion");
   m.Get("a_xx", &o.motion.a_xx, Optional(), NonNegative<double>());
   m.Get("a_xy", &o.motion.a_xy, Optional(), NonNegative<double>());

@@ -93,7 +93,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   });
   heartbeat_.AddCounter("resolution_switched",
                         [this] { return slam_.resolution_choice().switched ? 1 : 0; });
-  // The particles' maps in memory: distinct copy-on-write tiles, 17 KiB each (64 x 64 cells).
+  // The particles' maps in memory: distinct copy-on-write tiles, 9 KiB each (64 x 64 cells).
   heartbeat_.AddCounter("map_tiles",
                         [this] { return static_cast<int64_t>(slam_.distinct_tiles()); });
   // The particles' paths (the trajectory tree) in memory, KiB.

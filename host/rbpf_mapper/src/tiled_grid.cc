@@ -7,7 +7,18 @@
 
 namespace omni::rbpf {
 
-TiledGrid::TiledGrid(const GridOptions& options) : opt_(options) {}
+TiledGrid::TiledGrid(const GridOptions& options)
+    : opt_(options),
+      hit_units_(ToUnits(options.hit_log_odds)),
+      miss_units_(ToUnits(options.miss_log_odds)),
+      min_units_(ToUnits(options.min_log_odds)),
+      max_units_(ToUnits(options.max_log_odds)),
+      occupied_units_(ToUnits(options.occupied_threshold)),
+      free_units_(ToUnits(options.free_threshold)) {
+  // int16 cells: the clamp keeps every value in range.
+  min_units_ = std::max(min_units_, int32_t{-32000});
+  max_units_ = std::min(max_units_, int32_t{32000});
+}
 
 void TiledGrid::EnsureTile(int64_t tx, int64_t ty) {
   if (ntx_ == 0) {
@@ -52,20 +63,21 @@ TiledGrid::Tile* TiledGrid::MutableTile(int64_t tx, int64_t ty) {
   return slot.get();
 }
 
-void TiledGrid::AddToCell(Tile* t, int64_t cx, int64_t cy, float delta) const {
+void TiledGrid::AddToCell(Tile* t, int64_t cx, int64_t cy, int32_t delta_units) const {
   const int64_t lx = cx & kTileMask, ly = cy & kTileMask;
-  float& v = t->log_odds[static_cast<size_t>(ly * kTileSize + lx)];
-  v = std::clamp(v + delta, opt_.min_log_odds, opt_.max_log_odds);
-  if (v == 0.f) v = -1e-6f;  // observed cells never read as "unknown"
+  int16_t& cell = t->log_odds[static_cast<size_t>(ly * kTileSize + lx)];
+  int32_t v = std::clamp(int32_t{cell} + delta_units, min_units_, max_units_);
+  if (v == 0) v = -1;  // observed cells never read as "unknown"
+  cell = static_cast<int16_t>(v);
   const uint64_t bit = uint64_t{1} << lx;
   uint64_t& occ = t->occupied_bits[static_cast<size_t>(ly)];
   uint64_t& fre = t->free_bits[static_cast<size_t>(ly)];
-  occ = v > opt_.occupied_threshold ? (occ | bit) : (occ & ~bit);
-  fre = v < opt_.free_threshold ? (fre | bit) : (fre & ~bit);
+  occ = v > occupied_units_ ? (occ | bit) : (occ & ~bit);
+  fre = v < free_units_ ? (fre | bit) : (fre & ~bit);
 }
 
 void TiledGrid::Update(int64_t cx, int64_t cy, float delta) {
-  AddToCell(MutableTile(cx >> kTileBits, cy >> kTileBits), cx, cy, delta);
+  AddToCell(MutableTile(cx >> kTileBits, cy >> kTileBits), cx, cy, ToUnits(delta));
 }
 
 void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen::Vector2d>& points,
@@ -74,7 +86,7 @@ void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen:
   // Cache of the tile being written, so a ray does not look up its tile for every cell.
   int64_t cached_tx = std::numeric_limits<int64_t>::min(), cached_ty = 0;
   Tile* cached = nullptr;
-  auto add = [&](int64_t cx, int64_t cy, float delta) {
+  auto add = [&](int64_t cx, int64_t cy, int32_t delta) {
     const int64_t tx = cx >> kTileBits, ty = cy >> kTileBits;
     if (tx != cached_tx || ty != cached_ty || !cached) {
       cached = MutableTile(tx, ty);
@@ -92,7 +104,7 @@ void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen:
     const int64_t sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
     int64_t err = dx + dy;
     while (x != x1 || y != y1) {
-      add(x, y, opt_.miss_log_odds);
+      add(x, y, miss_units_);
       const int64_t e2 = 2 * err;
       if (e2 >= dy) {
         err += dy;
@@ -103,7 +115,7 @@ void TiledGrid::IntegrateScan(const Pose2& sensor_pose, const std::vector<Eigen:
         y += sy;
       }
     }
-    if (hit[i]) add(x1, y1, opt_.hit_log_odds);
+    if (hit[i]) add(x1, y1, hit_units_);
   }
 }
 
@@ -118,7 +130,7 @@ io::GridMap TiledGrid::ToGridMap() const {
       if (!t) continue;
       for (int r = 0; r < kTileSize; ++r)
         for (int c = 0; c < kTileSize; ++c) {
-          if (t->log_odds[static_cast<size_t>(r * kTileSize + c)] == 0.f) continue;
+          if (t->log_odds[static_cast<size_t>(r * kTileSize + c)] == 0) continue;
           const int64_t cx = (tx0_ + ix) * kTileSize + c, cy = (ty0_ + iy) * kTileSize + r;
           min_cx = std::min(min_cx, cx);
           max_cx = std::max(max_cx, cx);

@@ -216,6 +216,37 @@ TEST(TiledGrid, CopiesOnlyTheTileThatIsWritten) {
   EXPECT_TRUE(a.SharesTileWith(b, 1, 0));
 }
 
+// Log odds are integers in thousandths: the configured increments add up exactly, so a cell
+// that sums to a threshold is on the documented side of it, and a tile takes 9 KiB (16 with
+// floats).
+TEST(TiledGrid, LogOddsAreExactThousandths) {
+  static_assert(sizeof(TiledGrid::Tile) == 64 * 64 * 2 + 2 * 64 * 8, "int16 cells + two bit rows");
+  TiledGrid g;  // hit 0.85, miss -0.4, clamp [-2, 3.5], occupied > 0.5, free < -0.3
+  for (int i = 0; i < 2; ++i) g.Update(0, 0, g.options().hit_log_odds);
+  for (int i = 0; i < 3; ++i) g.Update(0, 0, g.options().miss_log_odds);
+  EXPECT_EQ(g.LogOdds(0, 0), 0.5f);  // 1.7 - 1.2: exactly the threshold
+  EXPECT_FALSE(g.Occupied(0, 0));    // "above" the threshold only
+  g.Update(0, 0, g.options().hit_log_odds);
+  EXPECT_EQ(g.LogOdds(0, 0), 1.35f);
+  EXPECT_TRUE(g.Occupied(0, 0));
+  for (int i = 0; i < 10; ++i) g.Update(1, 0, g.options().hit_log_odds);
+  EXPECT_EQ(g.LogOdds(1, 0), 3.5f);  // clamped
+  for (int i = 0; i < 10; ++i) g.Update(2, 0, g.options().miss_log_odds);
+  EXPECT_EQ(g.LogOdds(2, 0), -2.0f);
+  EXPECT_TRUE(g.Free(2, 0));
+  // A cell observed to exactly even odds still reads as observed, not unknown.
+  GridOptions even;
+  even.hit_log_odds = 0.4f;
+  TiledGrid h(even);
+  h.Update(5, 5, 0.4f);
+  h.Update(5, 5, -0.4f);
+  EXPECT_NE(h.LogOdds(5, 5), 0.f);
+  EXPECT_EQ(h.ToGridMap().at(0, 0), 50);
+  // Increments finer than the unit are rounded to it.
+  h.Update(6, 6, 0.0014f);
+  EXPECT_EQ(h.LogOdds(6, 6), 0.001f);
+}
+
 TEST(TiledGrid, IntegrateScanMarksFreeAndOccupied) {
   TiledGrid g;
   std::vector<Eigen::Vector2d> pts = {{2.0, 0.0}, {0.0, 1.0}};
@@ -1178,6 +1209,12 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   ASSERT_FALSE(gk.ok());
   EXPECT_NE(gk.error().message.find("odometry_calibration.adapt_noise"), std::string::npos)
       << gk.error().message;
+  // The grid stores log odds in thousandths within +-30.
+  auto wide = ConfigReader::FromString("grid:\n  max_log_odds: 40\n", "t.yaml");
+  ASSERT_TRUE(wide.ok());
+  auto wo = RbpfOptions::Load(*wide);
+  ASSERT_FALSE(wo.ok());
+  EXPECT_NE(wo.error().message.find("grid.max_log_odds"), std::string::npos) << wo.error().message;
   auto typo = ConfigReader::FromString("particles: 30\nmatcher:\n  kernel_cell: 1\n", "t.yaml");
   ASSERT_TRUE(typo.ok());
   auto r = RbpfOptions::Load(*typo);

@@ -20,6 +20,8 @@
 
 namespace omni::rbpf {
 
+// Log odds are stored in thousandths (TiledGrid::kUnitsPerLogOdds), so every value must lie
+// within +-30 (RbpfOptions checks it) and is rounded to 0.001.
 struct GridOptions {
   double resolution_m = 0.05;
   float hit_log_odds = 0.85f;   // added at a beam's end point
@@ -35,8 +37,11 @@ class TiledGrid {
   static constexpr int kTileBits = 6;
   static constexpr int kTileSize = 1 << kTileBits;  // cells per tile side
   static constexpr int kTileMask = kTileSize - 1;
+  // Log odds are kept as integers in thousandths (kUnitsPerLogOdds): half the memory of floats,
+  // and sums of the configured increments are exact. Options are rounded to the unit.
+  static constexpr float kUnitsPerLogOdds = 1000.f;
   struct Tile {
-    std::array<float, kTileSize * kTileSize> log_odds{};  // 0 = never observed
+    std::array<int16_t, kTileSize * kTileSize> log_odds{};  // thousandths; 0 = never observed
     // The same cells classified for scan matching, one 64-bit word per row (bit c = column c):
     // log odds above occupied_threshold / below free_threshold. Kept in step with log_odds by
     // every write, so a matcher reads a 3x3 neighbourhood from three words instead of nine
@@ -54,14 +59,12 @@ class TiledGrid {
   double resolution() const { return opt_.resolution_m; }
   const GridOptions& options() const { return opt_; }
 
-  // Log odds of a cell (0 outside the allocated area).
+  // Log odds of a cell (0 outside the allocated area and where never observed).
   float LogOdds(int64_t cx, int64_t cy) const {
-    const Tile* t = TileAt(cx >> kTileBits, cy >> kTileBits);
-    return t ? t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))]
-             : 0.f;
+    return static_cast<float>(Units(cx, cy)) / kUnitsPerLogOdds;
   }
-  bool Occupied(int64_t cx, int64_t cy) const { return LogOdds(cx, cy) > opt_.occupied_threshold; }
-  bool Free(int64_t cx, int64_t cy) const { return LogOdds(cx, cy) < opt_.free_threshold; }
+  bool Occupied(int64_t cx, int64_t cy) const { return Units(cx, cy) > occupied_units_; }
+  bool Free(int64_t cx, int64_t cy) const { return Units(cx, cy) < free_units_; }
 
   // Adds `delta` to a cell (clamped), copying its tile first if another grid shares it.
   void Update(int64_t cx, int64_t cy, float delta);
@@ -96,10 +99,20 @@ class TiledGrid {
     return static_cast<int64_t>(std::floor(v / opt_.resolution_m));
   }
   Tile* MutableTile(int64_t tx, int64_t ty);
-  void AddToCell(Tile* t, int64_t cx, int64_t cy, float delta) const;
+  void AddToCell(Tile* t, int64_t cx, int64_t cy, int32_t delta_units) const;
+  int32_t Units(int64_t cx, int64_t cy) const {
+    const Tile* t = TileAt(cx >> kTileBits, cy >> kTileBits);
+    return t ? t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))]
+             : 0;
+  }
+  static int32_t ToUnits(float log_odds) {
+    return static_cast<int32_t>(std::lround(log_odds * kUnitsPerLogOdds));
+  }
   void EnsureTile(int64_t tx, int64_t ty);
 
   GridOptions opt_;
+  // The options in units.
+  int32_t hit_units_, miss_units_, min_units_, max_units_, occupied_units_, free_units_;
   int64_t tx0_ = 0, ty0_ = 0;  // tile index of tiles_[0]
   int64_t ntx_ = 0, nty_ = 0;
   std::vector<std::shared_ptr<Tile>> tiles_;  // row-major, null = never written
