@@ -204,6 +204,18 @@ Status RbpfOptions::Validate() const {
   if (!(spacing_decision_m > 0)) return bad("grid.spacing_decision_m must be > 0");
   if (!(grid.free_threshold <= grid.occupied_threshold))
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
+  // The grid keeps log odds in thousandths within +-30 (tiled_grid.h).
+  auto within = [](float v, float lo, float hi) { return v >= lo && v <= hi; };
+  if (!within(grid.hit_log_odds, 0.001f, 30.f))
+    return bad("grid.hit_log_odds must be in [0.001, 30]");
+  if (!within(grid.miss_log_odds, -30.f, -0.001f))
+    return bad("grid.miss_log_odds must be in [-30, -0.001]");
+  if (!within(grid.min_log_odds, -30.f, -0.001f))
+    return bad("grid.min_log_odds must be in [-30, -0.001]");
+  if (!within(grid.max_log_odds, 0.001f, 30.f))
+    return bad("grid.max_log_odds must be in [0.001, 30]");
+  if (!within(grid.occupied_threshold, -30.f, 30.f) || !within(grid.free_threshold, -30.f, 30.f))
+    return bad("grid thresholds must be in [-30, 30]");
   if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
   if (!(grid_publish_resolution_m >= 0)) return bad("grid_publish_resolution_m must be >= 0");
   return Status::Ok();

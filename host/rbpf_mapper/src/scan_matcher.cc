@@ -82,7 +82,6 @@ ScoreResult ScanMatcher::Score(const TiledGrid& grid, const Pose2& p, const Matc
   const double res = grid.resolution(), inv_res = 1.0 / res;
   const double inv_score = 1.0 / (2.0 * opt_.sigma_score_m * opt_.sigma_score_m);
   const double inv_lik = 1.0 / (2.0 * opt_.sigma_likelihood_m * opt_.sigma_likelihood_m);
-  const float occ = grid.options().occupied_threshold, fre = grid.options().free_threshold;
   const int k = opt_.kernel_cells;
   // exp(-d^2 * inv_score) from the table built for this resolution (else computed).
   const bool use_table = res == table_resolution_m_;
@@ -117,8 +116,8 @@ ScoreResult ScanMatcher::Score(const TiledGrid& grid, const Pose2& p, const Matc
     } else {
       for (int dy = -k; dy <= k; ++dy)
         for (int dx = -k; dx <= k; ++dx) {
-          if (!(grid.LogOdds(hcx + dx, hcy + dy) > occ)) continue;
-          if (!(grid.LogOdds(fcx + dx, fcy + dy) < fre)) continue;
+          if (!grid.Occupied(hcx + dx, hcy + dy)) continue;  // as the bit masks say
+          if (!grid.Free(fcx + dx, fcy + dy)) continue;
           const double ex = static_cast<double>(hcx + dx) + 0.5 - hx;
           const double ey = static_cast<double>(hcy + dy) + 0.5 - hy;
           best = std::min(best, ex * ex + ey * ey);

@@ -15,9 +15,9 @@ TiledGrid::TiledGrid(const GridOptions& options)
       max_units_(ToUnits(options.max_log_odds)),
       occupied_units_(ToUnits(options.occupied_threshold)),
       free_units_(ToUnits(options.free_threshold)) {
-  // int16 cells: the clamp keeps every value in range.
-  min_units_ = std::max(min_units_, int32_t{-32000});
-  max_units_ = std::min(max_units_, int32_t{32000});
+  // int16 cells: ToUnits keeps every option within +-30000, so the clamp keeps cells in range;
+  // an empty range (RbpfOptions::Validate refuses it) becomes the one value min.
+  if (max_units_ < min_units_) max_units_ = min_units_;
 }
 
 void TiledGrid::EnsureTile(int64_t tx, int64_t ty) {
@@ -67,7 +67,9 @@ void TiledGrid::AddToCell(Tile* t, int64_t cx, int64_t cy, int32_t delta_units) 
   const int64_t lx = cx & kTileMask, ly = cy & kTileMask;
   int16_t& cell = t->log_odds[static_cast<size_t>(ly * kTileSize + lx)];
   int32_t v = std::clamp(int32_t{cell} + delta_units, min_units_, max_units_);
-  if (v == 0) v = -1;  // observed cells never read as "unknown"
+  // Observed cells never read as "unknown": even odds is stored as -1, or as +1 when a one-unit
+  // increment came from -1 (which would otherwise hold the cell there for ever).
+  if (v == 0) v = delta_units == 1 ? 1 : -1;
   cell = static_cast<int16_t>(v);
   const uint64_t bit = uint64_t{1} << lx;
   uint64_t& occ = t->occupied_bits[static_cast<size_t>(ly)];

@@ -217,7 +217,7 @@ TEST(TiledGrid, CopiesOnlyTheTileThatIsWritten) {
 }
 
 // Log odds are integers in thousandths: the configured increments add up exactly, so a cell
-// that sums to a threshold is on the documented side of it, and a tile takes 9 KiB (16 with
+// that sums to a threshold is on the documented side of it, and a tile takes 9 KiB (17 with
 // floats).
 TEST(TiledGrid, LogOddsAreExactThousandths) {
   static_assert(sizeof(TiledGrid::Tile) == 64 * 64 * 2 + 2 * 64 * 8, "int16 cells + two bit rows");
@@ -245,6 +245,36 @@ TEST(TiledGrid, LogOddsAreExactThousandths) {
   // Increments finer than the unit are rounded to it.
   h.Update(6, 6, 0.0014f);
   EXPECT_EQ(h.LogOdds(6, 6), 0.001f);
+  h.Update(7, 7, 0.0016f);
+  EXPECT_EQ(h.LogOdds(7, 7), 0.002f);
+  // A cell that reaches even odds by a hit is just above it (it can still become occupied).
+  GridOptions fine;
+  fine.hit_log_odds = 0.001f;
+  fine.miss_log_odds = -0.001f;
+  fine.occupied_threshold = 0.001f;
+  TiledGrid f(fine);
+  f.Update(0, 0, -0.001f);
+  f.Update(0, 0, 0.001f);
+  EXPECT_EQ(f.LogOdds(0, 0), 0.001f);
+  f.Update(0, 0, 0.001f);
+  EXPECT_TRUE(f.Occupied(0, 0));  // with -1 at even odds it would stay at -1 for ever
+  // The matcher's bit masks say what Occupied() and Free() say.
+  for (int64_t cx = 0; cx < 3; ++cx) {
+    const TiledGrid::Tile* t = g.TileAt(0, 0);
+    ASSERT_NE(t, nullptr);
+    EXPECT_EQ(((t->occupied_bits[0] >> cx) & 1) != 0, g.Occupied(cx, 0)) << cx;
+    EXPECT_EQ(((t->free_bits[0] >> cx) & 1) != 0, g.Free(cx, 0)) << cx;
+  }
+  // The widest options: sums beyond int16 are clamped before they are stored.
+  GridOptions wide;
+  wide.hit_log_odds = 30.f;
+  wide.max_log_odds = 30.f;
+  wide.min_log_odds = -30.f;
+  TiledGrid w(wide);
+  for (int i = 0; i < 3; ++i) w.Update(0, 0, 30.f);
+  EXPECT_EQ(w.LogOdds(0, 0), 30.f);
+  for (int i = 0; i < 3; ++i) w.Update(0, 0, -30.f);
+  EXPECT_EQ(w.LogOdds(0, 0), -30.f);
 }
 
 TEST(TiledGrid, IntegrateScanMarksFreeAndOccupied) {
@@ -1210,6 +1240,9 @@ TEST(RbpfOptions, ShippedConfigLoadsAndTyposAreErrors) {
   EXPECT_NE(gk.error().message.find("odometry_calibration.adapt_noise"), std::string::npos)
       << gk.error().message;
   // The grid stores log odds in thousandths within +-30.
+  RbpfOptions nan_grid;
+  nan_grid.grid.hit_log_odds = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_FALSE(nan_grid.Validate().ok());  // options built in code are checked too
   auto wide = ConfigReader::FromString("grid:\n  max_log_odds: 40\n", "t.yaml");
   ASSERT_TRUE(wide.ok());
   auto wo = RbpfOptions::Load(*wide);

@@ -21,7 +21,8 @@
 namespace omni::rbpf {
 
 // Log odds are stored in thousandths (TiledGrid::kUnitsPerLogOdds), so every value must lie
-// within +-30 (RbpfOptions checks it) and is rounded to 0.001.
+// within +-30 (RbpfOptions::Validate checks it; TiledGrid clamps what it is given) and is
+// rounded to 0.001.
 struct GridOptions {
   double resolution_m = 0.05;
   float hit_log_odds = 0.85f;   // added at a beam's end point
@@ -45,7 +46,7 @@ class TiledGrid {
     // The same cells classified for scan matching, one 64-bit word per row (bit c = column c):
     // log odds above occupied_threshold / below free_threshold. Kept in step with log_odds by
     // every write, so a matcher reads a 3x3 neighbourhood from three words instead of nine
-    // floats spread over three cache lines.
+    // cells spread over three cache lines.
     std::array<uint64_t, kTileSize> occupied_bits{};
     std::array<uint64_t, kTileSize> free_bits{};
   };
@@ -105,7 +106,10 @@ class TiledGrid {
     return t ? t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))]
              : 0;
   }
+  // Rounded to the unit and limited to +-30 log odds (NaN: 0).
   static int32_t ToUnits(float log_odds) {
+    if (!(std::fabs(log_odds) <= 30.f))
+      return std::isnan(log_odds) ? 0 : (log_odds > 0 ? 30000 : -30000);
     return static_cast<int32_t>(std::lround(log_odds * kUnitsPerLogOdds));
   }
   void EnsureTile(int64_t tx, int64_t ty);
