@@ -488,26 +488,41 @@ TEST(Bus, ACountBeyondTheMessageIsRefusedBeforeAnythingIsAllocated) {
   EXPECT_EQ(rc, -1);
 }
 
+// An LCM log of `n` WHEEL_ODOM events (at 1 s, 2 s, ..., x = 0, 1, ...); returns the size of
+// one event (they are all the same size), 0 on failure.
+size_t WriteOdometryLog(const std::string& path, int n) {
+  auto w = io::LcmLogWriter::Open(path);
+  if (!w.ok()) {
+    ADD_FAILURE() << w.error().message;
+    return 0;
+  }
+  size_t event_bytes = 0;
+  for (int i = 0; i < n; ++i) {
+    omni::odometry_t m{};
+    m.utime = 1000000 * (i + 1);
+    m.x_m = i;
+    std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
+    m.encode(buf.data(), 0, static_cast<int>(buf.size()));
+    if (!w->Write(m.utime, "WHEEL_ODOM", buf.data(), buf.size()).ok()) {
+      ADD_FAILURE() << "cannot write " << path;
+      return 0;
+    }
+    event_bytes = 28 + std::string("WHEEL_ODOM").size() + buf.size();
+  }
+  if (!w->Close().ok()) {
+    ADD_FAILURE() << "cannot close " << path;
+    return 0;
+  }
+  return event_bytes;
+}
+
 // The offline mappers' reader (ReadSlamLog on an LCM log) on a stream whose reads fail: an I/O
 // error, never the end of the log or a truncated tail, also when it happens while skipping a
 // corrupt region; a log that really is cut short still ends with `stopped_early`.
 TEST(SlamLog, AFailedReadOfAnLcmLogIsAnErrorNotItsEnd) {
   const std::string path = ::testing::TempDir() + "/slam_failing.lcmlog";
-  size_t event_bytes = 0;
-  {
-    auto w = io::LcmLogWriter::Open(path);
-    ASSERT_TRUE(w.ok());
-    for (int i = 0; i < 5; ++i) {
-      omni::odometry_t m{};
-      m.utime = 1000000 * (i + 1);
-      m.x_m = i;
-      std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
-      m.encode(buf.data(), 0, static_cast<int>(buf.size()));
-      ASSERT_TRUE(w->Write(m.utime, "WHEEL_ODOM", buf.data(), buf.size()).ok());
-      event_bytes = 28 + std::string("WHEEL_ODOM").size() + buf.size();
-    }
-    ASSERT_TRUE(w->Close().ok());
-  }
+  const size_t event_bytes = WriteOdometryLog(path, 5);
+  ASSERT_GT(event_bytes, 0u);
   std::string bytes;
   {
     std::ifstream in(path, std::ios::binary);
@@ -563,21 +578,8 @@ TEST(SlamLog, AFailedReadOfAnLcmLogIsAnErrorNotItsEnd) {
 
 TEST(SlamLog, ACorruptRegionOfAnLcmLogIsSkippedAndCounted) {
   const std::string path = ::testing::TempDir() + "/slam_corrupt.lcmlog";
-  size_t event_bytes = 0;
-  {
-    auto w = io::LcmLogWriter::Open(path);
-    ASSERT_TRUE(w.ok());
-    for (int i = 0; i < 3; ++i) {
-      omni::odometry_t m{};
-      m.utime = 1000000 * (i + 1);
-      m.x_m = i;
-      std::vector<uint8_t> buf(static_cast<size_t>(m.getEncodedSize()));
-      m.encode(buf.data(), 0, static_cast<int>(buf.size()));
-      ASSERT_TRUE(w->Write(m.utime, "WHEEL_ODOM", buf.data(), buf.size()).ok());
-      event_bytes = 28 + std::string("WHEEL_ODOM").size() + buf.size();
-    }
-    ASSERT_TRUE(w->Close().ok());
-  }
+  const size_t event_bytes = WriteOdometryLog(path, 3);
+  ASSERT_GT(event_bytes, 0u);
   {
     std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
     f.seekp(static_cast<std::streamoff>(event_bytes));  // the second event's sync word
