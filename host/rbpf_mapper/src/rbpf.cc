@@ -147,12 +147,13 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   g.Get("sparse_scan_spacing_m", &o.sparse_scan_spacing_m, Optional(), InRange(0.0, 100.0));
   g.Get("spacing_decision_m", &o.spacing_decision_m, Optional(), InRange(0.1, 10000.0));
   // The grid keeps log odds in thousandths within +-30 (tiled_grid.h).
-  g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), InRange(0.001f, 30.f));
-  g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-30.f, -0.001f));
-  g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-30.f, -0.001f));
-  g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), InRange(0.001f, 30.f));
-  g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional(), InRange(-30.f, 30.f));
-  g.Get("free_threshold", &o.grid.free_threshold, Optional(), InRange(-30.f, 30.f));
+  constexpr float kMax = TiledGrid::kMaxLogOdds, kStep = TiledGrid::kLogOddsStep;
+  g.Get("hit_log_odds", &o.grid.hit_log_odds, Optional(), InRange(kStep, kMax));
+  g.Get("miss_log_odds", &o.grid.miss_log_odds, Optional(), InRange(-kMax, -kStep));
+  g.Get("min_log_odds", &o.grid.min_log_odds, Optional(), InRange(-kMax, -kStep));
+  g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), InRange(kStep, kMax));
+  g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional(), InRange(-kMax, kMax));
+  g.Get("free_threshold", &o.grid.free_threshold, Optional(), InRange(-kMax, kMax));
   auto m = r.Section("motion");
   m.Get("a_xx", &o.motion.a_xx, Optional(), NonNegative<double>());
   m.Get("a_xy", &o.motion.a_xy, Optional(), NonNegative<double>());
@@ -206,15 +207,16 @@ Status RbpfOptions::Validate() const {
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
   // The grid keeps log odds in thousandths within +-30 (tiled_grid.h).
   auto within = [](float v, float lo, float hi) { return v >= lo && v <= hi; };
-  if (!within(grid.hit_log_odds, 0.001f, 30.f))
+  constexpr float kMax = TiledGrid::kMaxLogOdds, kStep = TiledGrid::kLogOddsStep;
+  if (!within(grid.hit_log_odds, kStep, kMax))
     return bad("grid.hit_log_odds must be in [0.001, 30]");
-  if (!within(grid.miss_log_odds, -30.f, -0.001f))
+  if (!within(grid.miss_log_odds, -kMax, -kStep))
     return bad("grid.miss_log_odds must be in [-30, -0.001]");
-  if (!within(grid.min_log_odds, -30.f, -0.001f))
+  if (!within(grid.min_log_odds, -kMax, -kStep))
     return bad("grid.min_log_odds must be in [-30, -0.001]");
-  if (!within(grid.max_log_odds, 0.001f, 30.f))
+  if (!within(grid.max_log_odds, kStep, kMax))
     return bad("grid.max_log_odds must be in [0.001, 30]");
-  if (!within(grid.occupied_threshold, -30.f, 30.f) || !within(grid.free_threshold, -30.f, 30.f))
+  if (!within(grid.occupied_threshold, -kMax, kMax) || !within(grid.free_threshold, -kMax, kMax))
     return bad("grid thresholds must be in [-30, 30]");
   if (!(max_hit_range_m <= max_range_m)) return bad("max_hit_range_m must be <= max_range_m");
   if (!(grid_publish_resolution_m >= 0)) return bad("grid_publish_resolution_m must be >= 0");

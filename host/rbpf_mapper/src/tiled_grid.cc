@@ -15,8 +15,8 @@ TiledGrid::TiledGrid(const GridOptions& options)
       max_units_(ToUnits(options.max_log_odds)),
       occupied_units_(ToUnits(options.occupied_threshold)),
       free_units_(ToUnits(options.free_threshold)) {
-  // int16 cells: ToUnits keeps every option within +-30000, so the clamp keeps cells in range;
-  // an empty range (RbpfOptions::Validate refuses it) becomes the one value min.
+  // int16 cells: ToUnits keeps every option within +-kMaxLogOdds, so the clamp keeps cells in
+  // range; an empty range (RbpfOptions::Validate refuses it) becomes the one value min.
   if (max_units_ < min_units_) max_units_ = min_units_;
 }
 

@@ -41,6 +41,9 @@ class TiledGrid {
   // Log odds are kept as integers in thousandths (kUnitsPerLogOdds): half the memory of floats,
   // and sums of the configured increments are exact. Options are rounded to the unit.
   static constexpr float kUnitsPerLogOdds = 1000.f;
+  // The range every option must lie in (RbpfOptions checks it), and the smallest step.
+  static constexpr float kMaxLogOdds = 30.f;
+  static constexpr float kLogOddsStep = 1.f / kUnitsPerLogOdds;
   struct Tile {
     std::array<int16_t, kTileSize * kTileSize> log_odds{};  // thousandths; 0 = never observed
     // The same cells classified for scan matching, one 64-bit word per row (bit c = column c):
@@ -108,8 +111,9 @@ class TiledGrid {
   }
   // Rounded to the unit and limited to +-30 log odds (NaN: 0).
   static int32_t ToUnits(float log_odds) {
-    if (!(std::fabs(log_odds) <= 30.f))
-      return std::isnan(log_odds) ? 0 : (log_odds > 0 ? 30000 : -30000);
+    constexpr int32_t kMaxUnits = static_cast<int32_t>(kMaxLogOdds * kUnitsPerLogOdds);
+    if (!(std::fabs(log_odds) <= kMaxLogOdds))
+      return std::isnan(log_odds) ? 0 : (log_odds > 0 ? kMaxUnits : -kMaxUnits);
     return static_cast<int32_t>(std::lround(log_odds * kUnitsPerLogOdds));
   }
   void EnsureTile(int64_t tx, int64_t ty);
