@@ -271,6 +271,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   const omni::rbpf::RbpfSlam::PathMemory paths = slam.path_memory();
+  const omni::rbpf::RbpfSlam::MapMemory maps = slam.map_memory();
   std::FILE* f = std::fopen((out_dir + "/stats.json").c_str(), "w");
   if (!f) {
     std::fprintf(stderr, "omni-slam: cannot write %s/stats.json: %s\n", out_dir.c_str(),
@@ -288,7 +289,8 @@ int main(int argc, char** argv) {
       "\"reported_switches\": %lld, \"match_failures\": "
       "%lld, "
       "\"match_searches\": %lld, \"trajectory_poses\": %zu, \"distinct_tiles\": %zu, "
-      "\"tile_refs\": %zu, \"path_poses\": %zu, \"path_bytes\": %zu, \"sweeps_corrected\": %lld, "
+      "\"packed_tiles\": %zu, \"map_bytes\": %zu, \"tile_refs\": %zu, \"path_poses\": %zu, "
+      "\"path_bytes\": %zu, \"sweeps_corrected\": %lld, "
       "\"sweeps_uncorrected\": %lld, "
       "\"skipped_bytes\": %llu, \"stopped_early\": %s, \"scans_repeated\": %lld, "
       "\"scans_lost_in_log\": %lld",
@@ -301,7 +303,7 @@ int main(int argc, char** argv) {
       static_cast<long long>(c.odom_out_of_order), static_cast<long long>(c.time_rebases),
       static_cast<long long>(decode_errors), static_cast<long long>(c.resamplings),
       static_cast<long long>(c.reported_switches), static_cast<long long>(c.match_failures),
-      static_cast<long long>(c.match_searches), traj.size(), slam.distinct_tiles(),
+      static_cast<long long>(c.match_searches), traj.size(), maps.tiles, maps.packed, maps.bytes,
       slam.total_tile_refs(), paths.poses, paths.bytes, static_cast<long long>(c.sweeps_corrected),
       static_cast<long long>(c.sweeps_uncorrected),
       static_cast<unsigned long long>(read->skipped_bytes),

@@ -154,6 +154,7 @@ Result<RbpfOptions> RbpfOptions::Load(ConfigReader& r) {
   g.Get("max_log_odds", &o.grid.max_log_odds, Optional(), InRange(kStep, kMax));
   g.Get("occupied_threshold", &o.grid.occupied_threshold, Optional(), InRange(-kMax, kMax));
   g.Get("free_threshold", &o.grid.free_threshold, Optional(), InRange(-kMax, kMax));
+  g.Get("pack_idle_scans", &o.grid.pack_idle_scans, Optional(), InRange(0, 1000000));
   auto m = r.Section("motion");
   m.Get("a_xx", &o.motion.a_xx, Optional(), NonNegative<double>());
   m.Get("a_xy", &o.motion.a_xy, Optional(), NonNegative<double>());
@@ -205,6 +206,7 @@ Status RbpfOptions::Validate() const {
   if (!(spacing_decision_m > 0)) return bad("grid.spacing_decision_m must be > 0");
   if (!(grid.free_threshold <= grid.occupied_threshold))
     return bad("grid.free_threshold must be <= grid.occupied_threshold");
+  if (grid.pack_idle_scans < 0) return bad("grid.pack_idle_scans must be >= 0");
   // The grid keeps log odds in thousandths within +-30 (tiled_grid.h).
   auto within = [](float v, float lo, float hi) { return v >= lo && v <= hi; };
   constexpr float kMax = TiledGrid::kMaxLogOdds, kStep = TiledGrid::kLogOddsStep;
@@ -722,11 +724,18 @@ size_t RbpfSlam::total_tile_refs() const {
   return n;
 }
 
-size_t RbpfSlam::distinct_tiles() const {
+RbpfSlam::MapMemory RbpfSlam::map_memory() const {
   std::vector<const TiledGrid::Tile*> all;
   for (const auto& p : particles_) p.map.CollectTiles(&all);
   std::sort(all.begin(), all.end());
-  return static_cast<size_t>(std::unique(all.begin(), all.end()) - all.begin());
+  all.erase(std::unique(all.begin(), all.end()), all.end());
+  MapMemory m;
+  m.tiles = all.size();
+  for (const TiledGrid::Tile* t : all) {
+    m.packed += t->is_packed();
+    m.bytes += t->bytes();
+  }
+  return m;
 }
 
 RbpfSlam::PathMemory RbpfSlam::path_memory() const {

@@ -172,8 +172,7 @@ Pose2 ScanMatcher::CorrelativeSearch(const TiledGrid& grid, const Pose2& start,
       for (int sy = -n_xy - 1; sy <= n_xy + 1; ++sy)
         for (int sx = -n_xy - 1; sx <= n_xy + 1; ++sx) {
           if (!grid.Occupied(hx[i] + sx, hy[i] + sy)) continue;
-          if (grid.Free(fx[i] + sx, fy[i] + sy) == false &&
-              grid.LogOdds(fx[i] + sx, fy[i] + sy) != 0.f)
+          if (grid.Free(fx[i] + sx, fy[i] + sy) == false && grid.Known(fx[i] + sx, fy[i] + sy))
             continue;  // seen from behind (occupied or unknown-behind is allowed)
           // Full vote at the exact shift, half to the 4-neighbours.
           for (int k = 0; k < 5; ++k) {

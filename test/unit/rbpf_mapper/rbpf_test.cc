@@ -217,10 +217,8 @@ TEST(TiledGrid, CopiesOnlyTheTileThatIsWritten) {
 }
 
 // Log odds are integers in thousandths: the configured increments add up exactly, so a cell
-// that sums to a threshold is on the documented side of it, and a tile takes 9 KiB (17 with
-// floats).
+// that sums to a threshold is on the documented side of it.
 TEST(TiledGrid, LogOddsAreExactThousandths) {
-  static_assert(sizeof(TiledGrid::Tile) == 64 * 64 * 2 + 2 * 64 * 8, "int16 cells + two bit rows");
   TiledGrid g;  // hit 0.85, miss -0.4, clamp [-2, 3.5], occupied > 0.5, free < -0.3
   for (int i = 0; i < 2; ++i) g.Update(0, 0, g.options().hit_log_odds);
   for (int i = 0; i < 3; ++i) g.Update(0, 0, g.options().miss_log_odds);
@@ -315,6 +313,105 @@ std::vector<CorrectedScan> LoadCorrected(const std::string& path, size_t count) 
     if (out.size() >= count) break;
   }
   return out;
+}
+
+// A tile not written for pack_idle_scans scans is packed (run-length coded) and everything
+// reads the same: the Intel lab's corrected scans into a packing grid and a grid that never
+// packs, compared cell by cell after each scan; a write unpacks; a tile another grid shares is
+// not packed.
+TEST(TiledGrid, IdleTilesArePackedAndReadTheSame) {
+  OMNI_REQUIRE_DATASET(path, "carmen-corrected/intel-corrected.log.gz");
+  const auto scans = LoadCorrected(path, 300);
+  ASSERT_EQ(scans.size(), 300u);
+  GridOptions packing, plain;
+  packing.pack_idle_scans = 3;
+  plain.pack_idle_scans = 0;
+  TiledGrid g(packing), ref(plain);
+  size_t most_packed = 0;
+  // The maps and the matcher's bits; `exact`: each cell's log odds too (slow: each read of a
+  // packed cell unpacks its tile).
+  auto same_everywhere = [&](const TiledGrid& a, const TiledGrid& b, bool exact) {
+    const io::GridMap ma = a.ToGridMap(), mb = b.ToGridMap();
+    if (ma.width != mb.width || ma.height != mb.height || ma.origin_x_m != mb.origin_x_m ||
+        ma.origin_y_m != mb.origin_y_m || ma.cells != mb.cells)
+      return ::testing::AssertionFailure() << "maps differ";
+    const int64_t x0 = b.CellX(ma.origin_x_m + 1e-9), y0 = b.CellY(ma.origin_y_m + 1e-9);
+    for (int64_t y = y0 - 1; y <= y0 + mb.height; ++y)
+      for (int64_t x = x0 - 1; x <= x0 + mb.width; ++x)
+        if (a.Occupied(x, y) != b.Occupied(x, y) || a.Free(x, y) != b.Free(x, y) ||
+            a.Known(x, y) != b.Known(x, y) ||
+            (exact && (a.LogOdds(x, y) != b.LogOdds(x, y) ||
+                       a.Known(x, y) != (b.LogOdds(x, y) != 0.f))))
+          return ::testing::AssertionFailure() << "cell " << x << " " << y;
+    return ::testing::AssertionSuccess();
+  };
+  for (size_t i = 0; i < scans.size(); ++i) {
+    g.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
+    ref.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
+    most_packed = std::max(most_packed, g.num_packed_tiles());
+    if (i % 50 == 49) {
+      ASSERT_TRUE(same_everywhere(g, ref, i + 1 == scans.size())) << "after scan " << i;
+    }
+  }
+  EXPECT_EQ(ref.num_packed_tiles(), 0u);
+  ASSERT_GT(most_packed, 5u);
+  ASSERT_GT(g.num_packed_tiles(), 0u);
+  // Packed tiles hold a fraction of the memory.
+  std::vector<const TiledGrid::Tile*> tg, tr;
+  g.CollectTiles(&tg);
+  ref.CollectTiles(&tr);
+  size_t bytes_g = 0, bytes_r = 0;
+  for (const auto* t : tg) bytes_g += t->bytes();
+  for (const auto* t : tr) bytes_r += t->bytes();
+  EXPECT_LT(bytes_g, bytes_r * 3 / 4) << bytes_g << " " << bytes_r;
+  // A write into a packed tile unpacks it with its contents.
+  int64_t ptx = 0, pty = 0;
+  bool found = false;
+  for (int64_t ty = -40; ty < 40 && !found; ++ty)
+    for (int64_t tx = -40; tx < 40 && !found; ++tx)
+      if (const TiledGrid::Tile* t = g.TileAt(tx, ty); t && t->is_packed()) {
+        ptx = tx;
+        pty = ty;
+        found = true;
+      }
+  ASSERT_TRUE(found);
+  const int64_t cx = ptx * TiledGrid::kTileSize + 7, cy = pty * TiledGrid::kTileSize + 9;
+  const size_t packed_before = g.num_packed_tiles();
+  g.Update(cx, cy, 0.85f);
+  ref.Update(cx, cy, 0.85f);
+  EXPECT_FALSE(g.TileAt(ptx, pty)->is_packed());
+  EXPECT_EQ(g.num_packed_tiles(), packed_before - 1);
+  EXPECT_EQ(g.LogOdds(cx, cy), ref.LogOdds(cx, cy));
+  EXPECT_TRUE(same_everywhere(g, ref, false));
+  // A grid that shares its tiles (a resampled particle's copy) keeps them unpacked while shared;
+  // once the copy is gone they pack.
+  TiledGrid fresh(packing);
+  for (size_t i = 0; i < 20; ++i)
+    fresh.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
+  const size_t packed_alone = fresh.num_packed_tiles();
+  {
+    TiledGrid copy = fresh;
+    for (size_t i = 20; i < 60; ++i)
+      fresh.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
+    fresh.PackIdleTiles();  // whatever fresh holds alone and is idle
+    EXPECT_EQ(fresh.PackIdleTiles(), 0u);
+    size_t copy_packed = 0, shared_unpacked = 0;
+    std::vector<const TiledGrid::Tile*> held;
+    copy.CollectTiles(&held);
+    for (const auto* t : held) copy_packed += t->is_packed();
+    EXPECT_EQ(copy_packed, packed_alone);  // only what was packed before the copy
+    for (int64_t ty = -40; ty < 40; ++ty)
+      for (int64_t tx = -40; tx < 40; ++tx)
+        if (fresh.SharesTileWith(copy, tx, ty) && !fresh.TileAt(tx, ty)->is_packed())
+          ++shared_unpacked;  // idle for 40 scans, but shared
+    EXPECT_GT(shared_unpacked, 0u);
+  }
+  EXPECT_GT(fresh.PackIdleTiles(), 0u);  // now held alone
+  EXPECT_EQ(fresh.PackIdleTiles(), 0u);
+  TiledGrid never(plain);
+  never.IntegrateScan(scans[0].pose, scans[0].points, scans[0].hit);
+  for (int i = 0; i < 10; ++i) never.IntegrateScan(scans[299].pose, {}, {});
+  EXPECT_EQ(never.PackIdleTiles(), 0u);  // pack_idle_scans 0: never
 }
 
 namespace {

@@ -351,7 +351,15 @@ class RbpfSlam {
   const OdometryCalibrator& odometry_calibrator() const { return calibrator_; }
   // Tiles referenced by all particles, and distinct tile objects among them.
   size_t total_tile_refs() const;
-  size_t distinct_tiles() const;
+  size_t distinct_tiles() const { return map_memory().tiles; }
+  // The particles' maps in memory: distinct tiles, how many of them are packed, and the bytes
+  // they hold (malloc's own headers not counted).
+  struct MapMemory {
+    size_t tiles = 0;
+    size_t packed = 0;
+    size_t bytes = 0;
+  };
+  MapMemory map_memory() const;
   // The particles' paths in memory: distinct poses and segments, and the bytes they hold (with
   // the segments' spare capacity; malloc's own headers not counted).
   struct PathMemory {

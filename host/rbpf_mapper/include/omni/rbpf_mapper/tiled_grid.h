@@ -4,9 +4,15 @@
 // (copy-on-write). Coordinates: cell (cx, cy) covers [cx*res, (cx+1)*res) x [cy*res, ...) in
 // the map frame; the grid grows in any direction as cells are written.
 //
+// A tile this grid holds alone and has not written for `pack_idle_scans` scans is packed: its
+// log odds are run-length coded (about a sixth of their 8 KiB on real maps) while its bit masks,
+// all the scan matcher reads, stay as they are; the next write unpacks it. Packing loses
+// nothing and changes no reading: every accessor answers the same for a packed tile.
+//
 // Thread safety: distinct TiledGrid objects may be used from different threads at the same time
-// even when they share tiles (a shared tile is never written; the copy decision uses the
-// reference count with an acquire fence). One TiledGrid must not be used by two threads at once.
+// even when they share tiles (a shared tile is never written or packed; the copy and pack
+// decisions use the reference count with an acquire fence). One TiledGrid must not be used by
+// two threads at once.
 #pragma once
 
 #include <array>
@@ -31,6 +37,8 @@ struct GridOptions {
   float max_log_odds = 3.5f;
   float occupied_threshold = 0.5f;  // log odds above this: occupied (for matching)
   float free_threshold = -0.3f;     // log odds below this: free (for matching)
+  // A tile held alone and not written for this many scans is packed (0: never).
+  int pack_idle_scans = 20;
 };
 
 class TiledGrid {
@@ -44,14 +52,24 @@ class TiledGrid {
   // The range every option must lie in (RbpfOptions checks it), and the smallest step.
   static constexpr float kMaxLogOdds = 30.f;
   static constexpr float kLogOddsStep = 1.f / kUnitsPerLogOdds;
+  static constexpr size_t kCells = size_t{kTileSize} * kTileSize;
   struct Tile {
-    std::array<int16_t, kTileSize * kTileSize> log_odds{};  // thousandths; 0 = never observed
-    // The same cells classified for scan matching, one 64-bit word per row (bit c = column c):
-    // log odds above occupied_threshold / below free_threshold. Kept in step with log_odds by
-    // every write, so a matcher reads a 3x3 neighbourhood from three words instead of nine
-    // cells spread over three cache lines.
+    // The cells classified for scan matching, one 64-bit word per row (bit c = column c): log
+    // odds above occupied_threshold / below free_threshold / observed at all (not 0). Kept in
+    // step with the log odds by every write, so a matcher reads a 3x3 neighbourhood from three
+    // words instead of nine cells spread over three cache lines, and never needs the log odds.
     std::array<uint64_t, kTileSize> occupied_bits{};
     std::array<uint64_t, kTileSize> free_bits{};
+    std::array<uint64_t, kTileSize> known_bits{};
+    // Log odds in thousandths, row-major (cell (c, r) at r * kTileSize + c), 0 = never observed:
+    // kCells values while unpacked, empty while packed.
+    std::vector<int16_t> log_odds = std::vector<int16_t>(kCells, 0);
+    std::vector<uint8_t> packed;  // while packed: log_odds as runs (TiledGrid::Pack)
+    bool is_packed() const { return log_odds.empty(); }
+    // Heap and object bytes (malloc's headers not counted).
+    size_t bytes() const {
+      return sizeof(Tile) + log_odds.capacity() * sizeof(int16_t) + packed.capacity();
+    }
   };
   static_assert(kTileSize == 64, "row bit masks are 64-bit words");
 
@@ -64,11 +82,14 @@ class TiledGrid {
   const GridOptions& options() const { return opt_; }
 
   // Log odds of a cell (0 outside the allocated area and where never observed).
+  // (A packed tile is unpacked into a temporary for this; the matcher reads the bits below.)
   float LogOdds(int64_t cx, int64_t cy) const {
     return static_cast<float>(Units(cx, cy)) / kUnitsPerLogOdds;
   }
-  bool Occupied(int64_t cx, int64_t cy) const { return Units(cx, cy) > occupied_units_; }
-  bool Free(int64_t cx, int64_t cy) const { return Units(cx, cy) < free_units_; }
+  // Log odds above occupied_threshold / below free_threshold / ever observed.
+  bool Occupied(int64_t cx, int64_t cy) const { return Bit(&Tile::occupied_bits, cx, cy); }
+  bool Free(int64_t cx, int64_t cy) const { return Bit(&Tile::free_bits, cx, cy); }
+  bool Known(int64_t cx, int64_t cy) const { return Bit(&Tile::known_bits, cx, cy); }
 
   // Adds `delta` to a cell (clamped), copying its tile first if another grid shares it.
   void Update(int64_t cx, int64_t cy, float delta);
@@ -82,9 +103,16 @@ class TiledGrid {
   // Occupancy in percent, -1 unknown, cropped to the observed area.
   io::GridMap ToGridMap() const;
 
-  // Memory accounting: tiles this grid references, and how many of them it holds alone.
+  // Packs the tiles this grid holds alone and has not written during the last
+  // options().pack_idle_scans calls of IntegrateScan (every 8th call of IntegrateScan does this
+  // itself); returns how many it packed.
+  size_t PackIdleTiles();
+
+  // Memory accounting: tiles this grid references, how many of them it holds alone, how many
+  // of them are packed.
   size_t num_tiles() const;
   size_t num_unique_tiles() const;
+  size_t num_packed_tiles() const;
   // Appends the tile objects this grid references.
   void CollectTiles(std::vector<const Tile*>* out) const {
     for (const auto& t : tiles_)
@@ -104,11 +132,13 @@ class TiledGrid {
   }
   Tile* MutableTile(int64_t tx, int64_t ty);
   void AddToCell(Tile* t, int64_t cx, int64_t cy, int32_t delta_units) const;
-  int32_t Units(int64_t cx, int64_t cy) const {
+  int32_t Units(int64_t cx, int64_t cy) const;
+  bool Bit(const std::array<uint64_t, kTileSize> Tile::*rows, int64_t cx, int64_t cy) const {
     const Tile* t = TileAt(cx >> kTileBits, cy >> kTileBits);
-    return t ? t->log_odds[static_cast<size_t>((cy & kTileMask) * kTileSize + (cx & kTileMask))]
-             : 0;
+    return t && (((t->*rows)[static_cast<size_t>(cy & kTileMask)] >> (cx & kTileMask)) & 1) != 0;
   }
+  static void Pack(Tile* t);
+  static void Unpack(const Tile& t, int16_t* cells);
   // Rounded to the unit and limited to +-30 log odds (NaN: 0).
   static int32_t ToUnits(float log_odds) {
     constexpr int32_t kMaxUnits = static_cast<int32_t>(kMaxLogOdds * kUnitsPerLogOdds);
@@ -124,6 +154,8 @@ class TiledGrid {
   int64_t tx0_ = 0, ty0_ = 0;  // tile index of tiles_[0]
   int64_t ntx_ = 0, nty_ = 0;
   std::vector<std::shared_ptr<Tile>> tiles_;  // row-major, null = never written
+  std::vector<uint32_t> written_;             // per slot of tiles_: scans_ when last written
+  uint32_t scans_ = 0;                        // IntegrateScan calls so far
 };
 
 }  // namespace omni::rbpf
