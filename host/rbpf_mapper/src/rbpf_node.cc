@@ -94,13 +94,16 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("resolution_switched",
                         [this] { return slam_.resolution_choice().switched ? 1 : 0; });
   // The particles' maps in memory: distinct copy-on-write tiles (64 x 64 cells; 9.5 KiB, or
-  // about 2 KiB packed), how many of them are packed, and their KiB.
-  heartbeat_.AddCounter("map_tiles",
-                        [this] { return static_cast<int64_t>(slam_.distinct_tiles()); });
+  // about 3 KiB packed), how many of them are packed, and their KiB. Counted once per heartbeat
+  // (it sorts every particle's tile pointers): counters are read in the order they were added.
+  heartbeat_.AddCounter("map_tiles", [this] {
+    map_memory_ = slam_.map_memory();
+    return static_cast<int64_t>(map_memory_.tiles);
+  });
   heartbeat_.AddCounter("map_packed_tiles",
-                        [this] { return static_cast<int64_t>(slam_.map_memory().packed); });
+                        [this] { return static_cast<int64_t>(map_memory_.packed); });
   heartbeat_.AddCounter("map_kib",
-                        [this] { return static_cast<int64_t>(slam_.map_memory().bytes / 1024); });
+                        [this] { return static_cast<int64_t>(map_memory_.bytes / 1024); });
   // The particles' paths (the trajectory tree) in memory, KiB.
   heartbeat_.AddCounter("path_kib",
                         [this] { return static_cast<int64_t>(slam_.path_memory().bytes / 1024); });

@@ -80,10 +80,10 @@ TiledGrid::Tile* TiledGrid::MutableTile(int64_t tx, int64_t ty) {
 
 // Packed form: runs of equal cells in row-major order, each the value (int16, little end first)
 // and the run's length as a base-128 varint (one byte below 128, two up to the tile's 4096). A
-// tile is mostly runs (unknown, free at the clamp, walls): a real building's tiles pack to about
-// a sixth of their 8 KiB in a few microseconds; zlib packs them twice as small, but its set-up
-// alone costs more than this whole codec, and tiles come back into view often enough for that
-// to show (5-10 % of the filter's time in measurements; docs/rbpf.md).
+// tile is mostly runs (unknown, free at the clamp, walls): a real building's tiles pack to
+// 1-2 KiB of their 8 KiB in a few microseconds. zlib packs them about half as small again but
+// took 4-10 % of the filter's time where these runs take under 2 % (docs/rbpf.md, "Idle tiles
+// packed").
 void TiledGrid::Pack(Tile* t) {
   std::vector<uint8_t> out;
   out.reserve(1024);
@@ -146,7 +146,10 @@ size_t TiledGrid::PackIdleTiles() {
       continue;
     std::atomic_thread_fence(std::memory_order_acquire);  // as in MutableTile
     Pack(slot.get());
-    n += slot->is_packed();
+    if (slot->is_packed())
+      ++n;
+    else
+      written_[i] = scans_;  // packs no smaller: tried again after another idle spell
   }
   return n;
 }

@@ -256,12 +256,17 @@ TEST(TiledGrid, LogOddsAreExactThousandths) {
   EXPECT_EQ(f.LogOdds(0, 0), 0.001f);
   f.Update(0, 0, 0.001f);
   EXPECT_TRUE(f.Occupied(0, 0));  // with -1 at even odds it would stay at -1 for ever
-  // The matcher's bit masks say what Occupied() and Free() say.
-  for (int64_t cx = 0; cx < 3; ++cx) {
+  // The matcher's bit masks (what Occupied(), Free() and Known() read) follow the log odds.
+  for (int64_t cx = 0; cx < 4; ++cx) {
     const TiledGrid::Tile* t = g.TileAt(0, 0);
     ASSERT_NE(t, nullptr);
-    EXPECT_EQ(((t->occupied_bits[0] >> cx) & 1) != 0, g.Occupied(cx, 0)) << cx;
-    EXPECT_EQ(((t->free_bits[0] >> cx) & 1) != 0, g.Free(cx, 0)) << cx;
+    const float l = g.LogOdds(cx, 0);
+    EXPECT_EQ(((t->occupied_bits[0] >> cx) & 1) != 0, l > g.options().occupied_threshold) << cx;
+    EXPECT_EQ(((t->free_bits[0] >> cx) & 1) != 0, l < g.options().free_threshold) << cx;
+    EXPECT_EQ(((t->known_bits[0] >> cx) & 1) != 0, l != 0.f) << cx;
+    EXPECT_EQ(g.Occupied(cx, 0), l > g.options().occupied_threshold) << cx;
+    EXPECT_EQ(g.Free(cx, 0), l < g.options().free_threshold) << cx;
+    EXPECT_EQ(g.Known(cx, 0), cx < 3) << cx;  // cells 0-2 written above, 3 never
   }
   // The widest options: sums beyond int16 are clamped before they are stored.
   GridOptions wide;
@@ -315,6 +320,44 @@ std::vector<CorrectedScan> LoadCorrected(const std::string& path, size_t count) 
   return out;
 }
 
+// The packed form on runs of every length class (1, 127, 128 and the whole tile) and the
+// extreme values, without a dataset: a tile written cell by cell, packed once idle, reads back.
+TEST(TiledGrid, PackedRunsOfEveryLengthReadBack) {
+  GridOptions o;
+  o.hit_log_odds = 30.f;
+  o.miss_log_odds = -30.f;
+  o.max_log_odds = 30.f;
+  o.min_log_odds = -30.f;
+  o.pack_idle_scans = 2;
+  const int64_t n = TiledGrid::kTileSize;
+  // Tile (0, 0): runs of 1, 127, 128, then runs of 5 of varied values; tile (1, 0): one value;
+  // tile (2, 0): every cell different from its neighbour (packs no smaller: stays unpacked).
+  TiledGrid g(o);
+  std::vector<float> want(static_cast<size_t>(3 * n * n), 0.f);
+  auto set = [&](int64_t cx, int64_t cy, float v) {
+    g.Update(cx, cy, v - g.LogOdds(cx, cy));
+    want[static_cast<size_t>(cy * 3 * n + cx)] = g.LogOdds(cx, cy);
+  };
+  int64_t k = 0;
+  for (int64_t len : {1, 127, 128, 1, 2, 300}) {
+    const float v = (k % 2 == 0) ? 30.f : -30.f;
+    for (int64_t j = 0; j < len; ++j, ++k) set(k % n, k / n, v);
+  }
+  for (; k < n * n; ++k) set(k % n, k / n, 0.001f * static_cast<float>((k / 5) % 997 + 1));
+  for (int64_t c = 0; c < n * n; ++c) set(n + c % n, c / n, -0.5f);
+  for (int64_t c = 0; c < n * n; ++c)
+    set(2 * n + c % n, c / n, (c % 2 ? 1.f : -1.f) * (c + 1) / 1000.f);
+  for (int i = 0; i < 3; ++i) g.IntegrateScan(Pose2(), {}, {});  // idle for three scans
+  EXPECT_EQ(g.PackIdleTiles(), 2u);
+  EXPECT_TRUE(g.TileAt(0, 0)->is_packed());
+  EXPECT_TRUE(g.TileAt(1, 0)->is_packed());
+  EXPECT_FALSE(g.TileAt(2, 0)->is_packed());
+  EXPECT_LT(g.TileAt(1, 0)->bytes(), g.TileAt(2, 0)->bytes() / 5);
+  for (int64_t cy = 0; cy < n; ++cy)
+    for (int64_t cx = 0; cx < 3 * n; ++cx)
+      ASSERT_EQ(g.LogOdds(cx, cy), want[static_cast<size_t>(cy * 3 * n + cx)]) << cx << " " << cy;
+}
+
 // A tile not written for pack_idle_scans scans is packed (run-length coded) and everything
 // reads the same: the Intel lab's corrected scans into a packing grid and a grid that never
 // packs, compared cell by cell after each scan; a write unpacks; a tile another grid shares is
@@ -340,8 +383,8 @@ TEST(TiledGrid, IdleTilesArePackedAndReadTheSame) {
       for (int64_t x = x0 - 1; x <= x0 + mb.width; ++x)
         if (a.Occupied(x, y) != b.Occupied(x, y) || a.Free(x, y) != b.Free(x, y) ||
             a.Known(x, y) != b.Known(x, y) ||
-            (exact && (a.LogOdds(x, y) != b.LogOdds(x, y) ||
-                       a.Known(x, y) != (b.LogOdds(x, y) != 0.f))))
+            (exact &&
+             (a.LogOdds(x, y) != b.LogOdds(x, y) || a.Known(x, y) != (b.LogOdds(x, y) != 0.f))))
           return ::testing::AssertionFailure() << "cell " << x << " " << y;
     return ::testing::AssertionSuccess();
   };
@@ -349,6 +392,13 @@ TEST(TiledGrid, IdleTilesArePackedAndReadTheSame) {
     g.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
     ref.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
     most_packed = std::max(most_packed, g.num_packed_tiles());
+    // Only idle tiles are packed: every tile this scan wrote an end point into is not.
+    for (const Eigen::Vector2d& pt : scans[i].points) {
+      const Eigen::Vector2d w = scans[i].pose.Transform(pt);
+      const TiledGrid::Tile* t =
+          g.TileAt(g.CellX(w.x()) >> TiledGrid::kTileBits, g.CellY(w.y()) >> TiledGrid::kTileBits);
+      ASSERT_TRUE(t != nullptr && !t->is_packed()) << "scan " << i;
+    }
     if (i % 50 == 49) {
       ASSERT_TRUE(same_everywhere(g, ref, i + 1 == scans.size())) << "after scan " << i;
     }
@@ -386,8 +436,7 @@ TEST(TiledGrid, IdleTilesArePackedAndReadTheSame) {
   // A grid that shares its tiles (a resampled particle's copy) keeps them unpacked while shared;
   // once the copy is gone they pack.
   TiledGrid fresh(packing);
-  for (size_t i = 0; i < 20; ++i)
-    fresh.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
+  for (size_t i = 0; i < 20; ++i) fresh.IntegrateScan(scans[i].pose, scans[i].points, scans[i].hit);
   const size_t packed_alone = fresh.num_packed_tiles();
   {
     TiledGrid copy = fresh;

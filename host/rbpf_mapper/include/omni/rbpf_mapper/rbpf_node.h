@@ -70,6 +70,7 @@ class RbpfNode {
   RbpfOptions opt_;
   const Clock* clock_;
   RbpfSlam slam_;
+  RbpfSlam::MapMemory map_memory_;  // the heartbeat's map_* counters, counted once per beat
   bus::Heartbeat heartbeat_;
   MappingHealth health_;  // DEGRADED while scans come in without odometry
   std::deque<ScanInput> pending_;
