@@ -602,13 +602,15 @@ int main(int argc, char** argv) {
   if (o.repose.enabled)
     std::printf(
         "omni-octomap: repose: %lld trajectories on %s (%lld rejected), %lld keyframes (%lld "
-        "points), %lld rebuilds (the last %.2f s, for a shift of %.3f m)%s\n",
+        "points; %lld retired as revisited), %lld rebuilds (the last %.2f s, for a shift of %.3f "
+        "m)%s\n",
         static_cast<long long>(c.trajectories_in + trajectories_rejected),
         trajectory_channel.c_str(),
         static_cast<long long>(c.trajectories_invalid + trajectories_rejected),
         static_cast<long long>(c.keyframes), static_cast<long long>(c.keyframe_points),
-        static_cast<long long>(c.rebuilds_done), c.last_rebuild_us * 1e-6,
-        c.last_rebuild_shift_mm * 1e-3, c.repose_stopped ? "; stopped at repose.max_points" : "");
+        static_cast<long long>(c.keyframes_retired), static_cast<long long>(c.rebuilds_done),
+        c.last_rebuild_us * 1e-6, c.last_rebuild_shift_mm * 1e-3,
+        c.repose_stopped ? "; stopped at repose.max_points" : "");
   if (use_file)
     std::printf("omni-octomap: %zu poses from %s (%lld not after the one before, skipped)\n",
                 feed.fed(), poses_path.c_str(), static_cast<long long>(file_poses_skipped));

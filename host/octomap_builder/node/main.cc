@@ -151,12 +151,14 @@ int main(int argc, char** argv) {
   if (opt->repose.enabled)
     std::printf(
         "octomap_builder: repose: %lld trajectories (%lld rejected), %lld keyframes (%lld "
-        "points), %lld rebuilds (the last %.2f s, for a shift of %.3f m)%s\n",
+        "points; %lld retired as revisited), %lld rebuilds (the last %.2f s, for a shift of %.3f "
+        "m)%s\n",
         static_cast<long long>(c.trajectories_in + node.trajectories_rejected()),
         static_cast<long long>(c.trajectories_invalid + node.trajectories_rejected()),
         static_cast<long long>(c.keyframes), static_cast<long long>(c.keyframe_points),
-        static_cast<long long>(c.rebuilds_done), c.last_rebuild_us * 1e-6,
-        c.last_rebuild_shift_mm * 1e-3, c.repose_stopped ? "; stopped at repose.max_points" : "");
+        static_cast<long long>(c.keyframes_retired), static_cast<long long>(c.rebuilds_done),
+        c.last_rebuild_us * 1e-6, c.last_rebuild_shift_mm * 1e-3,
+        c.repose_stopped ? "; stopped at repose.max_points" : "");
   if (!s.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", s.message().c_str());
     return 1;

@@ -188,11 +188,13 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
                           [this, &c] { return trajectories_rejected_ + c.trajectories_invalid; });
     heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
     heartbeat_.AddCounter("keyframe_points", [&c] { return c.keyframe_points; });
+    heartbeat_.AddCounter("keyframe_points_dropped", [&c] { return c.keyframe_points_dropped; });
     heartbeat_.AddCounter("rebuilds_started", [&c] { return c.rebuilds_started; });
     heartbeat_.AddCounter("rebuilds_done", [&c] { return c.rebuilds_done; });
     heartbeat_.AddCounter("last_rebuild_ms", [&c] { return c.last_rebuild_us / 1000; });
     heartbeat_.AddCounter("last_rebuild_shift_mm", [&c] { return c.last_rebuild_shift_mm; });
     heartbeat_.AddCounter("keyframe_thinnings", [&c] { return c.keyframe_thinnings; });
+    heartbeat_.AddCounter("keyframes_retired", [&c] { return c.keyframes_retired; });
     heartbeat_.AddCounter("trajectories_truncated", [&c] { return c.trajectories_truncated; });
     heartbeat_.AddCounter("repose_stopped", [&c] { return c.repose_stopped; });
   }

@@ -124,6 +124,7 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
   rp.Get("min_interval_s", &ro.min_interval_s, Optional(), InRange(0.0, 3600.0));
   rp.Get("rebuild_budget_ms", &ro.rebuild_budget_ms, Optional(), InRange(1.0, 10000.0));
   rp.Get("max_points", &ro.max_points, Optional(), InRange<int64_t>(1000, int64_t{1} << 32));
+  rp.Get("retire_after_revisits", &ro.retire_after_revisits, Optional(), InRange(0, 1000));
 
   if (Status s = r.Finish(); !s.ok()) return s.error();
   return o;
@@ -438,30 +439,36 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
   kf.utime = posed.utime;
   kf.pose = posed.robot_in_map;
   const double spacing = o.repose.point_spacing_m > 0 ? o.repose.point_spacing_m : o.resolution_m;
-  ThinPoints(points.points, points.colors.empty() ? nullptr : &points.colors, spacing, &kf.points,
-             &kf.colors);
-  kf.radius_m = KeyframeRadius(kf.points, o.mount, o.max_range_m);
+  std::vector<Eigen::Vector3f> thinned;
+  std::vector<uint32_t> thinned_colors;
+  ThinPoints(points.points, points.colors.empty() ? nullptr : &points.colors, spacing, &thinned,
+             &thinned_colors);
+  kf.radius_m = KeyframeRadius(thinned, o.mount, o.max_range_m);
+  counters_.keyframe_points_dropped +=
+      KeepPoints(thinned, thinned_colors.empty() ? nullptr : &thinned_colors, o.max_range_m,
+                 &kf.points, &kf.colors);
   const auto n = static_cast<int64_t>(kf.points.size());
+  if (o.repose.retire_after_revisits > 0) RetireCoveredBy(kf.pose);
   if (counters_.keyframe_points + n > o.repose.max_points && keyframes_.size() >= 2) {
     // Every other keyframe goes, but the first and the newest stay: the whole run stays covered,
     // at half the density. A running rebuild started from the old list: it starts again (the
     // tree keeps the old map meanwhile).
-    std::deque<Keyframe> kept;
-    const size_t last = keyframes_.size() - 1;
-    for (size_t i = 0; i <= last; ++i)
-      if (i % 2 == 0 || i == last) kept.push_back(std::move(keyframes_[i]));
-    keyframes_ = std::move(kept);
-    counters_.keyframe_points = 0;
-    for (const Keyframe& k : keyframes_)
-      counters_.keyframe_points += static_cast<int64_t>(k.points.size());
-    counters_.keyframes = static_cast<int64_t>(keyframes_.size());
-    ++counters_.keyframe_thinnings;
     if (shadow_) {
       shadow_.reset();
       rebuilt_poses_.clear();
       wanted_shift_m_ = MaxShift();
       last_rebuild_start_utime_ = INT64_MIN;  // not a new request: start again at once
     }
+    RemoveRetired();
+    std::deque<Keyframe> kept;
+    for (size_t i = 0; i < keyframes_.size(); ++i)
+      if (i % 2 == 0 || i + 1 == keyframes_.size()) kept.push_back(std::move(keyframes_[i]));
+    keyframes_ = std::move(kept);
+    counters_.keyframe_points = 0;
+    for (const Keyframe& k : keyframes_)
+      counters_.keyframe_points += static_cast<int64_t>(k.points.size());
+    counters_.keyframes = static_cast<int64_t>(keyframes_.size());
+    ++counters_.keyframe_thinnings;
     LOG_INFO << "octomap repose: repose.max_points " << o.repose.max_points
              << " reached; every other keyframe dropped (" << keyframes_.size() << " kept, "
              << counters_.keyframe_points << " points)";
@@ -483,6 +490,30 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
   keyframes_.push_back(std::move(kf));
   ++counters_.keyframes;
   counters_.keyframe_points += n;
+}
+
+void OctomapPipeline::RetireCoveredBy(const Pose2& pose) {
+  const ReposeOptions& r = builder_->options().repose;
+  if (!shadow_) RemoveRetired();  // a running rebuild walks the list by index: not now
+  for (Keyframe& old : keyframes_) {
+    if (old.retired ||
+        std::hypot(old.pose.x - pose.x, old.pose.y - pose.y) >= r.keyframe_distance_m ||
+        std::abs(WrapAngle(old.pose.theta - pose.theta)) >= r.keyframe_angle_rad ||
+        ++old.revisits < r.retire_after_revisits)
+      continue;
+    counters_.keyframe_points -= static_cast<int64_t>(old.points.size());
+    --counters_.keyframes;
+    ++counters_.keyframes_retired;
+    old.retired = true;
+    std::vector<KeptPoint>().swap(old.points);  // freed now, not at the next removal
+    std::vector<uint32_t>().swap(old.colors);
+  }
+}
+
+void OctomapPipeline::RemoveRetired() {
+  keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
+                                  [](const Keyframe& k) { return k.retired; }),
+                   keyframes_.end());
 }
 
 bool OctomapPipeline::AddTrajectory(std::vector<std::pair<int64_t, Pose2>> poses) {
@@ -533,7 +564,7 @@ double OctomapPipeline::MaxShift() const {
   const double threshold = r.min_shift_m > 0 ? r.min_shift_m : 2 * builder_->options().resolution_m;
   double worst = 0;
   for (const Keyframe& kf : keyframes_)
-    worst = std::max(worst, PoseShift(kf.pose, TargetPose(kf), kf.radius_m));
+    if (!kf.retired) worst = std::max(worst, PoseShift(kf.pose, TargetPose(kf), kf.radius_m));
   return worst > threshold ? worst : 0;
 }
 
@@ -565,8 +596,9 @@ void OctomapPipeline::RunRebuild(int64_t budget_us) {
   while (rebuilt_poses_.size() < keyframes_.size()) {
     const Keyframe& kf = keyframes_[rebuilt_poses_.size()];
     const Pose2 pose = TargetPose(kf);
-    shadow_->InsertPoints(kf.points, CameraInMap(pose, mount),
-                          color && !kf.colors.empty() ? &kf.colors : nullptr);
+    if (!kf.retired)
+      shadow_->InsertPoints(kf.Points(), CameraInMap(pose, mount),
+                            color && !kf.colors.empty() ? &kf.colors : nullptr);
     rebuilt_poses_.push_back(pose);
     if (budget_us >= 0 && ParallelKeySetInserter::NowMicros() - t0 >= budget_us) break;
   }

@@ -46,6 +46,47 @@ void ThinPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<ui
   }
 }
 
+int64_t KeepPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<uint32_t>* colors,
+                   double ray_cut_m, std::vector<KeptPoint>* out,
+                   std::vector<uint32_t>* colors_out) {
+  out->clear();
+  out->reserve(points.size());
+  const bool with_colors = colors && colors_out && colors->size() == points.size();
+  if (colors_out) {
+    colors_out->clear();
+    if (with_colors) colors_out->reserve(points.size());
+  }
+  const bool shorten = ray_cut_m > 0 && ray_cut_m <= kKeptPointMaxM;
+  const auto mm = [](float v) {
+    const long r = std::lround(static_cast<double>(v) * 1000.0);
+    return static_cast<int16_t>(std::clamp<long>(r, -32767, 32767));
+  };
+  int64_t dropped = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    Eigen::Vector3f p = points[i];
+    const float far = p.cwiseAbs().maxCoeff();
+    if (!(far <= static_cast<float>(kKeptPointMaxM))) {
+      if (!shorten || !std::isfinite(far)) {
+        ++dropped;
+        continue;
+      }
+      p *= static_cast<float>(kKeptPointMaxM) / far;  // beyond the cut either way: same ray
+    }
+    out->push_back(KeptPoint{mm(p.x()), mm(p.y()), mm(p.z())});
+    if (with_colors) colors_out->push_back((*colors)[i]);
+  }
+  return dropped;
+}
+
+std::vector<Eigen::Vector3f> Keyframe::Points() const {
+  std::vector<Eigen::Vector3f> metres;
+  metres.reserve(points.size());
+  for (const KeptPoint& p : points)
+    metres.emplace_back(static_cast<float>(p.x_mm) * 1e-3f, static_cast<float>(p.y_mm) * 1e-3f,
+                        static_cast<float>(p.z_mm) * 1e-3f);
+  return metres;
+}
+
 double KeyframeRadius(const std::vector<Eigen::Vector3f>& points_camera, const CameraMount& mount,
                       double max_range_m) {
   const Eigen::Isometry3f base_from_camera = MountToIsometry(mount).cast<float>();

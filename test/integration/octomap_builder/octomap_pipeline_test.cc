@@ -365,7 +365,7 @@ TEST(OctomapCli, RebuildsAtTheLogsNewestTrajectory) {
   EXPECT_NE(r.output.find("repose: 2 trajectories on TRAJECTORY_RBPF (1 rejected)"),
             std::string::npos)
       << r.output;
-  EXPECT_NE(r.output.find("points), 1 rebuilds"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("retired as revisited), 1 rebuilds"), std::string::npos) << r.output;
   auto grid = io::ReadMapServer(dir + "/out/grid.yaml");
   ASSERT_TRUE(grid.ok()) << grid.error().message;
   EXPECT_TRUE(GridOccupiedAt(*grid, kWallX + 0.5 + 0.025));

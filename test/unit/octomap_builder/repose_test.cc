@@ -1,6 +1,8 @@
 // Re-posing the OctoMap after the 2D SLAM corrects its trajectory (repose.h): the helpers, and
 // the pipeline rebuilding its tree from keyframes at the corrected poses.
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -30,6 +32,74 @@ TEST(ReposeThinPoints, OneCentroidPerCubeWithTheFirstColourInIt) {
   ThinPoints(pts, nullptr, 0.05, &out, &out_colors);
   EXPECT_EQ(out.size(), 2u);
   EXPECT_TRUE(out_colors.empty());
+}
+
+TEST(ReposeKeepPoints, MillimetresWithinHalfAMillimetreAndColoursInStep) {
+  std::vector<Eigen::Vector3f> pts;
+  std::vector<uint32_t> colors;
+  for (int i = 0; i < 2000; ++i) {
+    // Spread over ±12 m and across every millimetre fraction.
+    pts.emplace_back(-12.0f + 0.0123457f * i, 0.7f - 0.0031f * i, 0.3f + 0.00577f * i);
+    colors.push_back(static_cast<uint32_t>(i));
+  }
+  pts.emplace_back(std::nanf(""), 0.0f, 1.0f);  // not finite: dropped, whatever the ray cut
+  colors.push_back(9999);
+  pts.emplace_back(32.7f, -32.7f, 32.7f);  // just inside the range
+  colors.push_back(7);
+  std::vector<KeptPoint> kept;
+  std::vector<uint32_t> kept_colors;
+  EXPECT_EQ(KeepPoints(pts, &colors, 5.0, &kept, &kept_colors), 1);
+  ASSERT_EQ(kept.size(), pts.size() - 1);
+  ASSERT_EQ(kept_colors.size(), kept.size());
+  Keyframe kf;
+  kf.points = kept;
+  const std::vector<Eigen::Vector3f> back = kf.Points();
+  ASSERT_EQ(back.size(), kept.size());
+  double worst = 0;
+  for (size_t i = 0; i < 2000; ++i) {
+    worst = std::max(worst, static_cast<double>((back[i] - pts[i]).cwiseAbs().maxCoeff()));
+    EXPECT_EQ(kept_colors[i], i);
+  }
+  EXPECT_LE(worst, 0.5e-3 + 1e-5);
+  EXPECT_GT(worst, 0.4e-3);  // the points do fall between millimetres
+  EXPECT_NEAR(back.back().x(), 32.7f, 1e-6);
+  EXPECT_EQ(kept_colors.back(), 7u);
+  // Without colours nothing is written to them.
+  EXPECT_EQ(KeepPoints(pts, nullptr, 5.0, &kept, &kept_colors), 1);
+  EXPECT_TRUE(kept_colors.empty());
+}
+
+TEST(ReposeKeepPoints, AFarPointKeepsItsRayWhenRaysAreCutAndIsDroppedOtherwise) {
+  // Keeping turns the ray by up to 1.5e-5 rad (0.5 mm in 32 m), 0.08 mm at 5 m: the same cells
+  // unless the ray passes that close to a cell's edge. From this camera position the ray below
+  // stays 1.3 mm clear of every edge it passes within 5 m (checked by a one-off script).
+  const std::vector<Eigen::Vector3f> far = {{12.5f, 5.0f, 50.0f}, {0.2f, 0.1f, 2.0f}};
+  const std::vector<uint32_t> colors = {1, 2};
+  std::vector<KeptPoint> kept;
+  std::vector<uint32_t> kept_colors;
+  EXPECT_EQ(KeepPoints(far, &colors, 5.0, &kept, &kept_colors), 0);
+  ASSERT_EQ(kept.size(), 2u);
+  Keyframe kf;
+  kf.points = kept;
+  const std::vector<Eigen::Vector3f> back = kf.Points();
+  EXPECT_NEAR(back[0].z(), 32.767f, 1e-3);  // on the same ray, at the bound
+  EXPECT_NEAR(back[0].x() / back[0].z(), 0.25f, 1e-4);
+  EXPECT_NEAR(back[0].y() / back[0].z(), 0.1f, 1e-4);
+  // The rays it inserts into a tree that cuts them at 5 m are the original's.
+  OctomapBuilderOptions o;
+  o.max_range_m = 5.0;
+  OctomapBuilder original(o), from_kept(o);
+  Eigen::Isometry3d cam = Eigen::Isometry3d::Identity();
+  cam.translation() = Eigen::Vector3d(0.021, 0.013, 0.017);
+  original.InsertPoints(far, cam);
+  from_kept.InsertPoints(back, cam);
+  EXPECT_TRUE(SameLeaves(original.tree(), from_kept.tree()));
+  // Uncut rays: the far point would end in the wrong place, so it is dropped, its colour too.
+  EXPECT_EQ(KeepPoints(far, &colors, -1, &kept, &kept_colors), 1);
+  ASSERT_EQ(kept.size(), 1u);
+  EXPECT_EQ(kept[0].z_mm, 2000);
+  EXPECT_EQ(kept_colors, std::vector<uint32_t>{2});
+  EXPECT_EQ(KeepPoints(far, &colors, 40.0, &kept, &kept_colors), 1);  // cut beyond the bound
 }
 
 TEST(ReposePoseShift, TranslationPlusTheChordOfTheFarthestPoint) {
@@ -114,6 +184,16 @@ void FeedDrive(OctomapPipeline* p, int n_poses) {
   }
 }
 
+// The robot stands at `x` from `t0` for `seconds`, poses at 10 Hz, frames at 5 Hz between them.
+void FeedStand(OctomapPipeline* p, int64_t t0, double x, double seconds) {
+  for (int i = 0; i <= static_cast<int>(seconds * 10); ++i) {
+    const int64_t t = t0 + i * 100000;
+    p->AddPose(t, Pose2(x, 0, 0));
+    if (i % 2 == 1) p->AddDepth(WallDepth(t - 50000, 3.0 - x - 0.1));
+    p->Process(p->newest_utime());
+  }
+}
+
 // The trajectory the SLAM corrected: every pose 0.5 m further along x.
 std::vector<std::pair<int64_t, Pose2>> Shifted(int n_poses, double dx) {
   std::vector<std::pair<int64_t, Pose2>> t;
@@ -154,7 +234,7 @@ TEST(ReposePipeline, ACorrectedTrajectoryRebuildsTheTreeAtTheCorrectedPoses) {
   // The rebuilt tree is exactly the keyframes inserted at those poses, in time order.
   OctomapBuilder reference(o);
   for (const Keyframe& kf : p.keyframes())
-    reference.InsertPoints(kf.points, CameraInMap(kf.pose, o.mount));
+    reference.InsertPoints(kf.Points(), CameraInMap(kf.pose, o.mount));
   EXPECT_TRUE(SameLeaves(reference.tree(), p.builder().tree()));
 
   // The same trajectory again: nothing moves, no rebuild.
@@ -346,6 +426,70 @@ TEST(ReposePipeline, ThePointBudgetHalvesTheKeyframesOverTheWholeRun) {
   p.Process(p.newest_utime());
   EXPECT_EQ(p.counters().rebuilds_done, 1);
   EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+}
+
+TEST(ReposePipeline, RevisitsRetireTheKeyframesTheyStandOn) {
+  OctomapBuilderOptions o = ReposeOptionsForTest();
+  ASSERT_EQ(o.repose.retire_after_revisits, 2);  // the default
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);  // keyframes at x = 0.05, 0.25, ..., 1.85
+  ASSERT_EQ(p.counters().keyframes, 10);
+  const int64_t fifth_points = static_cast<int64_t>(p.keyframes()[4].points.size());
+  const int64_t points_before = p.counters().keyframe_points;
+  // Back at x = 0.85, the fifth keyframe's pose, 1 s later, standing there for 5 s: the first
+  // frame there is a keyframe (1 m from the newest), and standing makes one every
+  // keyframe_interval_s (2 s): three views of the fifth's place. The second retires the fifth,
+  // the third the first of them.
+  FeedStand(&p, kT0 + 3000000, 0.85, 5.0);
+  EXPECT_EQ(p.counters().frames_inserted, 35);
+  EXPECT_EQ(p.counters().keyframes_retired, 2);
+  EXPECT_EQ(p.counters().keyframes, 11);
+  // The same view of the wall as the fifth's: one more keyframe's worth.
+  EXPECT_EQ(p.counters().keyframe_points, points_before + fifth_points);
+  int64_t live = 0, points = 0;
+  for (const Keyframe& kf : p.keyframes()) {
+    if (kf.retired) {
+      EXPECT_EQ(kf.points.capacity(), 0u);  // freed at once, before the entry goes
+      continue;
+    }
+    ++live;
+    points += static_cast<int64_t>(kf.points.size());
+    if (kf.utime < kT0 + 3000000) {
+      EXPECT_GT(std::abs(kf.pose.x - 0.85), 0.1);
+    }
+  }
+  EXPECT_EQ(live, 11);
+  EXPECT_EQ(points, p.counters().keyframe_points);
+  EXPECT_LE(p.keyframes().size(), 12u);  // retired entries go when the next keyframe comes
+
+  // A corrected path moves the keyframes that are left, and only they make the rebuilt tree.
+  std::vector<std::pair<int64_t, Pose2>> corrected = Shifted(21, 0.5);
+  for (int i = 0; i <= 50; ++i)
+    corrected.emplace_back(kT0 + 3000000 + i * 100000, Pose2(1.35, 0, 0));
+  ASSERT_TRUE(p.AddTrajectory(corrected));
+  p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  OctomapBuilder reference(o);
+  for (const Keyframe& kf : p.keyframes())
+    if (!kf.retired) reference.InsertPoints(kf.Points(), CameraInMap(kf.pose, o.mount));
+  EXPECT_TRUE(SameLeaves(reference.tree(), p.builder().tree()));
+  EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
+
+  // One newer view retires a keyframe: the fifth and the first two standing ones go.
+  o.repose.retire_after_revisits = 1;
+  OctomapPipeline one(o);
+  FeedDrive(&one, 21);
+  FeedStand(&one, kT0 + 3000000, 0.85, 5.0);
+  EXPECT_EQ(one.counters().keyframes_retired, 3);
+  EXPECT_EQ(one.counters().keyframes, 10);
+  // 0: every keyframe stays.
+  o.repose.retire_after_revisits = 0;
+  OctomapPipeline all(o);
+  FeedDrive(&all, 21);
+  FeedStand(&all, kT0 + 3000000, 0.85, 5.0);
+  EXPECT_EQ(all.counters().keyframes, 13);
+  EXPECT_EQ(all.counters().keyframes_retired, 0);
+  EXPECT_EQ(all.keyframes().size(), 13u);
 }
 
 TEST(ReposePipeline, AKeyframeLargerThanTheBudgetStopsReposing) {

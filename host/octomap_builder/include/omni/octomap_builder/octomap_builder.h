@@ -202,15 +202,17 @@ class OctomapPipeline {
                                      // uncoloured, message in last_error()
     // Repose option only:
     int64_t trajectories_in = 0;
-    int64_t trajectories_invalid = 0;    // empty, not finite, absurd or a stamp <= 0: ignored
-    int64_t trajectories_truncated = 0;  // a step back in time: only the poses after it taken
-    int64_t keyframes = 0;               // kept now
-    int64_t keyframe_points = 0;         // their points, after thinning
+    int64_t trajectories_invalid = 0;     // empty, not finite, absurd or a stamp <= 0: ignored
+    int64_t trajectories_truncated = 0;   // a step back in time: only the poses after it taken
+    int64_t keyframes = 0;                // kept now (not retired)
+    int64_t keyframe_points = 0;          // their points, after thinning
+    int64_t keyframe_points_dropped = 0;  // beyond ±32.767 m of the camera with uncut rays
     int64_t rebuilds_started = 0;
     int64_t rebuilds_done = 0;          // complete rebuilds that replaced the tree
     int64_t last_rebuild_us = 0;        // monotonic time the last complete one took
     int64_t last_rebuild_shift_mm = 0;  // the largest keyframe shift that asked for it
     int64_t keyframe_thinnings = 0;     // max_points reached: every other keyframe dropped
+    int64_t keyframes_retired = 0;      // revisited retire_after_revisits times
     int64_t repose_stopped = 0;  // 1 once a keyframe did not fit even after halving: no rebuilds
   };
   const Counters& counters() const { return counters_; }
@@ -237,6 +239,8 @@ class OctomapPipeline {
   bool IsKeyframe(const Posed& posed) const;
   void KeepKeyframe(const Posed& posed, const ColoredPoints& points);
   Pose2 TargetPose(const Keyframe& kf) const;  // on the newest trajectory, else its own pose
+  void RetireCoveredBy(const Pose2& pose);     // retire_after_revisits: `pose` revisits keyframes
+  void RemoveRetired();                        // their entries (never while a rebuild runs)
   double MaxShift() const;                     // over all keyframes, 0 when none passes min_shift_m
   void StepRepose();
   void RunRebuild(int64_t budget_us);

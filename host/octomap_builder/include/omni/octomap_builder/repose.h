@@ -5,9 +5,12 @@
 // Keyframes: a frame is kept when the robot has moved keyframe_distance_m or turned
 // keyframe_angle_rad since the last keyframe, or keyframe_interval_s has passed; its points (in
 // the camera frame, thinned to one per point_spacing_m cube: the centroid, with the first
-// non-zero colour seen in it) and the pose it went in at. When the kept points would pass
+// non-zero colour seen in it, stored in whole millimetres: 6 bytes a point instead of a float
+// triple's 12) and the pose it went in at. When the kept points would pass
 // max_points, every other keyframe (not the first nor the newest) is dropped, halving the density
-// over the run.
+// over the run. With retire_after_revisits N, a keyframe that N newer ones have stood on (same
+// place and heading within the keyframe thresholds) is retired: its points are freed at once, the
+// entry removed once no rebuild is running.
 //
 // Rebuild: every keyframe, in time order, goes into a new tree at its pose on the newest
 // trajectory (interpolated between the trajectory's poses around its time; a keyframe outside
@@ -45,18 +48,43 @@ struct ReposeOptions {
   double min_shift_m = 0;      // 0: twice the tree's resolution
   double min_interval_s = 10.0;
   double rebuild_budget_ms = 20;  // node: time spent on a rebuild per tick
-  // Kept keyframe points (12 bytes each). Reaching it drops every other keyframe (counted); when
-  // even that leaves no room for the new keyframe, re-posing stops.
+  // A keyframe is retired once this many newer keyframes have stood on it (within
+  // keyframe_distance_m and keyframe_angle_rad, at the poses they are in the tree at): the newest
+  // views of a place replace the older ones, so the store grows with the area covered, not with
+  // the time spent there (a patrol, a robot standing). 0: never.
+  int retire_after_revisits = 2;
+  // Kept keyframe points (6 bytes each, 10 with colour: 180 MB at the default). Reaching it drops
+  // every other keyframe (counted); when even that leaves no room for the new keyframe, re-posing
+  // stops.
   int64_t max_points = 30000000;
 };
 
+// A kept point in the camera's optical frame, in whole millimetres (±32.767 m). Rounding moves a
+// point by at most 0.87 mm, well below a depth camera's own noise (Kinect: a few millimetres at
+// 1 m, about 4 cm at 5 m, Khoshelham and Elberink 2012) and the tree's centimetre cells.
+struct KeptPoint {
+  int16_t x_mm = 0, y_mm = 0, z_mm = 0;
+};
+constexpr double kKeptPointMaxM = 32.767;
+
 struct Keyframe {
   int64_t utime = 0;
-  Pose2 pose;                           // the robot pose its points are in the tree at
-  double radius_m = 0;                  // farthest point from the robot's origin (xy), capped
-  std::vector<Eigen::Vector3f> points;  // camera optical frame
-  std::vector<uint32_t> colors;         // one per point (PackRgb or 0), or empty
+  Pose2 pose;                     // the robot pose its points are in the tree at
+  double radius_m = 0;            // farthest point from the robot's origin (xy), capped
+  std::vector<KeptPoint> points;  // camera optical frame
+  std::vector<uint32_t> colors;   // one per point (PackRgb or 0), or empty
+  int revisits = 0;               // newer keyframes that stood on it
+  bool retired = false;           // revisited often enough: no points, not rebuilt
+  std::vector<Eigen::Vector3f> Points() const;  // the points in metres, for insertion
 };
+
+// `points` (camera frame, metres) in millimetres, with their `colors` (one per point) when given.
+// A point farther than kKeptPointMaxM on some axis is moved along its ray to that bound when
+// `ray_cut_m` (the tree's ray length limit) is in (0, kKeptPointMaxM] — the ray it inserts is then
+// the same — and dropped otherwise; returns how many were dropped.
+int64_t KeepPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<uint32_t>* colors,
+                   double ray_cut_m, std::vector<KeptPoint>* out,
+                   std::vector<uint32_t>* colors_out);
 
 // One point per `leaf_m` cube at the centroid of the points in it, in order of first appearance;
 // with `colors` (one per point) the cube keeps the first non-zero colour in it (`colors_out`).
