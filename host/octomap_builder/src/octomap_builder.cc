@@ -448,17 +448,14 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
       KeepPoints(thinned, thinned_colors.empty() ? nullptr : &thinned_colors, o.max_range_m,
                  &kf.points, &kf.colors);
   const auto n = static_cast<int64_t>(kf.points.size());
-  if (o.repose.retire_after_revisits > 0) RetireCoveredBy(kf.pose);
+  if (o.repose.retire_after_revisits > 0) RetireCoveredBy(kf.pose, n);
   if (counters_.keyframe_points + n > o.repose.max_points && keyframes_.size() >= 2) {
     // Every other keyframe goes, but the first and the newest stay: the whole run stays covered,
     // at half the density. A running rebuild started from the old list: it starts again (the
     // tree keeps the old map meanwhile).
-    if (shadow_) {
-      shadow_.reset();
-      rebuilt_poses_.clear();
-      wanted_shift_m_ = MaxShift();
-      last_rebuild_start_utime_ = INT64_MIN;  // not a new request: start again at once
-    }
+    const bool was_rebuilding = shadow_ != nullptr;
+    shadow_.reset();  // before the retired entries go: it walks the list by index
+    rebuilt_poses_.clear();
     RemoveRetired();
     std::deque<Keyframe> kept;
     for (size_t i = 0; i < keyframes_.size(); ++i)
@@ -469,6 +466,10 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
       counters_.keyframe_points += static_cast<int64_t>(k.points.size());
     counters_.keyframes = static_cast<int64_t>(keyframes_.size());
     ++counters_.keyframe_thinnings;
+    if (was_rebuilding) {
+      wanted_shift_m_ = MaxShift();
+      last_rebuild_start_utime_ = INT64_MIN;  // not a new request: start again at once
+    }
     LOG_INFO << "octomap repose: repose.max_points " << o.repose.max_points
              << " reached; every other keyframe dropped (" << keyframes_.size() << " kept, "
              << counters_.keyframe_points << " points)";
@@ -492,11 +493,12 @@ void OctomapPipeline::KeepKeyframe(const Posed& posed, const ColoredPoints& poin
   counters_.keyframe_points += n;
 }
 
-void OctomapPipeline::RetireCoveredBy(const Pose2& pose) {
+void OctomapPipeline::RetireCoveredBy(const Pose2& pose, int64_t points) {
   const ReposeOptions& r = builder_->options().repose;
   if (!shadow_) RemoveRetired();  // a running rebuild walks the list by index: not now
   for (Keyframe& old : keyframes_) {
-    if (old.retired ||
+    // A view with less than half the points (the camera blocked, a blank frame) is no revisit.
+    if (old.retired || 2 * points < static_cast<int64_t>(old.points.size()) ||
         std::hypot(old.pose.x - pose.x, old.pose.y - pose.y) >= r.keyframe_distance_m ||
         std::abs(WrapAngle(old.pose.theta - pose.theta)) >= r.keyframe_angle_rad ||
         ++old.revisits < r.retire_after_revisits)

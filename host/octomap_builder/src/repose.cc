@@ -56,7 +56,9 @@ int64_t KeepPoints(const std::vector<Eigen::Vector3f>& points, const std::vector
     colors_out->clear();
     if (with_colors) colors_out->reserve(points.size());
   }
-  const bool shorten = ray_cut_m > 0 && ray_cut_m <= kKeptPointMaxM;
+  // A shortened point is at least kKeptPointMaxM from the camera (less a rounding), so it stays
+  // beyond a cut of at most kKeptPointCutM and inserts the same ray: free cells, no hit.
+  const bool shorten = ray_cut_m > 0 && ray_cut_m <= kKeptPointCutM;
   const auto mm = [](float v) {
     const long r = std::lround(static_cast<double>(v) * 1000.0);
     return static_cast<int16_t>(std::clamp<long>(r, -32767, 32767));
@@ -64,9 +66,13 @@ int64_t KeepPoints(const std::vector<Eigen::Vector3f>& points, const std::vector
   int64_t dropped = 0;
   for (size_t i = 0; i < points.size(); ++i) {
     Eigen::Vector3f p = points[i];
+    if (!p.allFinite()) {  // before the max: Eigen's maxCoeff may pass over a NaN
+      ++dropped;
+      continue;
+    }
     const float far = p.cwiseAbs().maxCoeff();
-    if (!(far <= static_cast<float>(kKeptPointMaxM))) {
-      if (!shorten || !std::isfinite(far)) {
+    if (far > static_cast<float>(kKeptPointMaxM)) {
+      if (!shorten) {
         ++dropped;
         continue;
       }

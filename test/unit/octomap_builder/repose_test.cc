@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -44,12 +45,16 @@ TEST(ReposeKeepPoints, MillimetresWithinHalfAMillimetreAndColoursInStep) {
   }
   pts.emplace_back(std::nanf(""), 0.0f, 1.0f);  // not finite: dropped, whatever the ray cut
   colors.push_back(9999);
+  pts.emplace_back(1.0f, std::nanf(""), 1.0f);  // on any axis
+  colors.push_back(9998);
+  pts.emplace_back(1.0f, 0.5f, std::numeric_limits<float>::infinity());
+  colors.push_back(9997);
   pts.emplace_back(32.7f, -32.7f, 32.7f);  // just inside the range
   colors.push_back(7);
   std::vector<KeptPoint> kept;
   std::vector<uint32_t> kept_colors;
-  EXPECT_EQ(KeepPoints(pts, &colors, 5.0, &kept, &kept_colors), 1);
-  ASSERT_EQ(kept.size(), pts.size() - 1);
+  EXPECT_EQ(KeepPoints(pts, &colors, 5.0, &kept, &kept_colors), 3);
+  ASSERT_EQ(kept.size(), pts.size() - 3);
   ASSERT_EQ(kept_colors.size(), kept.size());
   Keyframe kf;
   kf.points = kept;
@@ -65,7 +70,7 @@ TEST(ReposeKeepPoints, MillimetresWithinHalfAMillimetreAndColoursInStep) {
   EXPECT_NEAR(back.back().x(), 32.7f, 1e-6);
   EXPECT_EQ(kept_colors.back(), 7u);
   // Without colours nothing is written to them.
-  EXPECT_EQ(KeepPoints(pts, nullptr, 5.0, &kept, &kept_colors), 1);
+  EXPECT_EQ(KeepPoints(pts, nullptr, 5.0, &kept, &kept_colors), 3);
   EXPECT_TRUE(kept_colors.empty());
 }
 
@@ -100,6 +105,9 @@ TEST(ReposeKeepPoints, AFarPointKeepsItsRayWhenRaysAreCutAndIsDroppedOtherwise) 
   EXPECT_EQ(kept[0].z_mm, 2000);
   EXPECT_EQ(kept_colors, std::vector<uint32_t>{2});
   EXPECT_EQ(KeepPoints(far, &colors, 40.0, &kept, &kept_colors), 1);  // cut beyond the bound
+  // A cut near the bound could take the moved point (32.767 m out, less rounding) for a hit.
+  EXPECT_EQ(KeepPoints(far, &colors, 32.5, &kept, &kept_colors), 1);
+  EXPECT_EQ(KeepPoints(far, &colors, kKeptPointCutM, &kept, &kept_colors), 0);
 }
 
 TEST(ReposePoseShift, TranslationPlusTheChordOfTheFarthestPoint) {
@@ -184,14 +192,17 @@ void FeedDrive(OctomapPipeline* p, int n_poses) {
   }
 }
 
-// The robot stands at `x` from `t0` for `seconds`, poses at 10 Hz, frames at 5 Hz between them.
-void FeedStand(OctomapPipeline* p, int64_t t0, double x, double seconds) {
+// The robot stands at `x` from `t0` for `seconds`, poses at 10 Hz, frames at 5 Hz between them,
+// facing the wall at x = `wall_x`; each pose processed, or all at the end without `each`.
+void FeedStand(OctomapPipeline* p, int64_t t0, double x, double seconds, double wall_x = 3.0,
+               bool each = true) {
   for (int i = 0; i <= static_cast<int>(seconds * 10); ++i) {
     const int64_t t = t0 + i * 100000;
     p->AddPose(t, Pose2(x, 0, 0));
-    if (i % 2 == 1) p->AddDepth(WallDepth(t - 50000, 3.0 - x - 0.1));
-    p->Process(p->newest_utime());
+    if (i % 2 == 1) p->AddDepth(WallDepth(t - 50000, wall_x - x - 0.1));
+    if (each) p->Process(p->newest_utime());
   }
+  if (!each) p->Process(p->newest_utime());
 }
 
 // The trajectory the SLAM corrected: every pose 0.5 m further along x.
@@ -482,6 +493,14 @@ TEST(ReposePipeline, RevisitsRetireTheKeyframesTheyStandOn) {
   FeedStand(&one, kT0 + 3000000, 0.85, 5.0);
   EXPECT_EQ(one.counters().keyframes_retired, 3);
   EXPECT_EQ(one.counters().keyframes, 10);
+  // A view of far fewer points (here none: the wall nearer than min_depth_m) is no revisit.
+  o.repose.retire_after_revisits = 1;
+  OctomapPipeline blocked(o);
+  FeedDrive(&blocked, 21);
+  FeedStand(&blocked, kT0 + 3000000, 0.85, 5.0, /*wall_x=*/1.2);
+  EXPECT_EQ(blocked.counters().frames_inserted, 35);
+  EXPECT_EQ(blocked.counters().keyframes_retired, 2);  // the two empty stand views only
+  EXPECT_EQ(blocked.keyframes()[4].points.size(), static_cast<size_t>(fifth_points));
   // 0: every keyframe stays.
   o.repose.retire_after_revisits = 0;
   OctomapPipeline all(o);
@@ -490,6 +509,34 @@ TEST(ReposePipeline, RevisitsRetireTheKeyframesTheyStandOn) {
   EXPECT_EQ(all.counters().keyframes, 13);
   EXPECT_EQ(all.counters().keyframes_retired, 0);
   EXPECT_EQ(all.keyframes().size(), 13u);
+}
+
+TEST(ReposePipeline, KeyframesRetiredDuringARebuildInSlicesStayListedUntilItEnds) {
+  const OctomapBuilderOptions o = ReposeOptionsForTest();
+  OctomapPipeline p(o);
+  FeedDrive(&p, 21);
+  p.set_rebuild_budget_us(0);  // one keyframe per Process call
+  ASSERT_TRUE(p.AddTrajectory(Shifted(21, 0.5)));
+  p.Process(p.newest_utime());
+  ASSERT_TRUE(p.rebuilding());
+  // The three standing views of the fifth keyframe's place come in one call, mid-rebuild.
+  FeedStand(&p, kT0 + 3000000, 0.85, 5.0, 3.0, /*each=*/false);
+  EXPECT_TRUE(p.rebuilding());
+  EXPECT_EQ(p.counters().keyframes_retired, 2);
+  EXPECT_EQ(p.counters().keyframes, 11);
+  EXPECT_EQ(p.keyframes().size(), 13u);  // the rebuild walks the list by index: entries stay
+  EXPECT_TRUE(p.keyframes()[4].retired);
+  while (p.rebuilding()) p.Process(p.newest_utime());
+  EXPECT_EQ(p.counters().rebuilds_done, 1);
+  // The rebuilt tree is the keyframes left, the retired fifth not among them.
+  OctomapBuilder reference(o);
+  for (const Keyframe& kf : p.keyframes())
+    if (!kf.retired) reference.InsertPoints(kf.Points(), CameraInMap(kf.pose, o.mount));
+  EXPECT_TRUE(SameLeaves(reference.tree(), p.builder().tree()));
+  // The next keyframe, with no rebuild running, clears the retired entries out.
+  FeedStand(&p, kT0 + 9000000, 2.5, 0.2, 4.0);
+  EXPECT_EQ(p.keyframes().size(), 12u);
+  for (const Keyframe& kf : p.keyframes()) EXPECT_FALSE(kf.retired);
 }
 
 TEST(ReposePipeline, AKeyframeLargerThanTheBudgetStopsReposing) {

@@ -239,9 +239,10 @@ class OctomapPipeline {
   bool IsKeyframe(const Posed& posed) const;
   void KeepKeyframe(const Posed& posed, const ColoredPoints& points);
   Pose2 TargetPose(const Keyframe& kf) const;  // on the newest trajectory, else its own pose
-  void RetireCoveredBy(const Pose2& pose);     // retire_after_revisits: `pose` revisits keyframes
-  void RemoveRetired();                        // their entries (never while a rebuild runs)
-  double MaxShift() const;                     // over all keyframes, 0 when none passes min_shift_m
+  // retire_after_revisits: a new keyframe of `points` points at `pose` revisits older ones.
+  void RetireCoveredBy(const Pose2& pose, int64_t points);
+  void RemoveRetired();     // their entries (never while a rebuild runs)
+  double MaxShift() const;  // over all keyframes, 0 when none passes min_shift_m
   void StepRepose();
   void RunRebuild(int64_t budget_us);
 

@@ -66,6 +66,7 @@ struct KeptPoint {
   int16_t x_mm = 0, y_mm = 0, z_mm = 0;
 };
 constexpr double kKeptPointMaxM = 32.767;
+constexpr double kKeptPointCutM = 32.0;  // rays cut at most this far: far points are kept
 
 struct Keyframe {
   int64_t utime = 0;
@@ -80,8 +81,9 @@ struct Keyframe {
 
 // `points` (camera frame, metres) in millimetres, with their `colors` (one per point) when given.
 // A point farther than kKeptPointMaxM on some axis is moved along its ray to that bound when
-// `ray_cut_m` (the tree's ray length limit) is in (0, kKeptPointMaxM] — the ray it inserts is then
-// the same — and dropped otherwise; returns how many were dropped.
+// `ray_cut_m` (the tree's ray length limit) is in (0, kKeptPointCutM] — the ray it inserts is then
+// the same — and dropped otherwise, as is a point that is not finite; returns how many were
+// dropped.
 int64_t KeepPoints(const std::vector<Eigen::Vector3f>& points, const std::vector<uint32_t>* colors,
                    double ray_cut_m, std::vector<KeptPoint>* out,
                    std::vector<uint32_t>* colors_out);
