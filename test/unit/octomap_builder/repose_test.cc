@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -486,29 +487,28 @@ TEST(ReposePipeline, RevisitsRetireTheKeyframesTheyStandOn) {
   EXPECT_TRUE(SameLeaves(reference.tree(), p.builder().tree()));
   EXPECT_TRUE(Occupied(p.builder().tree(), 3.51));
 
+  // The same drive and stay with other settings.
+  const auto drive_then_stand = [&o](int retire_after_revisits, double wall_x) {
+    o.repose.retire_after_revisits = retire_after_revisits;
+    auto q = std::make_unique<OctomapPipeline>(o);
+    FeedDrive(q.get(), 21);
+    FeedStand(q.get(), kT0 + 3000000, 0.85, 5.0, wall_x);
+    return q;
+  };
   // One newer view retires a keyframe: the fifth and the first two standing ones go.
-  o.repose.retire_after_revisits = 1;
-  OctomapPipeline one(o);
-  FeedDrive(&one, 21);
-  FeedStand(&one, kT0 + 3000000, 0.85, 5.0);
-  EXPECT_EQ(one.counters().keyframes_retired, 3);
-  EXPECT_EQ(one.counters().keyframes, 10);
+  const auto one = drive_then_stand(1, 3.0);
+  EXPECT_EQ(one->counters().keyframes_retired, 3);
+  EXPECT_EQ(one->counters().keyframes, 10);
   // A view of far fewer points (here none: the wall nearer than min_depth_m) is no revisit.
-  o.repose.retire_after_revisits = 1;
-  OctomapPipeline blocked(o);
-  FeedDrive(&blocked, 21);
-  FeedStand(&blocked, kT0 + 3000000, 0.85, 5.0, /*wall_x=*/1.2);
-  EXPECT_EQ(blocked.counters().frames_inserted, 35);
-  EXPECT_EQ(blocked.counters().keyframes_retired, 2);  // the two empty stand views only
-  EXPECT_EQ(blocked.keyframes()[4].points.size(), static_cast<size_t>(fifth_points));
+  const auto blocked = drive_then_stand(1, 1.2);
+  EXPECT_EQ(blocked->counters().frames_inserted, 35);
+  EXPECT_EQ(blocked->counters().keyframes_retired, 2);  // the two empty stand views only
+  EXPECT_EQ(blocked->keyframes()[4].points.size(), static_cast<size_t>(fifth_points));
   // 0: every keyframe stays.
-  o.repose.retire_after_revisits = 0;
-  OctomapPipeline all(o);
-  FeedDrive(&all, 21);
-  FeedStand(&all, kT0 + 3000000, 0.85, 5.0);
-  EXPECT_EQ(all.counters().keyframes, 13);
-  EXPECT_EQ(all.counters().keyframes_retired, 0);
-  EXPECT_EQ(all.keyframes().size(), 13u);
+  const auto all = drive_then_stand(0, 3.0);
+  EXPECT_EQ(all->counters().keyframes, 13);
+  EXPECT_EQ(all->counters().keyframes_retired, 0);
+  EXPECT_EQ(all->keyframes().size(), 13u);
 }
 
 TEST(ReposePipeline, KeyframesRetiredDuringARebuildInSlicesStayListedUntilItEnds) {

@@ -206,7 +206,7 @@ class OctomapPipeline {
     int64_t trajectories_truncated = 0;   // a step back in time: only the poses after it taken
     int64_t keyframes = 0;                // kept now (not retired)
     int64_t keyframe_points = 0;          // their points, after thinning
-    int64_t keyframe_points_dropped = 0;  // beyond ±32.767 m of the camera with uncut rays
+    int64_t keyframe_points_dropped = 0;  // not finite, or beyond ±32.767 m (KeepPoints)
     int64_t rebuilds_started = 0;
     int64_t rebuilds_done = 0;          // complete rebuilds that replaced the tree
     int64_t last_rebuild_us = 0;        // monotonic time the last complete one took
