@@ -7,26 +7,29 @@
 # lap and at the end, the growth per lap and the CPU used, then each trajectory's ATE against
 # the simulator's truth and each map's error against its truth map.
 #
-# usage: scripts/soak.sh [--laps N] [--speed X] [--out DIR]
+# usage: scripts/soak.sh [--laps N] [--speed X] [--walkers N] [--out DIR]
 #   --laps N   tours of the built-in world (default 10; one is 240 s of simulated time)
 #   --speed X  times real time (default 2.5: ten laps in about 16 minutes)
+#   --walkers N  people walking through the floor (omni-sim --walkers; default 0)
 #   --out DIR  where everything goes (default out/soak): supervisor.log, sim.log, rss.txt
 #              (unix time, process, RSS kB, CPU ticks), the maps and trajectories
 # Runs in a private network namespace (root or user namespaces), so nothing leaves the machine.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)"
 BUILD="${OMNI_BUILD_DIR:-$ROOT/build}"
-LAPS=10 SPEED=2.5 OUT="$ROOT/out/soak"
+LAPS=10 SPEED=2.5 WALKERS=0 OUT="$ROOT/out/soak"
 while [ $# -gt 0 ]; do
   case "$1" in
     --laps) LAPS="${2:?--laps needs a value}"; shift 2 ;;
     --speed) SPEED="${2:?--speed needs a value}"; shift 2 ;;
+    --walkers) WALKERS="${2:?--walkers needs a value}"; shift 2 ;;
     --out) OUT="${2:?--out needs a value}"; shift 2 ;;
-    -h|--help) sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "soak.sh: unknown argument '$1' (--help)" >&2; exit 2 ;;
   esac
 done
 [[ "$LAPS" =~ ^[1-9][0-9]*$ ]] || { echo "soak.sh: --laps expects a whole number >= 1" >&2; exit 2; }
+[[ "$WALKERS" =~ ^[0-9]+$ ]] || { echo "soak.sh: --walkers expects a whole number >= 0" >&2; exit 2; }
 for b in supervisor omni-sim omni-eval odom_mapper rbpf_mapper pose_graph_mapper octomap_builder map_fusion; do
   [ -x "$BUILD/bin/$b" ] || { echo "soak.sh: $BUILD/bin/$b missing: build first (./omni setup)" >&2; exit 1; }
 done
@@ -65,7 +68,7 @@ child() {
 
 run='
 ip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 98
-B="$0"; D="$1"; LAPS="$2"; SPEED="$3"
+B="$0"; D="$1"; LAPS="$2"; SPEED="$3"; WALKERS="$4"
 export LCM_DEFAULT_URL="udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304"
 "$B/bin/supervisor" --config "$D/supervisor.yaml" > "$D/supervisor.log" 2>&1 & s=$!
 sleep 2
@@ -80,7 +83,7 @@ sleep 2
     sleep 20 & wait $!
   done ) & sampler=$!
 rc=0
-"$B/bin/omni-sim" --out "$D/sim" --laps "$LAPS" --live "" --speed "$SPEED" > "$D/sim.log" 2>&1 || rc=$?
+"$B/bin/omni-sim" --out "$D/sim" --laps "$LAPS" --live "" --speed "$SPEED" --walkers "$WALKERS" > "$D/sim.log" 2>&1 || rc=$?
 sleep 5
 kill -TERM $s
 wait $s || rc=$((rc ? rc : 10))
@@ -88,9 +91,9 @@ kill $sampler 2>/dev/null
 exit $rc'
 rc=0
 if [ "$(id -u)" -eq 0 ] && unshare -n true 2>/dev/null; then
-  unshare -n bash -c "$run" "$BUILD" "$OUT" "$LAPS" "$SPEED" || rc=$?
+  unshare -n bash -c "$run" "$BUILD" "$OUT" "$LAPS" "$SPEED" "$WALKERS" || rc=$?
 elif unshare -rn true 2>/dev/null; then
-  unshare -rn bash -c "$run" "$BUILD" "$OUT" "$LAPS" "$SPEED" || rc=$?
+  unshare -rn bash -c "$run" "$BUILD" "$OUT" "$LAPS" "$SPEED" "$WALKERS" || rc=$?
 else
   echo "soak.sh: needs a private network namespace (root or user namespaces)" >&2
   exit 1
@@ -99,7 +102,7 @@ fi
 
 [ -s "$OUT/rss.txt" ] || { echo "soak.sh: no process was sampled (see $OUT/supervisor.log)" >&2; exit 1; }
 hz=$(getconf CLK_TCK)
-echo "memory (RSS) and CPU per process over $LAPS laps at ${SPEED}x (sampled every 20 s):"
+echo "memory (RSS) and CPU per process over $LAPS laps at ${SPEED}x, $WALKERS walkers (sampled every 20 s):"
 awk -v hz="$hz" -v laps="$LAPS" '
   NR == 1 { t0 = $1 }
   { if (!($2 in first)) { first[$2] = $3; tfirst[$2] = $1 }
@@ -116,7 +119,7 @@ awk -v hz="$hz" -v laps="$LAPS" '
       printf "  %-18s %9.1f MB %9.1f MB %9.1f MB %+11.2f MB %8.1f s\n", n, at1[n] / 1024, last[n] / 1024, peak[n] / 1024, g / 1024, cpu[n] / hz
     }
   }' "$OUT/rss.txt"
-tail -n 3 "$OUT/sim.log" 2>/dev/null | sed 's/^/  /' || true
+grep '^omni-sim:' "$OUT/sim.log" 2>/dev/null | sed 's/^/  /' || true
 echo "trajectory errors against the simulator's truth:"
 for t in odom_trajectory.txt rbpf/trajectory.txt posegraph/trajectory.txt; do
   [ -f "$OUT/$t" ] || { echo "  $t: missing"; continue; }

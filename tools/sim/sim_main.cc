@@ -91,7 +91,7 @@ void Usage(std::FILE* f) {
       "                [--still S] [--base firmware|ideal] [--slip A,B,C] [--slip-noise S]\n"
       "                [--instant-scans] [--no-depth] [--depth-hz HZ]\n"
       "                [--live URL [--speed X]] [--drive tour|bus] [--cmd-channel NAME]\n"
-      "                [--bridge-config FILE]\n"
+      "                [--bridge-config FILE] [--walkers N [--walker-speed M]]\n"
       "  Simulates the omni base touring a world (built-in: a 20 x 14 m floor with an inner\n"
       "  room, alcoves, pillars and low obstacles) and writes DIR/sim.lcmlog (LIDAR_SCAN 10 Hz,\n"
       "  WHEEL_ODOM from slipping wheel encoders, IMU 100 Hz, DEPTH 320x240 at 5 Hz) and\n"
@@ -110,6 +110,11 @@ void Usage(std::FILE* f) {
       "                 revolution as the base moves, as a spinning lidar measures them)\n"
       "  --world FILE   YAML `boxes: [[x0, y0, x1, y1, z0, z1], ...]` (the tour is built for\n"
       "                 the built-in world; other worlds must leave its path free)\n"
+      "  --walkers N    N people (0-100, default 0) walking back and forth on straight tracks\n"
+      "                 of 2.5-10 m drawn from the seed: 0.4 m wide, 1.75 m tall cylinders the\n"
+      "                 lidar and the camera see and the truth map leaves out; they wait for\n"
+      "                 and step away from the base, which does not steer around them\n"
+      "  --walker-speed M  their mean speed (0.1-2 m/s, default 0.8; each +-25 %%)\n"
       "  --live URL     also publish on the bus at X times real time (default 1); URL \"\":\n"
       "                 LCM's default (LCM_DEFAULT_URL)\n"
       "  --drive tour   (default) the built-in tour's waypoint follower drives the base\n"
@@ -133,7 +138,7 @@ bool ParseNumber(const std::string& v, double* out) {
 
 int main(int argc, char** argv) {
   std::string out_dir, world_path, live_url, drive = "tour", cmd_channel, bridge_config;
-  bool slip_given = false;
+  bool slip_given = false, walker_speed_given = false;
   bool live = false;
   double speed = 1.0;
   omni::sim::SimOptions opt;
@@ -179,6 +184,11 @@ int main(int argc, char** argv) {
         slip_given = true;
         rest = comma == std::string::npos ? "" : rest.substr(comma + 1);
       }
+    } else if (args.Is("--walkers")) {
+      opt.walkers = static_cast<int>(args.Integer(0, 100));
+    } else if (args.Is("--walker-speed")) {
+      opt.walker_speed_m_s = args.Number(0.1, 2.0);
+      walker_speed_given = true;
     } else if (args.Is("--still")) {
       opt.still_s = args.Number(0, 3600);
     } else if (args.Is("--slip-noise")) {
@@ -218,6 +228,10 @@ int main(int argc, char** argv) {
                  slip_given
                      ? "--slip models the firmware base's wheels; it needs --base firmware"
                      : "--cmd-channel is where --drive bus takes its commands; add --drive bus");
+    return 2;
+  }
+  if (walker_speed_given && opt.walkers == 0) {
+    std::fprintf(stderr, "omni-sim: --walker-speed sets the walkers' pace; add --walkers N\n");
     return 2;
   }
   if (opt.still_s > 0 && drive == "bus") {
@@ -339,6 +353,24 @@ int main(int argc, char** argv) {
   if (write_status.ok() && !truth.empty())
     write_status =
         omni::io::WriteMapServer(TruthMap(boxes, truth.front().pose2()), out_dir + "/truth_map");
+  // The walkers' tracks, in the same frame, for looking up what a map kept of them.
+  if (write_status.ok() && !sim.walker_tracks().empty() && !truth.empty()) {
+    const omni::Pose2 inv = truth.front().pose2().Inverse();
+    std::string text =
+        "# walker ax ay bx by speed_m_s (track ends in the map frame: the robot's "
+        "pose at the first scan)\n";
+    char line[160];
+    for (size_t i = 0; i < sim.walker_tracks().size(); ++i) {
+      const auto& t = sim.walker_tracks()[i];
+      const Eigen::Vector2d a = inv.Transform({t.ax, t.ay}), b = inv.Transform({t.bx, t.by});
+      std::snprintf(line, sizeof(line), "%zu %.3f %.3f %.3f %.3f %.3f\n", i, a.x(), a.y(), b.x(),
+                    b.y(), t.speed_m_s);
+      text += line;
+    }
+    std::FILE* f = std::fopen((out_dir + "/walkers.txt").c_str(), "w");
+    if (f == nullptr || std::fputs(text.c_str(), f) < 0 || std::fclose(f) != 0)
+      write_status = omni::MakeError(omni::ErrorCode::kIo, out_dir + "/walkers.txt: cannot write");
+  }
   if (!write_status.ok()) {
     std::fprintf(stderr, "omni-sim: %s\n", write_status.message().c_str());
     return 1;
@@ -353,6 +385,16 @@ int main(int argc, char** argv) {
       st.distance_m, st.rotation_rad, static_cast<long long>(st.scans),
       static_cast<long long>(st.odometry), static_cast<long long>(st.imu),
       static_cast<long long>(st.depth_frames), out_dir.c_str());
+  if (st.walkers > 0) {
+    std::printf(
+        "omni-sim: %d walkers, %.1f m walked; %.1f walker-seconds spent waiting for or "
+        "stepping away from the base, %.2f touching it\n",
+        st.walkers, st.walker_distance_m, static_cast<double>(st.walker_yields) / opt.physics_hz,
+        static_cast<double>(st.walker_contacts) / opt.physics_hz);
+    if (st.walkers < opt.walkers)
+      std::fprintf(stderr, "omni-sim: the world had free floor for only %d of %d walkers\n",
+                   st.walkers, opt.walkers);
+  }
   if (drive == "bus") {
     const int64_t bad_commands = bus->counters().decode_errors;
     std::printf(

@@ -16,6 +16,7 @@ namespace omni::sim {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+constexpr double kBaseRadiusM = 0.3;  // the base's footprint, for walkers touching it
 
 // Integrates a body twist over dt at the midpoint heading.
 Pose2 Integrate(const Pose2& p, const kinematics::BodyTwist<double>& t, double dt) {
@@ -28,7 +29,181 @@ Pose2 Integrate(const Pose2& p, const kinematics::BodyTwist<double>& t, double d
 }  // namespace
 
 Simulator::Simulator(World world, SimOptions options)
-    : world_(std::move(world)), o_(options), tour_(BuiltInTour()), rng_(options.seed) {}
+    : world_(std::move(world)), o_(options), tour_(BuiltInTour()), rng_(options.seed) {
+  MakeWalkers();
+}
+
+void Simulator::MakeWalkers() {
+  tracks_ = o_.walker_tracks;
+  const double r = o_.walker_radius_m;
+  if (tracks_.empty() && o_.walkers > 0 && !world_.boxes().empty()) {
+    // An own random stream, so that the sensors' noise is drawn as without walkers.
+    std::mt19937_64 g(o_.seed ^ 0x5DEECE66DULL);
+    double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+    for (const Box& b : world_.boxes()) {
+      x0 = std::min(x0, b.x0);
+      y0 = std::min(y0, b.y0);
+      x1 = std::max(x1, b.x1);
+      y1 = std::max(y1, b.y1);
+    }
+    std::uniform_real_distribution<double> ux(x0, x1), uy(y0, y1), ua(-kPi, kPi), ul(2.5, 10.0),
+        uv(0.75, 1.25), u01(0.0, 1.0);
+    const Pose2 start = tour_.empty() ? Pose2() : tour_.front();
+    // A spare 0.1 m from the walls where the walker starts and along its track, so that it can
+    // step aside there.
+    auto roomy = [&](double x, double y) {
+      return x >= x0 && x <= x1 && y >= y0 && y <= y1 && world_.Free(x, y, r + 0.1);
+    };
+    for (int attempt = 0; attempt < 100000 && static_cast<int>(tracks_.size()) < o_.walkers;
+         ++attempt) {
+      const double ax = ux(g), ay = uy(g), a = ua(g), want = ul(g), speed = uv(g), phase = u01(g);
+      if (!roomy(ax, ay)) continue;
+      const double cx = std::cos(a), sy = std::sin(a);
+      double len = 0;
+      while (len + 0.05 <= want && roomy(ax + (len + 0.05) * cx, ay + (len + 0.05) * sy))
+        len += 0.05;
+      if (len < 2.5) continue;
+      const double px = ax + phase * len * cx, py = ay + phase * len * sy;
+      if (std::hypot(px - start.x, py - start.y) < 1.5) continue;
+      tracks_.push_back({ax, ay, ax + len * cx, ay + len * sy, o_.walker_speed_m_s * speed, phase});
+    }
+  }
+  walkers_.clear();
+  for (size_t i = 0; i < tracks_.size(); ++i) {
+    const WalkerTrack& t = tracks_[i];
+    Walker w;
+    w.s = std::clamp(t.phase, 0.0, 1.0) * std::hypot(t.bx - t.ax, t.by - t.ay);
+    w.p = TrackPoint(i, w.s);
+    walkers_.push_back(w);
+  }
+}
+
+Eigen::Vector2d Simulator::TrackPoint(size_t i, double s) const {
+  const WalkerTrack& t = tracks_[i];
+  const Eigen::Vector2d a(t.ax, t.ay), b(t.bx, t.by);
+  const double len = (b - a).norm();
+  return len > 1e-9 ? Eigen::Vector2d(a + std::clamp(s, 0.0, len) / len * (b - a)) : a;
+}
+
+std::vector<Eigen::Vector2d> Simulator::WalkerPositions() const {
+  std::vector<Eigen::Vector2d> out;
+  for (const Walker& w : walkers_) out.push_back(w.p);
+  return out;
+}
+
+void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
+  const double r = o_.walker_radius_m, keep = o_.keep_clear_m;
+  const Eigen::Vector2d rc(robot.x, robot.y);
+  for (size_t i = 0; i < walkers_.size(); ++i) {
+    const WalkerTrack& t = tracks_[i];
+    const Eigen::Vector2d a(t.ax, t.ay), b(t.bx, t.by);
+    const double len = (b - a).norm();
+    const double step = std::max(0.0, t.speed_m_s) * dt;
+    Walker& w = walkers_[i];
+    const double d = (w.p - rc).norm();
+    // A move to q is taken when the floor there is free and, near the base, it is not closer to
+    // the base than where the walker stands.
+    auto take = [&](const Eigen::Vector2d& q) {
+      const double dq = (q - rc).norm();
+      if (!world_.Free(q.x(), q.y(), r) || (dq < keep && dq <= d)) return false;
+      if (stats != nullptr) stats->walker_distance_m += (q - w.p).norm();
+      w.p = q;
+      return true;
+    };
+    // A step of `step` towards `dir` (unit), or as close to it as the walls allow: turned away
+    // from it by up to 2 rad, to the side it turned to last, so that it follows a wall round
+    // instead of dithering along it.
+    auto step_towards = [&](const Eigen::Vector2d& dir) {
+      if (take(w.p + step * dir)) {
+        w.detour = 0;
+        return true;
+      }
+      const int first = w.detour != 0 ? w.detour : 1;
+      for (int side : {first, -first})
+        for (double turn : {0.5, 1.0, 1.5, 2.0}) {
+          const double c = std::cos(side * turn), sn = std::sin(side * turn);
+          if (take(w.p + step * Eigen::Vector2d(c * dir.x() - sn * dir.y(),
+                                                sn * dir.x() + c * dir.y()))) {
+            w.detour = side;
+            return true;
+          }
+        }
+      return false;
+    };
+    bool yielded = false;
+    if (d < keep) {
+      // The base comes at it: away from the base.
+      step_towards(d > 1e-9 ? Eigen::Vector2d((w.p - rc) / d) : Eigen::Vector2d(1, 0));
+      w.off_track = true;
+      yielded = true;
+    } else if (w.off_track) {
+      // Back to the nearest point of its track once the base has passed, around what is in the
+      // way (a pillar it was pushed against).
+      const double s = len > 1e-9 ? std::clamp((w.p - a).dot(b - a) / len, 0.0, len) : 0.0;
+      const Eigen::Vector2d on = TrackPoint(i, s), to = on - w.p;
+      const double gap = to.norm();
+      if (gap <= step && take(on)) {
+        w.off_track = false;
+        w.detour = 0;
+        w.s = s;
+      } else {
+        yielded = !step_towards(gap > 1e-9 ? Eigen::Vector2d(to / gap) : Eigen::Vector2d(1, 0));
+      }
+    } else {
+      double s = w.s + w.dir * step, dir = w.dir;
+      if (s > len) {
+        s = std::max(0.0, 2 * len - s);
+        dir = -1;
+      } else if (s < 0) {
+        s = std::min(len, -s);
+        dir = 1;
+      }
+      if (take(TrackPoint(i, s))) {
+        w.s = s;
+        w.dir = dir;
+      } else {
+        yielded = true;  // waiting for the base to pass
+      }
+    }
+    if (stats != nullptr) {
+      stats->walker_yields += yielded ? 1 : 0;
+      if ((w.p - rc).norm() < r + kBaseRadiusM) ++stats->walker_contacts;
+    }
+  }
+}
+
+double Simulator::Cast(const Vec3& o, const Vec3& d, double t_max) const {
+  const double world = world_.Cast(o, d, t_max);
+  if (walkers_.empty()) return world;
+  double best = world >= 0 ? world : t_max;
+  bool hit = world >= 0;
+  const double r = o_.walker_radius_m, h = o_.walker_height_m;
+  const double a = d.x * d.x + d.y * d.y;
+  for (size_t i = 0; i < walkers_.size(); ++i) {
+    const Eigen::Vector2d& c = walkers_[i].p;
+    const double ox = o.x - c.x(), oy = o.y - c.y();
+    const double cc = ox * ox + oy * oy - r * r;
+    if (cc <= 0 && o.z >= 0 && o.z <= h) return 0.0;  // inside a walker
+    double t = -1;
+    if (a > 0) {  // its side
+      const double half_b = ox * d.x + oy * d.y, disc = half_b * half_b - a * cc;
+      if (disc >= 0) {
+        const double t0 = (-half_b - std::sqrt(disc)) / a;
+        const double z = o.z + t0 * d.z;
+        if (t0 >= 0 && z >= 0 && z <= h) t = t0;
+      }
+    }
+    if (t < 0 && o.z > h && d.z < 0) {  // its top, seen from above
+      const double tc = (h - o.z) / d.z, x = ox + tc * d.x, y = oy + tc * d.y;
+      if (x * x + y * y <= r * r) t = tc;
+    }
+    if (t >= 0 && t < best) {
+      best = t;
+      hit = true;
+    }
+  }
+  return hit ? best : -1.0;
+}
 
 std::vector<Pose2> Simulator::BuiltInTour() {
   const double e = 0, n = kPi / 2, w = kPi, s = -kPi / 2;
@@ -58,7 +233,7 @@ float Simulator::BeamRange(const Pose2& base, int i) {
   std::uniform_real_distribution<double> u01(0.0, 1.0);
   const double a = sensor.theta - kPi + i * (2 * kPi / o_.lidar_beams);
   const Vec3 origin{sensor.x, sensor.y, o_.lidar_height_m};
-  const double t = world_.Cast(origin, {std::cos(a), std::sin(a), 0.0}, o_.range_max_m);
+  const double t = Cast(origin, {std::cos(a), std::sin(a), 0.0}, o_.range_max_m);
   const double n = noise(rng_);
   const bool dropout = u01(rng_) < o_.dropout_probability;
   double r = std::numeric_limits<double>::quiet_NaN();
@@ -89,7 +264,7 @@ std::vector<uint16_t> Simulator::DepthImage(const Pose2& base) {
       const double fwd_t = fwd * ct + up * st, up_t = up * ct - fwd * st;
       const Vec3 d{fwd_t * cy - left * sy, fwd_t * sy + left * cy, up_t};
       // |d| = |(xo, yo, 1)|, so the cast's parameter is the depth along the optical axis.
-      const double z = world_.Cast(origin, d, o_.depth_max_m * 1.5);
+      const double z = Cast(origin, d, o_.depth_max_m * 1.5);
       if (z < o_.depth_min_m) continue;
       const double noisy = z + o_.depth_noise_per_m2 * z * z * n01(rng_);
       if (noisy < o_.depth_min_m || noisy > o_.depth_max_m) continue;
@@ -103,6 +278,7 @@ std::vector<uint16_t> Simulator::DepthImage(const Pose2& base) {
 SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
                         const std::function<void(int64_t, int64_t, const Pose2&)>& truth) {
   SimStats st;
+  st.walkers = static_cast<int>(walkers_.size());
   const auto geom = kinematics::SymmetricGeometry(o_.center_to_wheel_m, o_.wheel_radius_m);
   const double dt = 1.0 / o_.physics_hz;
   std::normal_distribution<double> n01(0.0, 1.0);
@@ -378,6 +554,7 @@ SimStats Simulator::Run(const std::function<void(const SimEvent&)>& sink,
         sweeping = false;
       }
     }
+    StepWalkers(next, dt, &st);
     pose = next;
     st.duration_s = t;
   }

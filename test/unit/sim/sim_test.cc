@@ -492,6 +492,199 @@ TEST(Simulator, SameSeedSameBytesOtherSeedOtherNoise) {
   EXPECT_EQ(frames, 7);  // t = 0, 0.5, ..., 3.0
 }
 
+// People in the scene: a walker on a known track is where the sensors say, inside it nothing is
+// measured, it walks its track, waits for and steps away from the base, and never leaves the
+// free floor.
+TEST(SimWalkers, TheLidarAndTheCameraSeeAWalkerWhereItStands) {
+  SimOptions o;
+  o.range_noise_m = 0;
+  o.dropout_probability = 0;
+  o.depth_noise_per_m2 = 0;
+  o.lidar_x_m = 0;
+  o.cam_x_m = 0;
+  // A track along y at x = 3, the walker halfway (y = 2): 0.2 m wide either side.
+  o.walker_tracks = {{3.0, 1.0, 3.0, 3.0, 0.8, 0.5}};
+  Simulator sim(Room(), o);
+  ASSERT_EQ(sim.WalkerPositions().size(), 1u);
+  EXPECT_NEAR(sim.WalkerPositions()[0].x(), 3.0, 1e-12);
+  EXPECT_NEAR(sim.WalkerPositions()[0].y(), 2.0, 1e-12);
+  // From (1, 2) facing +x: straight ahead the walker's near side at x = 2.8, where the room's
+  // east wall (x = 4) was; a beam passing 0.3 m beside it still reaches the wall.
+  const std::vector<float> r = sim.ScanRanges(Pose2(1, 2, 0));
+  EXPECT_NEAR(r[180], 1.8, 1e-5);
+  const double a = std::atan2(0.3, 2.0);  // to (3, 2.3): outside the 0.2 m radius
+  const int beam = 180 + static_cast<int>(std::lround(a * 180 / kPi));
+  const double beam_a = (beam - 180) * kPi / 180;
+  EXPECT_NEAR(r[static_cast<size_t>(beam)], 3.0 / std::cos(beam_a), 1e-4);
+  // The camera sees it too, above the lidar's plane: the centre column at 1.8 m from the
+  // horizon up to the top of the image (1.75 m tall, the camera at 0.45 m sees up to
+  // 0.45 + 1.8 * tan(24.5 deg) = 1.27 m there).
+  const std::vector<uint16_t> img = sim.DepthImage(Pose2(1, 2, 0));
+  const int w = o.depth_width, h = o.depth_height;
+  EXPECT_EQ(img[static_cast<size_t>(0) * w + w / 2], 1800);
+  EXPECT_EQ(img[static_cast<size_t>(h / 2 - 1) * w + w / 2], 1800);
+  // Without the walker the same pixels see the wall.
+  SimOptions empty = o;
+  empty.walker_tracks.clear();
+  Simulator none(Room(), empty);
+  EXPECT_NEAR(none.ScanRanges(Pose2(1, 2, 0))[180], 3.0, 1e-5);
+  EXPECT_EQ(none.DepthImage(Pose2(1, 2, 0))[static_cast<size_t>(h / 2 - 1) * w + w / 2], 3000);
+  // From inside the walker nothing is measured (the cast ends at 0, below the minimum range).
+  EXPECT_EQ(sim.Cast({3.05, 2.0, 0.3}, {1, 0, 0}, 20), 0.0);
+  EXPECT_TRUE(std::isnan(sim.BeamRange(Pose2(2.95, 2.0, 0), 180)));
+  // Over its head (a ray from 2 m down onto it) the top is hit.
+  EXPECT_NEAR(sim.Cast({3.0, 2.0, 2.0}, {0, 0, -1}, 20), 0.25, 1e-12);
+}
+
+TEST(SimWalkers, WalkTheirTrackWaitForTheBaseAndStepAwayFromIt) {
+  SimOptions o;
+  o.walker_tracks = {{1.0, 1.0, 3.0, 1.0, 1.0, 0.0}};  // along x at y = 1, from x = 1
+  Simulator sim(Room(), o);
+  SimStats st;
+  const Pose2 far_away(3.5, 3.5, 0);
+  // Alone it walks to the end in 2 s, turns and comes back.
+  for (int i = 0; i < 100; ++i) sim.StepWalkers(far_away, 0.01, &st);
+  EXPECT_NEAR(sim.WalkerPositions()[0].x(), 2.0, 1e-9);
+  for (int i = 0; i < 150; ++i) sim.StepWalkers(far_away, 0.01, &st);
+  EXPECT_NEAR(sim.WalkerPositions()[0].x(), 2.5, 1e-9);  // 1 m on, then 0.5 m back
+  EXPECT_NEAR(st.walker_distance_m, 2.5, 1e-9);
+  EXPECT_EQ(st.walker_yields, 0);
+  // The base stands on its track at x = 1.5: it walks up to keep_clear_m (0.7 m) and waits.
+  const Pose2 in_the_way(1.5, 1.0, 0);
+  for (int i = 0; i < 300; ++i) sim.StepWalkers(in_the_way, 0.01, &st);
+  EXPECT_NEAR(sim.WalkerPositions()[0].x(), 1.5 + o.keep_clear_m, 0.011);
+  EXPECT_GT(st.walker_yields, 100);
+  // The base drives at it along the track: it steps back and aside, never touched.
+  Pose2 base = in_the_way;
+  for (int i = 0; i < 100; ++i) {
+    base = Pose2(base.x + 0.004, 1.0, 0);  // 0.4 m/s
+    sim.StepWalkers(base, 0.01, &st);
+    const Eigen::Vector2d p = sim.WalkerPositions()[0];
+    EXPECT_GE(std::hypot(p.x() - base.x, p.y() - base.y), 0.5) << i;
+    EXPECT_TRUE(Room().Free(p.x(), p.y(), o.walker_radius_m));
+  }
+  EXPECT_EQ(st.walker_contacts, 0);
+  // Once the base has gone, it returns to its track and walks on.
+  for (int i = 0; i < 500; ++i) sim.StepWalkers(far_away, 0.01, &st);
+  const Eigen::Vector2d back = sim.WalkerPositions()[0];
+  EXPECT_NEAR(back.y(), 1.0, 1e-9);
+  EXPECT_GE(back.x(), 1.0);
+  EXPECT_LE(back.x(), 3.0);
+}
+
+// Pushed off its track to the far side of the low box, a walker goes round the box to get back
+// (the straight line back runs into it; such a walker used to wait there for the rest of the
+// run).
+TEST(SimWalkers, FindTheirWayBackRoundWhatIsInTheWay) {
+  SimOptions o;
+  o.walker_tracks = {{0.5, 2.0, 2.7, 2.0, 1.0, 1.0}};  // along x at y = 2, ending west of the box
+  Simulator sim(Room(), o);
+  ASSERT_TRUE(Room().Free(3.75, 2.0, o.walker_radius_m));
+  sim.PlaceWalkerOffTrack(0, {3.75, 2.0});  // east of the box (x 3.0-3.5, y 1.5-2.5)
+  SimStats st;
+  const Pose2 gone(0.5, 3.5, 0);
+  int back_after = -1;
+  for (int i = 0; i < 1000 && back_after < 0; ++i) {
+    sim.StepWalkers(gone, 0.01, &st);
+    const Eigen::Vector2d p = sim.WalkerPositions()[0];
+    EXPECT_TRUE(Room().Free(p.x(), p.y(), o.walker_radius_m)) << i;
+    if (std::abs(p.y() - 2.0) < 1e-9 && p.x() <= 2.7 + 1e-9) back_after = i;
+  }
+  // Round the box: 0.7 m along its face (slower: the steps turned off the way back there), then
+  // about 1.5 m back to the track's end; it takes 3.2 s at 1 m/s.
+  EXPECT_GE(back_after, 0);
+  EXPECT_LT(back_after, 500);
+  EXPECT_EQ(st.walker_contacts, 0);
+}
+
+TEST(SimWalkers, DrawnFromTheSeedOnFreeFloorAndTheTourStillDrivenUntouched) {
+  SimOptions o;
+  o.walkers = 8;
+  o.depth = false;
+  const World world = World::BuiltIn();
+  Simulator a(world, o), b(world, o);
+  ASSERT_EQ(a.walker_tracks().size(), 8u);
+  const Pose2 start = Simulator::BuiltInTour().front();
+  for (size_t i = 0; i < 8; ++i) {
+    const WalkerTrack& t = a.walker_tracks()[i];
+    EXPECT_EQ(t.ax, b.walker_tracks()[i].ax);  // the same seed, the same tracks
+    const double len = std::hypot(t.bx - t.ax, t.by - t.ay);
+    EXPECT_GE(len, 2.5);
+    EXPECT_LE(len, 10.0);
+    for (double f = 0; f <= 1.0; f += 0.01)
+      EXPECT_TRUE(world.Free(t.ax + f * (t.bx - t.ax), t.ay + f * (t.by - t.ay), 0.2)) << i;
+    const Eigen::Vector2d p = a.WalkerPositions()[i];
+    EXPECT_GE(std::hypot(p.x() - start.x, p.y() - start.y), 1.5);
+  }
+  o.seed = 2;
+  EXPECT_NE(Simulator(world, o).walker_tracks()[0].ax, a.walker_tracks()[0].ax);
+  // The whole tour with them: finished, nobody touched, the base's path and the sensors' noise
+  // exactly those of the run without them (they draw from their own stream; no depth camera
+  // here, whose draws depend on what its pixels hit), and the scans differ only where a walker
+  // stood in a beam: shorter there, never longer.
+  // Nobody stands still for long either: pushed against a pillar, a walker finds its way round
+  // it back to its track (one waited there for the rest of the tour before).
+  o.seed = 1;
+  Recorded with;
+  Simulator sim(world, o);
+  std::vector<Eigen::Vector2d> before = sim.WalkerPositions();
+  std::vector<int> still_s(before.size(), 0);
+  int longest_still_s = 0, scans = 0;
+  with.stats = sim.Run(
+      [&](const SimEvent& e) {
+        with.events.push_back(e);
+        if (e.channel != "LIDAR_SCAN" || ++scans % 10 != 0) return;  // once a second
+        const std::vector<Eigen::Vector2d> now = sim.WalkerPositions();
+        for (size_t i = 0; i < now.size(); ++i) {
+          still_s[i] = (now[i] - before[i]).norm() < 0.05 ? still_s[i] + 1 : 0;
+          longest_still_s = std::max(longest_still_s, still_s[i]);
+        }
+        before = now;
+      },
+      [&](int64_t, int64_t, const Pose2& p) { with.truth.push_back(p); });
+  EXPECT_LE(longest_still_s, 5);
+  EXPECT_TRUE(with.stats.tour_finished);
+  EXPECT_EQ(with.stats.walkers, 8);
+  EXPECT_GT(with.stats.walker_distance_m, 8 * 0.6 * with.stats.duration_s);
+  EXPECT_EQ(with.stats.walker_contacts, 0);
+  SimOptions bare = o;
+  bare.walkers = 0;
+  const Recorded without = RunSim(bare);
+  ASSERT_EQ(with.truth.size(), without.truth.size());
+  for (size_t i = 0; i < with.truth.size(); ++i) {
+    ASSERT_EQ(with.truth[i].x, without.truth[i].x) << i;
+    ASSERT_EQ(with.truth[i].theta, without.truth[i].theta) << i;
+  }
+  std::vector<const SimEvent*> scans_with, scans_without;
+  for (const auto& e : with.events)
+    if (e.channel == "LIDAR_SCAN") scans_with.push_back(&e);
+  for (const auto& e : without.events)
+    if (e.channel == "LIDAR_SCAN") scans_without.push_back(&e);
+  ASSERT_EQ(scans_with.size(), scans_without.size());
+  int64_t shorter = 0, other = 0;
+  for (size_t k = 0; k < scans_with.size(); ++k) {
+    omni::laser_scan_t a_scan, b_scan;
+    ASSERT_GE(a_scan.decode(scans_with[k]->payload.data(), 0,
+                            static_cast<int>(scans_with[k]->payload.size())),
+              0);
+    ASSERT_GE(b_scan.decode(scans_without[k]->payload.data(), 0,
+                            static_cast<int>(scans_without[k]->payload.size())),
+              0);
+    for (size_t i = 0; i < a_scan.ranges_m.size(); ++i) {
+      const float x = a_scan.ranges_m[i], y = b_scan.ranges_m[i];
+      if (std::isnan(x) && std::isnan(y)) continue;
+      if (x == y) continue;
+      if (!std::isnan(x) && (std::isnan(y) || x < y)) {
+        ++shorter;
+      } else {
+        ++other;  // a walker closer than the lidar's minimum range: no reading
+      }
+    }
+  }
+  EXPECT_GT(shorter, 5000);  // 8 people in a 20 x 14 m floor are seen often
+  EXPECT_LT(other, shorter / 100);
+}
+
 TEST(SimWorld, WorldFilesAreCheckedEntryByEntry) {
   const std::string dir = ::testing::TempDir();
   auto load = [&](const std::string& text) {

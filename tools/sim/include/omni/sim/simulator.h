@@ -23,7 +23,11 @@
 //   DEPTH       depth_image_t: a pinhole depth camera (Kinect-like noise growing with the square
 //               of the depth, millimetre units, DELTA_ZLIB encoded), mounted like
 //               config/octomap_builder.yaml's camera_mount defaults.
-// Everything random comes from `seed`: the same options give the same bytes.
+// People (`walkers`): vertical cylinders walking back and forth on straight tracks through the
+// free floor, seen by the lidar and the depth camera but not part of the world's truth map, so
+// the mappers meet moving obstacles the way a robot among people does (below).
+// Everything random comes from `seed`: the same options give the same bytes (and with no walkers
+// the bytes of a simulator without them).
 #pragma once
 
 #include <atomic>
@@ -41,6 +45,17 @@
 #include "omni/sim/world.h"
 
 namespace omni::sim {
+
+// A person walking back and forth between two points of the floor, a vertical cylinder. It
+// starts `phase` of the way from a to b, heading for b. It waits while walking on would bring it
+// closer than `keep_clear_m` to the robot's centre, and steps away when the robot comes at it
+// (the tour's follower does not steer around people); it only ever moves to where the world is
+// free for its radius.
+struct WalkerTrack {
+  double ax = 0, ay = 0, bx = 0, by = 0;  // world frame, metres
+  double speed_m_s = 0.8;
+  double phase = 0;  // [0, 1]
+};
 
 struct SimOptions {
   uint64_t seed = 1;
@@ -92,6 +107,15 @@ struct SimOptions {
   double cam_tilt_rad = 0.0;  // positive looks down
   double depth_min_m = 0.4, depth_max_m = 8.0;
   double depth_noise_per_m2 = 0.0012;  // sigma = k * z^2 (Kinect v1 order of magnitude)
+  // People walking through the scene (WalkerTrack): `walkers` tracks are drawn from the seed
+  // (each 2.5-10 m of free floor, not within 1.5 m of the tour's start, at walker_speed_m_s
+  // +-25 %) unless walker_tracks gives them. 0 (default): an empty floor.
+  int walkers = 0;
+  std::vector<WalkerTrack> walker_tracks;
+  double walker_speed_m_s = 0.8;
+  double walker_radius_m = 0.2;  // shoulders seen by the camera, legs by the lidar: one cylinder
+  double walker_height_m = 1.75;
+  double keep_clear_m = 0.7;  // walker centre to robot centre: 0.2 + the base's 0.3 + 0.2 spare
   // The base bridge's limits, timing, covariances and channels (nullopt: as
   // config/base_bridge.yaml ships them); its geometry is always the simulated base's. The
   // ideal base applies the same speed limits and command timeout to outside commands.
@@ -113,6 +137,12 @@ struct SimStats {
   uint32_t firmware_faults = 0;
   uint32_t watchdog_trips = 0;
   std::string base_problem;
+  // People: how many walked, how far, the physics steps summed over walkers that one waited or
+  // stepped aside for the robot, and those one overlapped the robot's footprint (it was
+  // cornered against a wall; 0 on the built-in tour).
+  int walkers = 0;
+  double walker_distance_m = 0;
+  int64_t walker_yields = 0, walker_contacts = 0;
 };
 
 class Simulator {
@@ -149,7 +179,31 @@ class Simulator {
   float BeamRange(const Pose2& base, int beam);
   std::vector<uint16_t> DepthImage(const Pose2& base);
 
+  // Where each walker stands now (world frame), in the order of the tracks.
+  std::vector<Eigen::Vector2d> WalkerPositions() const;
+  const std::vector<WalkerTrack>& walker_tracks() const { return tracks_; }
+  // Puts walker i at p off its track, as if the base had pushed it there (tests).
+  void PlaceWalkerOffTrack(size_t i, const Eigen::Vector2d& p) {
+    walkers_.at(i).p = p;
+    walkers_.at(i).off_track = true;
+  }
+  // Walks every walker on by dt with the robot at `robot` (true pose); Run calls it each step.
+  void StepWalkers(const Pose2& robot, double dt, SimStats* stats);
+  // The nearest hit along o + t * d (t in units of |d|) of the world and the walkers, or a
+  // negative value when nothing is hit before t_max (0 when o is inside a walker).
+  double Cast(const Vec3& o, const Vec3& d, double t_max) const;
+
  private:
+  struct Walker {
+    Eigen::Vector2d p{0, 0};  // where it stands, world frame
+    double s = 0;             // on its track: metres from a
+    double dir = 1;           // +1 towards b, -1 towards a
+    bool off_track = false;   // stepped away from the base, on its way back
+    int detour = 0;           // going round something: +1 turning left, -1 right
+  };
+  Eigen::Vector2d TrackPoint(size_t i, double s) const;
+  void MakeWalkers();
+
   World world_;
   SimOptions o_;
   std::vector<Pose2> tour_;
@@ -157,6 +211,8 @@ class Simulator {
   const std::atomic<bool>* stop_ = nullptr;
   std::mt19937_64 rng_;
   double measured_gyro_ = 0;  // last gyro z reading, rad/s
+  std::vector<WalkerTrack> tracks_;
+  std::vector<Walker> walkers_;
 };
 
 }  // namespace omni::sim
