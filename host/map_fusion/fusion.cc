@@ -152,14 +152,16 @@ MapConflicts CountConflicts(const io::GridMap& base, const io::GridMap& moved,
   for (size_t i = 0; i < nb.size(); ++i) {
     if (nb[i] < 0 || nm[i] < 0) continue;  // only where both know the cell
     if (nm[i] == 1) {
-      ++c.occupied;
-      if (nb[i] == 0 && !near_b[i]) ++c.conflicts;
+      ++c.moved_occupied;
+      if (nb[i] == 0 && !near_b[i]) ++c.moved_on_free;
     }
     if (nb[i] == 1) {
-      ++c.occupied;
-      if (nm[i] == 0 && !near_m[i]) ++c.conflicts;
+      ++c.base_occupied;
+      if (nm[i] == 0 && !near_m[i]) ++c.base_on_free;
     }
   }
+  c.occupied = c.moved_occupied + c.base_occupied;
+  c.conflicts = c.moved_on_free + c.base_on_free;
   return c;
 }
 
@@ -248,14 +250,24 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
     const double coarser = std::max(ref.resolution_m, maps[i].map.resolution_m);
     const int tolerance = static_cast<int>(std::ceil(
         std::min(1e3, opt.align.match_tolerance_cells * coarser / ref.resolution_m) - 1e-9));
-    rep.conflict_fraction = CountConflicts(ref, on_base, tolerance).fraction();
-    if (rep.conflict_fraction > opt.max_conflict_fraction) {
+    const MapConflicts mc = CountConflicts(ref, on_base, tolerance);
+    rep.conflict_fraction = mc.fraction();
+    rep.walls_on_base_free = mc.moved_fraction();
+    rep.base_walls_on_free = mc.base_fraction();
+    // Misaligned maps conflict both ways (each one's walls across the other's rooms); a map
+    // that sees obstacles the base does not (people it saw once, low boxes under the lidar) only
+    // one way, and the vote settles those cells.
+    if (rep.conflict_fraction > opt.max_conflict_fraction &&
+        std::min(rep.walls_on_base_free, rep.base_walls_on_free) >
+            0.5 * opt.max_conflict_fraction) {
       rep.used = false;
-      char buf[160];
+      char buf[200];
       std::snprintf(buf, sizeof(buf),
                     "conflicts with the base: %.2f of the occupied cells both know lie on the "
-                    "other's free space, above max_conflict_fraction %.2f",
-                    rep.conflict_fraction, opt.max_conflict_fraction);
+                    "other's free space (%.2f of its, %.2f of the base's), above "
+                    "max_conflict_fraction %.2f both ways",
+                    rep.conflict_fraction, rep.walls_on_base_free, rep.base_walls_on_free,
+                    opt.max_conflict_fraction);
       rep.reason = buf;
       if (hints) hints->by_name.erase(maps[i].name);
       continue;
@@ -309,10 +321,11 @@ std::string ReportJson(const FusionResult& r) {
     std::snprintf(buf, sizeof(buf),
                   "%s{\"name\": \"%s\", \"used\": %s, \"reason\": \"%s\", \"rotation_rad\": %.5f, "
                   "\"dx_m\": %.4f, \"dy_m\": %.4f, \"overlap_fraction\": %.4f, "
-                  "\"conflict_fraction\": %.4f, \"known_cells\": %zu}",
+                  "\"conflict_fraction\": %.4f, \"walls_on_base_free\": %.4f, "
+                  "\"base_walls_on_free\": %.4f, \"known_cells\": %zu}",
                   i ? ", " : "", q.name.c_str(), q.used ? "true" : "false", q.reason.c_str(),
                   q.alignment.rotation_rad, q.alignment.dx_m, q.alignment.dy_m, q.overlap_fraction,
-                  q.conflict_fraction, q.known_cells);
+                  q.conflict_fraction, q.walls_on_base_free, q.base_walls_on_free, q.known_cells);
     s += buf;
   }
   return s + "]}";

@@ -100,10 +100,11 @@ int main(int argc, char** argv) {
     for (const auto& src : r->sources)
       std::printf(
           "map_fusion: %s: %s, rotation %.4f rad, shift (%.3f, %.3f) m, overlap %.2f, conflicts "
-          "%.3f%s%s\n",
+          "%.3f (its walls on the base's free space %.3f, the base's on its %.3f)%s%s\n",
           src.name.c_str(), src.used ? "used" : "left out", src.alignment.rotation_rad,
           src.alignment.dx_m, src.alignment.dy_m, src.overlap_fraction, src.conflict_fraction,
-          src.reason.empty() ? "" : ": ", src.reason.c_str());
+          src.walls_on_base_free, src.base_walls_on_free, src.reason.empty() ? "" : ": ",
+          src.reason.c_str());
     std::printf(
         "map_fusion: fused %zu maps onto %s: %zu cells unanimous, %zu by majority, %zu ties -> "
         "%s.{pgm,yaml,png}, %s/fusion.json\n",

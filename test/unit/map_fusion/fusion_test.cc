@@ -297,6 +297,51 @@ TEST(MapFusion, UnknownAbstainsUnlessItVotes) {
   EXPECT_EQ(voted->fused.cells, b.cells);
 }
 
+// A map that adds obstacles the base has as free space (a forward camera's 3D map keeps the
+// people it saw once, docs/sim.md "People") conflicts one way only: its walls are the base's
+// walls. It is not left out like a misaligned map, and with a third map the vote removes what
+// only it has.
+TEST(MapFusion, AMapWithObstaclesTheOthersLackIsVotedOnNotLeftOut) {
+  const Plan office = Office();
+  const io::GridMap truth = Rasterize(office, Pose2());
+  io::GridMap ghosts = truth;
+  // Six trails of people it saw once, 0.3 m wide, in the corridor and the rooms.
+  const std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> trails = {
+      {{1, 5}, {8, 5}},   {{1, 1}, {2.5, 3}}, {{3.5, 1}, {6, 3}},
+      {{7, 1}, {9.5, 3}}, {{1, 7}, {3.5, 9}}, {{4.5, 7}, {9.5, 9.5}}};
+  for (int row = 0; row < ghosts.height; ++row)
+    for (int col = 0; col < ghosts.width; ++col) {
+      const Eigen::Vector2d w(ghosts.origin_x_m + (col + 0.5) * ghosts.resolution_m,
+                              ghosts.origin_y_m + (row + 0.5) * ghosts.resolution_m);
+      for (const auto& [a, b] : trails) {
+        const Eigen::Vector2d d = b - a;
+        const double t = std::clamp((w - a).dot(d) / d.squaredNorm(), 0.0, 1.0);
+        if ((a + t * d - w).norm() < 0.15) ghosts.at(col, row) = 100;
+      }
+    }
+  const io::GridMap other = Rasterize(office, Pose2(0.3, -0.2, 0.05));
+  FusionOptions o;
+  auto r = Fuse({{"A", truth}, {"ghosts", ghosts}, {"other", other}}, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const SourceReport& g = r->sources[1];
+  std::printf(
+      "ghost trails: conflicts %.3f (its walls on the base's free space %.3f, the base's on "
+      "its %.3f)\n",
+      g.conflict_fraction, g.walls_on_base_free, g.base_walls_on_free);
+  EXPECT_GT(g.conflict_fraction, o.max_conflict_fraction) << "would have been left out before";
+  EXPECT_LT(g.base_walls_on_free, 0.01);
+  EXPECT_TRUE(g.used) << g.reason;
+  EXPECT_EQ(r->maps_used, 3u);
+  // Where two maps say free the vote removes the trails: with a third copy of the floor (the
+  // maps' own frames, no search) the fused map is the floor itself.
+  o.align.align = false;
+  auto voted = Fuse({{"A", truth}, {"ghosts", ghosts}, {"again", truth}}, o);
+  ASSERT_TRUE(voted.ok());
+  EXPECT_TRUE(voted->sources[1].used) << voted->sources[1].reason;
+  EXPECT_EQ(voted->fused.cells, truth.cells);
+  EXPECT_NE(ReportJson(*r).find("\"walls_on_base_free\""), std::string::npos);
+}
+
 // A mapper that restarted mid-run starts its map frame at the robot's pose of the moment: here
 // turned by a quarter turn (outside the rotation search) and shifted. In a rectilinear building
 // its walls still overlap the base's well enough for min_overlap_fraction, but its walls cross
@@ -318,6 +363,9 @@ TEST(MapFusion, AMapTurnedByAQuarterTurnInARectilinearBuildingIsLeftOut) {
   EXPECT_FALSE(t.used);
   EXPECT_GE(t.overlap_fraction, o.min_overlap_fraction) << "the overlap gate alone lets it in";
   EXPECT_GT(t.conflict_fraction, o.max_conflict_fraction);
+  // Both ways: its walls across the base's rooms and the base's across its.
+  EXPECT_GT(t.walls_on_base_free, 0.5 * o.max_conflict_fraction);
+  EXPECT_GT(t.base_walls_on_free, 0.5 * o.max_conflict_fraction);
   EXPECT_NE(t.reason.find("max_conflict_fraction"), std::string::npos) << t.reason;
   EXPECT_TRUE(r->sources[2].used) << r->sources[2].reason;
   EXPECT_LT(r->sources[2].conflict_fraction, 0.5 * o.max_conflict_fraction);

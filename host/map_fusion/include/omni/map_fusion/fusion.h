@@ -54,7 +54,10 @@ struct FusionOptions {
   // is also left out (counted) when, over the cells both maps know, too many of the occupied cells
   // of either map fall on the other's free space (no occupied cell within
   // align.match_tolerance_cells cells of the coarser grid): `conflict_fraction` = such cells /
-  // occupied cells of either map there (CountConflicts). 1 disables the check. Measured in
+  // occupied cells of either map there (CountConflicts) above this, *and* both ways: each map's
+  // share of its own walls on the other's free space above half of it. A map that only adds
+  // walls the base has as free (people the camera saw once, low boxes under the lidar's plane) is
+  // not misaligned, and the vote decides those cells. 1 disables the check. Measured in
   // docs/map_fusion.md.
   double max_conflict_fraction = 0.25;
   TieRule tie = TieRule::kOccupied;
@@ -79,8 +82,10 @@ struct SourceReport {
   bool used = false;
   std::string reason;  // why it was left out ("" when used)
   eval::MapAlignment alignment;
-  double overlap_fraction = 0;   // alignment.overlap / alignment.occupied
-  double conflict_fraction = 0;  // MapConflicts::fraction() against the base (0 for the base)
+  double overlap_fraction = 0;    // alignment.overlap / alignment.occupied
+  double conflict_fraction = 0;   // MapConflicts::fraction() against the base (0 for the base)
+  double walls_on_base_free = 0;  // its walls on the base's free space (moved_fraction())
+  double base_walls_on_free = 0;  // the base's walls on its free space (base_fraction())
   size_t known_cells = 0;
 };
 
@@ -119,11 +124,18 @@ bool UsableMap(const io::GridMap& m, std::string* why = nullptr);
 // lying on the other map's free space with no occupied cell of the other within
 // `tolerance_cells` (a wall one cell off is not a conflict). `moved` must have `base`'s size.
 struct MapConflicts {
-  size_t occupied = 0;
-  size_t conflicts = 0;
-  double fraction() const {
-    return occupied == 0 ? 0.0 : static_cast<double>(conflicts) / static_cast<double>(occupied);
+  size_t occupied = 0;   // occupied cells of either map where both know the cell
+  size_t conflicts = 0;  // of them, on the other's free space
+  // The two directions: the moved map's walls on the base's free space, and the base's walls on
+  // the moved map's free space.
+  size_t moved_occupied = 0, moved_on_free = 0;
+  size_t base_occupied = 0, base_on_free = 0;
+  static double Ratio(size_t n, size_t d) {
+    return d == 0 ? 0.0 : static_cast<double>(n) / static_cast<double>(d);
   }
+  double fraction() const { return Ratio(conflicts, occupied); }
+  double moved_fraction() const { return Ratio(moved_on_free, moved_occupied); }
+  double base_fraction() const { return Ratio(base_on_free, base_occupied); }
 };
 MapConflicts CountConflicts(const io::GridMap& base, const io::GridMap& moved, int tolerance_cells);
 
