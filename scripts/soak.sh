@@ -29,7 +29,9 @@ while [ $# -gt 0 ]; do
   esac
 done
 [[ "$LAPS" =~ ^[1-9][0-9]*$ ]] || { echo "soak.sh: --laps expects a whole number >= 1" >&2; exit 2; }
-[[ "$WALKERS" =~ ^[0-9]+$ ]] || { echo "soak.sh: --walkers expects a whole number >= 0" >&2; exit 2; }
+[[ "$WALKERS" =~ ^[0-9]+$ ]] && [ "$((10#$WALKERS))" -le 100 ] ||
+  { echo "soak.sh: --walkers expects a whole number from 0 to 100" >&2; exit 2; }
+WALKERS=$((10#$WALKERS))
 for b in supervisor omni-sim omni-eval odom_mapper rbpf_mapper pose_graph_mapper octomap_builder map_fusion; do
   [ -x "$BUILD/bin/$b" ] || { echo "soak.sh: $BUILD/bin/$b missing: build first (./omni setup)" >&2; exit 1; }
 done

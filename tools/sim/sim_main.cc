@@ -391,10 +391,10 @@ int main(int argc, char** argv) {
         "stepping away from the base, %.2f touching it\n",
         st.walkers, st.walker_distance_m, static_cast<double>(st.walker_yields) / opt.physics_hz,
         static_cast<double>(st.walker_contacts) / opt.physics_hz);
-    if (st.walkers < opt.walkers)
-      std::fprintf(stderr, "omni-sim: the world had free floor for only %d of %d walkers\n",
-                   st.walkers, opt.walkers);
   }
+  if (st.walkers < opt.walkers)
+    std::fprintf(stderr, "omni-sim: the world had free floor for only %d of %d walkers\n",
+                 st.walkers, opt.walkers);
   if (drive == "bus") {
     const int64_t bad_commands = bus->counters().decode_errors;
     std::printf(

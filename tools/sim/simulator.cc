@@ -17,6 +17,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kBaseRadiusM = 0.3;  // the base's footprint, for walkers touching it
+constexpr size_t kMaxTrail = 200000;  // steps a pushed walker remembers (1000 s at 200 Hz)
 
 // Integrates a body twist over dt at the midpoint heading.
 Pose2 Integrate(const Pose2& p, const kinematics::BodyTwist<double>& t, double dt) {
@@ -37,7 +38,8 @@ void Simulator::MakeWalkers() {
   tracks_ = o_.walker_tracks;
   const double r = o_.walker_radius_m;
   if (tracks_.empty() && o_.walkers > 0 && !world_.boxes().empty()) {
-    // An own random stream, so that the sensors' noise is drawn as without walkers.
+    // An own random stream: without the depth camera the base's path and the sensors' noise are
+    // drawn as without walkers (the camera's draws depend on what its pixels hit).
     std::mt19937_64 g(o_.seed ^ 0x5DEECE66DULL);
     double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
     for (const Box& b : world_.boxes()) {
@@ -132,13 +134,28 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
     };
     bool yielded = false;
     if (d < keep) {
-      // The base comes at it: away from the base.
-      step_towards(d > 1e-9 ? Eigen::Vector2d((w.p - rc) / d) : Eigen::Vector2d(1, 0));
+      // The base comes at it: away from the base. Where it stood is kept, to go back the way it
+      // came.
+      const Eigen::Vector2d from = w.p;
+      if (step_towards(d > 1e-9 ? Eigen::Vector2d((w.p - rc) / d) : Eigen::Vector2d(1, 0)) &&
+          w.trail.size() < kMaxTrail)
+        w.trail.push_back(from);
       w.off_track = true;
       yielded = true;
+    } else if (w.off_track && !w.trail.empty()) {
+      // Back the way it was pushed (every point of it was free floor), once the base has passed.
+      if (take(w.trail.back())) {
+        w.trail.pop_back();
+        if (w.trail.empty()) {
+          w.off_track = false;  // where it left its track, at the same s
+          w.detour = 0;
+        }
+      } else {
+        yielded = true;
+      }
     } else if (w.off_track) {
-      // Back to the nearest point of its track once the base has passed, around what is in the
-      // way (a pillar it was pushed against).
+      // No way back kept (a trail over kMaxTrail steps, or placed off its track): to the nearest
+      // point of its track, round what is in the way.
       const double s = len > 1e-9 ? std::clamp((w.p - a).dot(b - a) / len, 0.0, len) : 0.0;
       const Eigen::Vector2d on = TrackPoint(i, s), to = on - w.p;
       const double gap = to.norm();

@@ -554,17 +554,34 @@ TEST(SimWalkers, WalkTheirTrackWaitForTheBaseAndStepAwayFromIt) {
   for (int i = 0; i < 300; ++i) sim.StepWalkers(in_the_way, 0.01, &st);
   EXPECT_NEAR(sim.WalkerPositions()[0].x(), 1.5 + o.keep_clear_m, 0.011);
   EXPECT_GT(st.walker_yields, 100);
-  // The base drives at it along the track: it steps back and aside, never touched.
-  Pose2 base = in_the_way;
+  // The base drives at it, 0.1 m beside its track: it steps back and aside, never touched.
+  Pose2 base(1.5, 0.9, 0);
+  std::vector<Eigen::Vector2d> pushed_through;
   for (int i = 0; i < 100; ++i) {
-    base = Pose2(base.x + 0.004, 1.0, 0);  // 0.4 m/s
+    base = Pose2(base.x + 0.004, 0.9, 0);  // 0.4 m/s
     sim.StepWalkers(base, 0.01, &st);
     const Eigen::Vector2d p = sim.WalkerPositions()[0];
+    pushed_through.push_back(p);
     EXPECT_GE(std::hypot(p.x() - base.x, p.y() - base.y), 0.5) << i;
     EXPECT_TRUE(Room().Free(p.x(), p.y(), o.walker_radius_m));
   }
   EXPECT_EQ(st.walker_contacts, 0);
-  // Once the base has gone, it returns to its track and walks on.
+  EXPECT_GT(pushed_through.back().y(), 1.05);  // off its track
+  // Once the base has gone, it goes back the way it was pushed (every step onto a spot it
+  // stood on then) until it is on its track again, and walks on from there.
+  int back_at = -1;
+  for (int i = 0; i < 200 && back_at < 0; ++i) {
+    sim.StepWalkers(far_away, 0.01, &st);
+    const Eigen::Vector2d p = sim.WalkerPositions()[0];
+    if (std::abs(p.y() - 1.0) < 1e-9) {
+      back_at = i;
+      break;
+    }
+    double nearest = 1e9;
+    for (const auto& q : pushed_through) nearest = std::min(nearest, (p - q).norm());
+    ASSERT_LT(nearest, 1e-9) << "step " << i << " at " << p.transpose();
+  }
+  EXPECT_GE(back_at, 5);
   for (int i = 0; i < 500; ++i) sim.StepWalkers(far_away, 0.01, &st);
   const Eigen::Vector2d back = sim.WalkerPositions()[0];
   EXPECT_NEAR(back.y(), 1.0, 1e-9);

@@ -195,11 +195,12 @@ class Simulator {
 
  private:
   struct Walker {
-    Eigen::Vector2d p{0, 0};  // where it stands, world frame
-    double s = 0;             // on its track: metres from a
-    double dir = 1;           // +1 towards b, -1 towards a
-    bool off_track = false;   // stepped away from the base, on its way back
-    int detour = 0;           // going round something: +1 turning left, -1 right
+    Eigen::Vector2d p{0, 0};             // where it stands, world frame
+    double s = 0;                        // on its track: metres from a
+    double dir = 1;                      // +1 towards b, -1 towards a
+    bool off_track = false;              // stepped away from the base, on its way back
+    int detour = 0;                      // going round something: +1 turning left, -1 right
+    std::vector<Eigen::Vector2d> trail;  // where it stood while pushed, to go back that way
   };
   Eigen::Vector2d TrackPoint(size_t i, double s) const;
   void MakeWalkers();
