@@ -195,6 +195,7 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
     return a.occupied == 0 ? 0.0 : static_cast<double>(a.overlap) / static_cast<double>(a.occupied);
   };
   std::vector<io::GridMap> moved;
+  std::vector<std::pair<size_t, size_t>> one_way;  // (source, its index in moved)
   for (size_t i = 0; i < maps.size(); ++i) {
     SourceReport& rep = res.sources[i];
     if (!rep.used) continue;
@@ -256,7 +257,7 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
     rep.base_walls_on_free = mc.base_fraction();
     // Misaligned maps conflict both ways (each one's walls across the other's rooms); a map
     // that sees obstacles the base does not (people it saw once, low boxes under the lidar) only
-    // one way, and the vote settles those cells.
+    // one way, and the vote settles those cells when two other maps take part (below).
     if (rep.conflict_fraction > opt.max_conflict_fraction &&
         std::min(rep.walls_on_base_free, rep.base_walls_on_free) >
             0.5 * opt.max_conflict_fraction) {
@@ -265,7 +266,7 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
       std::snprintf(buf, sizeof(buf),
                     "conflicts with the base: %.2f of the occupied cells both know lie on the "
                     "other's free space (%.2f of its, %.2f of the base's), above "
-                    "max_conflict_fraction %.2f both ways",
+                    "max_conflict_fraction %.2f and each way above half of it",
                     rep.conflict_fraction, rep.walls_on_base_free, rep.base_walls_on_free,
                     opt.max_conflict_fraction);
       rep.reason = buf;
@@ -273,8 +274,23 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
       continue;
     }
     if (hints) hints->by_name[maps[i].name] = rep.alignment;
+    if (rep.conflict_fraction > opt.max_conflict_fraction) one_way.push_back({i, moved.size()});
     moved.push_back(std::move(on_base));
   }
+  // A map let in with one-way conflicts adds walls where the base has floor; only two other
+  // maps can outvote them (with one, they tie and the tie rule decides, `occupied` by default).
+  if (moved.size() < 3)
+    for (auto it = one_way.rbegin(); it != one_way.rend(); ++it) {
+      SourceReport& rep = res.sources[it->first];
+      rep.used = false;
+      char buf[200];
+      std::snprintf(buf, sizeof(buf),
+                    "conflicts with the base one way: %.2f of its walls on the base's free space "
+                    "(above max_conflict_fraction %.2f), and too few other maps to outvote them",
+                    rep.walls_on_base_free, opt.max_conflict_fraction);
+      rep.reason = buf;
+      moved.erase(moved.begin() + static_cast<std::ptrdiff_t>(it->second));
+    }
   res.maps_used = moved.size();
   if (static_cast<int>(moved.size()) < opt.min_maps) {
     std::string why;

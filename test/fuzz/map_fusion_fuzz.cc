@@ -5,6 +5,7 @@
 // among them. What must hold: a fusion gives a grid of the base map's size with cells -1, 0 or
 // 100 and vote counts that add up to at most its cells, and every alignment it reports is finite.
 // Seeds: an L-shaped corridor seen by three "mappers", shifted, turned and at other cell sizes.
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -104,6 +105,12 @@ void CheckFusion(const omni::map_fusion::FusionResult& f,
                     std::isfinite(a.dy_m));
     OMNI_FUZZ_CHECK(s.overlap_fraction >= 0 && s.overlap_fraction <= 1);
     OMNI_FUZZ_CHECK(s.conflict_fraction >= 0 && s.conflict_fraction <= 1);
+    OMNI_FUZZ_CHECK(s.walls_on_base_free >= 0 && s.walls_on_base_free <= 1);
+    OMNI_FUZZ_CHECK(s.base_walls_on_free >= 0 && s.base_walls_on_free <= 1);
+    // The combined share lies between the two ways' shares.
+    OMNI_FUZZ_CHECK(
+        s.conflict_fraction >= std::min(s.walls_on_base_free, s.base_walls_on_free) - 1e-12 &&
+        s.conflict_fraction <= std::max(s.walls_on_base_free, s.base_walls_on_free) + 1e-12);
   }
 }
 

@@ -340,6 +340,20 @@ TEST(MapFusion, AMapWithObstaclesTheOthersLackIsVotedOnNotLeftOut) {
   EXPECT_TRUE(voted->sources[1].used) << voted->sources[1].reason;
   EXPECT_EQ(voted->fused.cells, truth.cells);
   EXPECT_NE(ReportJson(*r).find("\"walls_on_base_free\""), std::string::npos);
+  // With the base alone nothing could outvote its trails (a tie, and `tie: occupied` would keep
+  // them): it is left out, and one map is too few to fuse.
+  o.align.align = true;
+  std::vector<SourceReport> reports;
+  auto two = Fuse({{"A", truth}, {"ghosts", ghosts}}, o, nullptr, &reports);
+  ASSERT_FALSE(two.ok());
+  ASSERT_EQ(reports.size(), 2u);
+  EXPECT_FALSE(reports[1].used);
+  EXPECT_NE(reports[1].reason.find("too few other maps"), std::string::npos) << reports[1].reason;
+  o.min_maps = 1;
+  auto alone = Fuse({{"A", truth}, {"ghosts", ghosts}}, o);
+  ASSERT_TRUE(alone.ok()) << alone.error().message;
+  EXPECT_EQ(alone->maps_used, 1u);
+  EXPECT_EQ(alone->fused.cells, truth.cells);
 }
 
 // A mapper that restarted mid-run starts its map frame at the robot's pose of the moment: here

@@ -57,8 +57,9 @@ struct FusionOptions {
   // occupied cells of either map there (CountConflicts) above this, *and* both ways: each map's
   // share of its own walls on the other's free space above half of it. A map that only adds
   // walls the base has as free (people the camera saw once, low boxes under the lidar's plane) is
-  // not misaligned, and the vote decides those cells. 1 disables the check. Measured in
-  // docs/map_fusion.md.
+  // not misaligned, and the vote decides those cells, if at least two other maps are used (with
+  // one, its extra walls would tie and the tie rule decide: it is left out then). 1 disables the
+  // check. Measured in docs/map_fusion.md.
   double max_conflict_fraction = 0.25;
   TieRule tie = TieRule::kOccupied;
   // The paper lets "unknown" vote; here a map abstains where it has not seen a cell (false),
