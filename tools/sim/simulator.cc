@@ -137,25 +137,28 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
       // The base comes at it: away from the base. Where it stood is kept, to go back the way it
       // came.
       const Eigen::Vector2d from = w.p;
-      if (step_towards(d > 1e-9 ? Eigen::Vector2d((w.p - rc) / d) : Eigen::Vector2d(1, 0)) &&
-          w.trail.size() < kMaxTrail)
+      if (step_towards(d > 1e-9 ? Eigen::Vector2d((w.p - rc) / d) : Eigen::Vector2d(1, 0))) {
+        if (w.trail.size() >= kMaxTrail) w.trail.clear();  // too long: back the shortest way
         w.trail.push_back(from);
+      }
       w.off_track = true;
       yielded = true;
     } else if (w.off_track && !w.trail.empty()) {
       // Back the way it was pushed (every point of it was free floor), once the base has passed.
       if (take(w.trail.back())) {
         w.trail.pop_back();
-        if (w.trail.empty()) {
-          w.off_track = false;  // where it left its track, at the same s
+        // Where it left its track, at the same s (unless the trail began off it: then on by the
+        // shortest way, below).
+        if (w.trail.empty() && (w.p - TrackPoint(i, w.s)).norm() < 1e-9) {
+          w.off_track = false;
           w.detour = 0;
         }
       } else {
         yielded = true;
       }
     } else if (w.off_track) {
-      // No way back kept (a trail over kMaxTrail steps, or placed off its track): to the nearest
-      // point of its track, round what is in the way.
+      // No way back kept (a trail over kMaxTrail steps, or one that began off the track): to the
+      // nearest point of its track, round what is in the way.
       const double s = len > 1e-9 ? std::clamp((w.p - a).dot(b - a) / len, 0.0, len) : 0.0;
       const Eigen::Vector2d on = TrackPoint(i, s), to = on - w.p;
       const double gap = to.norm();

@@ -612,6 +612,20 @@ TEST(SimWalkers, FindTheirWayBackRoundWhatIsInTheWay) {
   EXPECT_GE(back_after, 0);
   EXPECT_LT(back_after, 500);
   EXPECT_EQ(st.walker_contacts, 0);
+  // Pushed while still off its track (a base coming from the south as it goes round the box),
+  // it still reaches its track, and never by a jump (each step at most its 1 cm).
+  sim.PlaceWalkerOffTrack(0, {3.75, 2.0});
+  Eigen::Vector2d last = sim.WalkerPositions()[0];
+  bool on_track = false;
+  for (int i = 0; i < 1200 && !on_track; ++i) {
+    const Pose2 base = i < 100 ? Pose2(3.75, 1.0 + 0.004 * i, 0) : gone;
+    sim.StepWalkers(base, 0.01, &st);
+    const Eigen::Vector2d p = sim.WalkerPositions()[0];
+    ASSERT_LE((p - last).norm(), 0.01 + 1e-9) << i;
+    last = p;
+    on_track = i > 100 && std::abs(p.y() - 2.0) < 1e-9 && p.x() <= 2.7 + 1e-9;
+  }
+  EXPECT_TRUE(on_track) << last.transpose();
 }
 
 TEST(SimWalkers, DrawnFromTheSeedOnFreeFloorAndTheTourStillDrivenUntouched) {
