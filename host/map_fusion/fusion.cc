@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "omni/common/json.h"
 #include "omni/io/image_io.h"
 
 namespace omni::map_fusion {
@@ -325,24 +326,26 @@ Result<FusionResult> Fuse(const std::vector<SourceMap>& maps, const FusionOption
 }
 
 std::string ReportJson(const FusionResult& r) {
-  std::string s = "{\"base\": \"" + r.base + "\", \"maps_used\": " + std::to_string(r.maps_used) +
-                  ", \"unanimous\": " + std::to_string(r.unanimous) +
-                  ", \"majority\": " + std::to_string(r.majority) +
-                  ", \"ties\": " + std::to_string(r.ties) +
-                  ", \"width\": " + std::to_string(r.fused.width) +
-                  ", \"height\": " + std::to_string(r.fused.height) + ", \"sources\": [";
+  // Names are the channels or, offline, the files' paths: escaped, and of any length.
+  std::string s =
+      "{\"base\": \"" + JsonEscape(r.base) + "\", \"maps_used\": " + std::to_string(r.maps_used) +
+      ", \"unanimous\": " + std::to_string(r.unanimous) +
+      ", \"majority\": " + std::to_string(r.majority) + ", \"ties\": " + std::to_string(r.ties) +
+      ", \"width\": " + std::to_string(r.fused.width) +
+      ", \"height\": " + std::to_string(r.fused.height) + ", \"sources\": [";
   for (size_t i = 0; i < r.sources.size(); ++i) {
     const SourceReport& q = r.sources[i];
-    char buf[1024];
-    std::snprintf(buf, sizeof(buf),
-                  "%s{\"name\": \"%s\", \"used\": %s, \"reason\": \"%s\", \"rotation_rad\": %.5f, "
-                  "\"dx_m\": %.4f, \"dy_m\": %.4f, \"overlap_fraction\": %.4f, "
-                  "\"conflict_fraction\": %.4f, \"walls_on_base_free\": %.4f, "
-                  "\"base_walls_on_free\": %.4f, \"known_cells\": %zu}",
-                  i ? ", " : "", q.name.c_str(), q.used ? "true" : "false", q.reason.c_str(),
+    char nums[512];
+    std::snprintf(nums, sizeof(nums),
+                  "\"rotation_rad\": %.5f, \"dx_m\": %.4f, \"dy_m\": %.4f, "
+                  "\"overlap_fraction\": %.4f, \"conflict_fraction\": %.4f, "
+                  "\"walls_on_base_free\": %.4f, \"base_walls_on_free\": %.4f, "
+                  "\"known_cells\": %zu}",
                   q.alignment.rotation_rad, q.alignment.dx_m, q.alignment.dy_m, q.overlap_fraction,
                   q.conflict_fraction, q.walls_on_base_free, q.base_walls_on_free, q.known_cells);
-    s += buf;
+    s += std::string(i ? ", " : "") + "{\"name\": \"" + JsonEscape(q.name) +
+         "\", \"used\": " + (q.used ? "true" : "false") + ", \"reason\": \"" +
+         JsonEscape(q.reason) + "\", " + nums;
   }
   return s + "]}";
 }
@@ -356,8 +359,9 @@ Status WriteFusionOutputs(const FusionResult& r, const std::string& dir) {
   if (!s.ok()) return s;
   std::FILE* f = std::fopen((dir + "/fusion.json").c_str(), "w");
   if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + dir + "/fusion.json");
-  std::fprintf(f, "%s\n", ReportJson(r).c_str());
-  std::fclose(f);
+  const bool written = std::fprintf(f, "%s\n", ReportJson(r).c_str()) >= 0;
+  if (std::fclose(f) != 0 || !written)
+    return MakeError(ErrorCode::kIo, "cannot write " + dir + "/fusion.json");
   return Status::Ok();
 }
 

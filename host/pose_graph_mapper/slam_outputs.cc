@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 
+#include "omni/common/json.h"
 #include "omni/common/time.h"
 #include "omni/io/g2o.h"
 #include "omni/io/grid.h"
@@ -21,24 +22,6 @@ double Percentile(std::vector<double> v, double p) {
 }
 
 namespace {
-
-// JSON string contents: quotes, backslashes and control characters escaped.
-std::string JsonEscape(const std::string& s) {
-  std::string out;
-  for (const char ch : s) {
-    if (ch == '"' || ch == '\\') {
-      out += '\\';
-      out += ch;
-    } else if (static_cast<unsigned char>(ch) < 0x20) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(ch));
-      out += buf;
-    } else {
-      out += ch;
-    }
-  }
-  return out;
-}
 
 Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const SlamRunInfo& info) {
   std::FILE* f = std::fopen(path.c_str(), "w");

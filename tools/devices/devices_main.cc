@@ -13,10 +13,12 @@
 #include <string>
 #include <vector>
 
+#include "omni/common/json.h"
 #include "usb_devices.h"
 
 namespace {
 
+using omni::JsonEscape;
 using omni::devices::Classification;
 using omni::devices::DeviceKind;
 
@@ -45,15 +47,6 @@ struct Found {
   Classification what;
   std::vector<std::string> ttys;
 };
-
-std::string JsonEscape(const std::string& s) {
-  std::string o;
-  for (char c : s) {
-    if (c == '"' || c == '\\') o += '\\';
-    o += c;
-  }
-  return o;
-}
 
 int List(bool json) {
   libusb_context* ctx = nullptr;

@@ -356,6 +356,25 @@ TEST(MapFusion, AMapWithObstaclesTheOthersLackIsVotedOnNotLeftOut) {
   EXPECT_EQ(alone->fused.cells, truth.cells);
 }
 
+// fusion.json names the maps by their files' paths offline: a path with quotes, a backslash or
+// a newline, or of any length, still gives well-formed JSON (names used to go through a
+// 1024-byte buffer unescaped).
+TEST(MapFusion, ReportJsonEscapesNamesAndTakesLongOnes) {
+  const io::GridMap a = Rasterize(Plan(), Pose2());
+  const std::string odd = "maps/\"odd\"\\name\n.yaml";
+  const std::string long_name = std::string(3000, 'x') + ".yaml";
+  FusionOptions o;
+  o.align.align = false;
+  auto r = Fuse({{odd, a}, {long_name, a}}, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const std::string json = ReportJson(*r);
+  EXPECT_NE(json.find("\"base\": \"maps/\\\"odd\\\"\\\\name\\u000a.yaml\""), std::string::npos)
+      << json.substr(0, 200);
+  EXPECT_NE(json.find("\"name\": \"" + long_name + "\", \"used\": true"), std::string::npos);
+  EXPECT_EQ(json.substr(json.size() - 2), "]}");
+  EXPECT_EQ(json.find('\n'), std::string::npos);  // no raw newline inside
+}
+
 // A mapper that restarted mid-run starts its map frame at the robot's pose of the moment: here
 // turned by a quarter turn (outside the rotation search) and shifted. In a rectilinear building
 // its walls still overlap the base's well enough for min_overlap_fraction, but its walls cross
