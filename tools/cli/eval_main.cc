@@ -23,7 +23,8 @@ void Usage(std::FILE* f) {
       "  `t x y z qx qy qz qw` (matched by time within --max-dt, default 0.02 s).\n"
       "  ATE aligns EST to REF by least squares (SE(2), or SE(3) with --se3).\n"
       "  Map error: SLAMfusion's sqrt(sum (T - M)^2) over cells in {-1, 0, 1}, after a\n"
-      "  coarse-to-fine rotation + translation alignment; also occupied precision/recall.\n");
+      "  coarse-to-fine rotation + translation alignment (kept only if its error is lower\n"
+      "  than the maps' as they lie); also occupied precision/recall.\n");
 }
 
 // The value of `flag` as a number in [lo, hi] (exit 2 otherwise); `integer`: a whole number.
