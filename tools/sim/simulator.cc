@@ -133,6 +133,13 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
       return false;
     };
     bool yielded = false;
+    // Kept waiting long enough (a base parked in the way): another way, below.
+    auto out_of_patience = [&] {
+      w.waited_s += dt;
+      if (w.waited_s < o_.walker_patience_s) return false;
+      w.waited_s = 0;
+      return true;
+    };
     if (d < keep) {
       // The base comes at it: away from the base. Where it stood is kept, to go back the way it
       // came.
@@ -142,6 +149,7 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
         w.trail.push_back(from);
       }
       w.off_track = true;
+      w.waited_s = 0;
       yielded = true;
     } else if (w.off_track && !w.trail.empty()) {
       // Back the way it was pushed (every point of it was free floor), once the base has passed.
@@ -155,6 +163,8 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
         }
       } else {
         yielded = true;
+        // Then to the nearest point of its track, round the base (the branch below).
+        if (out_of_patience()) w.trail.clear();
       }
     } else if (w.off_track) {
       // No way back kept (a trail over kMaxTrail steps, or one that began off the track): to the
@@ -182,9 +192,11 @@ void Simulator::StepWalkers(const Pose2& robot, double dt, SimStats* stats) {
         w.s = s;
         w.dir = dir;
       } else {
-        yielded = true;  // waiting for the base to pass
+        yielded = true;                         // waiting for the base to pass
+        if (out_of_patience()) w.dir = -w.dir;  // it does not: back the way it came
       }
     }
+    if (!yielded) w.waited_s = 0;
     if (stats != nullptr) {
       stats->walker_yields += yielded ? 1 : 0;
       if ((w.p - rc).norm() < r + kBaseRadiusM) ++stats->walker_contacts;

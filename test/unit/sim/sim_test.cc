@@ -589,6 +589,59 @@ TEST(SimWalkers, WalkTheirTrackWaitForTheBaseAndStepAwayFromIt) {
   EXPECT_LE(back.x(), 3.0);
 }
 
+// A base parked in a walker's way does not hold it for good: on its track it turns back after
+// walker_patience_s; pushed off its track and then blocked on the way it came, it gives that
+// way up and goes round the base to its track.
+TEST(SimWalkers, AWalkerKeptWaitingByAParkedBaseGoesAnotherWay) {
+  SimOptions o;
+  o.walker_tracks = {{1.0, 1.0, 3.0, 1.0, 1.0, 0.5}};  // along x at y = 1, from x = 2 towards 3
+  Simulator sim(Room(), o);
+  SimStats st;
+  const Pose2 parked(3.2, 1.0, 0);  // beyond the track's end, 0.7 m from x = 2.5
+  const int steps_patience = static_cast<int>(std::lround(o.walker_patience_s / 0.01));
+  auto run = [&](const Pose2& base, int steps, double* min_x, double* max_x, int* longest_still) {
+    Eigen::Vector2d last = sim.WalkerPositions()[0];
+    int still = 0;
+    for (int i = 0; i < steps; ++i) {
+      sim.StepWalkers(base, 0.01, &st);
+      const Eigen::Vector2d p = sim.WalkerPositions()[0];
+      still = (p - last).norm() < 1e-12 ? still + 1 : 0;
+      *longest_still = std::max(*longest_still, still);
+      *min_x = std::min(*min_x, p.x());
+      *max_x = std::max(*max_x, p.x());
+      last = p;
+    }
+  };
+  double min_x = 1e9, max_x = -1e9;
+  int longest_still = 0;
+  run(parked, 3000, &min_x, &max_x, &longest_still);  // 30 s
+  EXPECT_NEAR(max_x, 3.2 - o.keep_clear_m, 0.011);    // walked up to the parked base
+  EXPECT_LT(min_x, 1.05);                             // and, kept waiting, back to the other end
+  EXPECT_GE(longest_still, steps_patience - 1);       // it did wait
+  EXPECT_LE(longest_still, steps_patience + 1);       // but no longer than its patience
+  // Pushed off its track, then the base parks where it blocks the way back.
+  Pose2 base(1.0, 0.9, 0);
+  const Eigen::Vector2d start = sim.WalkerPositions()[0];
+  ASSERT_LT(std::abs(start.y() - 1.0), 1e-9);
+  base = Pose2(start.x() - 0.6, 0.9, 0);
+  for (int i = 0; i < 60; ++i) {
+    base = Pose2(base.x + 0.004, 0.9, 0);
+    sim.StepWalkers(base, 0.01, &st);
+  }
+  ASSERT_GT(sim.WalkerPositions()[0].y(), 1.05);  // off its track
+  min_x = 1e9;
+  max_x = -1e9;
+  longest_still = 0;
+  bool back_on_track = false;
+  for (int i = 0; i < 3000 && !back_on_track; ++i) {
+    run(base, 1, &min_x, &max_x, &longest_still);
+    back_on_track = std::abs(sim.WalkerPositions()[0].y() - 1.0) < 1e-9;
+  }
+  EXPECT_TRUE(back_on_track) << "at " << sim.WalkerPositions()[0].transpose();
+  EXPECT_LE(longest_still, steps_patience + 1);
+  EXPECT_EQ(st.walker_contacts, 0);
+}
+
 // Pushed off its track to the far side of the low box, a walker goes round the box to get back
 // (the straight line back runs into it; such a walker used to wait there for the rest of the
 // run).

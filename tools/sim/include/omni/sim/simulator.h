@@ -50,7 +50,9 @@ namespace omni::sim {
 // starts `phase` of the way from a to b, heading for b. It waits while walking on would bring it
 // closer than `keep_clear_m` to the robot's centre, and steps away when the robot comes at it
 // (the tour's follower does not steer around people); it only ever moves to where the world is
-// free for its radius.
+// free for its radius. A walker kept waiting `walker_patience_s` (a base parked in its way) turns
+// back along its track, or, on its way back to the track, gives up the way it was pushed and
+// heads for the nearest point of the track instead.
 struct WalkerTrack {
   double ax = 0, ay = 0, bx = 0, by = 0;  // world frame, metres
   double speed_m_s = 0.8;
@@ -116,6 +118,7 @@ struct SimOptions {
   double walker_radius_m = 0.2;  // shoulders seen by the camera, legs by the lidar: one cylinder
   double walker_height_m = 1.75;
   double keep_clear_m = 0.7;  // walker centre to robot centre: 0.2 + the base's 0.3 + 0.2 spare
+  double walker_patience_s = 8.0;  // waiting this long, a walker goes another way (above)
   // The base bridge's limits, timing, covariances and channels (nullopt: as
   // config/base_bridge.yaml ships them); its geometry is always the simulated base's. The
   // ideal base applies the same speed limits and command timeout to outside commands.
@@ -201,6 +204,7 @@ class Simulator {
     bool off_track = false;              // stepped away from the base, on its way back
     int detour = 0;                      // going round something: +1 turning left, -1 right
     std::vector<Eigen::Vector2d> trail;  // where it stood while pushed, to go back that way
+    double waited_s = 0;                 // kept waiting since its last step
   };
   Eigen::Vector2d TrackPoint(size_t i, double s) const;
   void MakeWalkers();
