@@ -1,5 +1,6 @@
 #include "omni/rplidar/scan.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -8,20 +9,34 @@ namespace omni::rplidar {
 PlanarScan RevolutionToScan(const std::vector<Sample>& revolution, const ScanOptions& options) {
   PlanarScan scan;
   const int n = options.beams > 0 ? options.beams : 720;
-  scan.angle_min_rad = -M_PI;
-  scan.angle_increment_rad = 2.0 * M_PI / n;
+  const double step = 2.0 * M_PI / n;
+  // The lidar turns clockwise: beams run clockwise from where the revolution began, so that
+  // beam i is the i-th measured (the mappers place beam i at utime + i / (n - 1) *
+  // scan_time_s when they undo the base's motion during the sweep). Bins counter-clockwise
+  // from -pi would put the first sample in the middle of the scan and run time backwards.
+  scan.angle_increment_rad = -step;
+  auto ccw = [&](const Sample& s) {
+    return std::remainder(-s.angle_deg * M_PI / 180.0 + options.angle_offset_rad, 2.0 * M_PI);
+  };
   scan.ranges_m.assign(static_cast<size_t>(n), std::numeric_limits<float>::quiet_NaN());
   scan.intensities.assign(static_cast<size_t>(n), 0.0f);
+  // Beam 0 on the bin lattice nearest the first sample, so that the beams' angles stay the same
+  // from one revolution to the next.
+  scan.angle_min_rad =
+      revolution.empty()
+          ? std::remainder(options.angle_offset_rad, 2.0 * M_PI)
+          : std::remainder(std::round(ccw(revolution.front()) / step) * step, 2.0 * M_PI);
   if (revolution.empty()) return scan;
   scan.utime = revolution.front().utime;
   scan.scan_time_s = (revolution.back().utime - revolution.front().utime) * 1e-6;
   for (const Sample& s : revolution) {
     const double r = s.distance_mm * 1e-3;
     if (!(r >= options.range_min_m) || r >= options.range_max_m) continue;
-    double a = -s.angle_deg * M_PI / 180.0 + options.angle_offset_rad;  // clockwise -> CCW
-    a = std::remainder(a, 2.0 * M_PI);                                  // [-pi, pi]
-    long bin = std::lround((a - scan.angle_min_rad) / scan.angle_increment_rad);
-    bin = ((bin % n) + n) % n;
+    // Clockwise from beam 0, in [-step / 2, 2 pi - step / 2): a sample a little before the first
+    // one's bin goes in beam 0, the last ones of the turn in beam n - 1 (not round to beam 0).
+    double d = std::remainder(scan.angle_min_rad - ccw(s), 2.0 * M_PI);
+    if (d < -step / 2) d += 2.0 * M_PI;
+    const long bin = std::clamp<long>(std::lround(d / step), 0, n - 1);
     float& slot = scan.ranges_m[static_cast<size_t>(bin)];
     if (std::isnan(slot) || r < slot) {
       slot = static_cast<float>(r);

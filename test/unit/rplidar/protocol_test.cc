@@ -147,10 +147,13 @@ TEST(RplidarScan, ClockwiseSamplesBecomeCounterClockwiseBeams) {
   opt.beams = 360;
   const PlanarScan scan = RevolutionToScan(rev, opt);
   ASSERT_EQ(scan.ranges_m.size(), 360u);
+  EXPECT_LT(scan.angle_increment_rad, 0);  // clockwise, as measured
   auto beam_of = [&](double ccw_deg) {
-    return static_cast<size_t>(
-        std::lround((ccw_deg * M_PI / 180 - scan.angle_min_rad) / scan.angle_increment_rad));
+    const long i =
+        std::lround((ccw_deg * M_PI / 180 - scan.angle_min_rad) / scan.angle_increment_rad);
+    return static_cast<size_t>(((i % 360) + 360) % 360);
   };
+  EXPECT_EQ(beam_of(-90), 0u);  // the first sample
   EXPECT_FLOAT_EQ(scan.ranges_m[beam_of(-90)], 1.0f);
   EXPECT_FLOAT_EQ(scan.intensities[beam_of(-90)], 40.0f);
   EXPECT_FLOAT_EQ(scan.ranges_m[beam_of(0)], 2.0f);
@@ -158,6 +161,56 @@ TEST(RplidarScan, ClockwiseSamplesBecomeCounterClockwiseBeams) {
   EXPECT_EQ(scan.samples_used, 2);
   EXPECT_EQ(scan.utime, 100);
   EXPECT_DOUBLE_EQ(scan.scan_time_s, 100e-6);
+}
+
+// The mappers place beam i of a scan at utime + i / (n - 1) * scan_time_s to undo the base's
+// motion during the sweep, so the beams must be in the order the lidar measured them, wherever
+// the revolution began and whatever the mount's angle offset. Binned counter-clockwise from
+// -pi (as before 2026-12-07), a revolution starting straight ahead put its first sample in
+// the middle beam and ran time backwards from there.
+TEST(RplidarScan, BeamsAreInTheOrderTheLidarMeasuredThem) {
+  for (double start_deg : {0.0, 0.2, 123.4, 359.9})
+    for (double offset : {0.0, 0.05, -3.0}) {
+      std::vector<Sample> rev;
+      constexpr int kSamples = 1000;
+      for (int k = 0; k < kSamples; ++k) {
+        Sample s;
+        s.angle_deg = std::fmod(start_deg + k * 360.0 / kSamples, 360.0);  // clockwise
+        s.distance_mm = 1000 + k;  // tells the samples apart
+        s.quality = 30;
+        s.utime = 1000000 + k * 100;
+        s.start = k == 0;
+        rev.push_back(s);
+      }
+      ScanOptions opt;
+      opt.beams = 720;
+      opt.angle_offset_rad = offset;
+      const PlanarScan scan = RevolutionToScan(rev, opt);
+      ASSERT_EQ(scan.ranges_m.size(), 720u);
+      EXPECT_EQ(scan.utime, 1000000);
+      EXPECT_NEAR(scan.scan_time_s, (kSamples - 1) * 100e-6, 1e-12);
+      EXPECT_NEAR(scan.angle_increment_rad, -2 * M_PI / 720, 1e-12);
+      EXPECT_GE(scan.angle_min_rad, -M_PI - 1e-9);
+      EXPECT_LE(scan.angle_min_rad, M_PI + 1e-9);
+      int filled = 0;
+      for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
+        if (std::isnan(scan.ranges_m[i])) continue;
+        ++filled;
+        const int k = static_cast<int>(std::lround(scan.ranges_m[i] * 1000)) - 1000;
+        ASSERT_GE(k, 0);
+        ASSERT_LT(k, kSamples);
+        // Its time in the sweep, as the mappers reckon it, within a beam of the truth.
+        const double beam_time = static_cast<double>(i) / 719.0 * scan.scan_time_s;
+        const double true_time = (rev[static_cast<size_t>(k)].utime - scan.utime) * 1e-6;
+        EXPECT_NEAR(beam_time, true_time, 1.5 * scan.scan_time_s / 720)
+            << "start " << start_deg << ", offset " << offset << ", beam " << i;
+        // And its angle, within half a bin.
+        const double a = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+        const double want = -rev[static_cast<size_t>(k)].angle_deg * M_PI / 180 + offset;
+        EXPECT_NEAR(std::remainder(a - want, 2 * M_PI), 0.0, M_PI / 720 + 1e-9);
+      }
+      EXPECT_GT(filled, 700);
+    }
 }
 
 TEST(RplidarAssembler, RevolutionsEndAtStartFlags) {
