@@ -243,7 +243,9 @@ bool SampleAssembler::Add(const Frame& f, ImuSample* out) {
   }
   *out = cur_;
   have_accel_ = have_gyro_ = have_quat_ = false;
-  cur_.has_mag = false;
+  // What a period did not bring is missing from its sample, not the period before's: an angle
+  // frame lost to a bad checksum would otherwise pass on an orientation one period old.
+  cur_.has_mag = cur_.has_orientation = cur_.has_temperature = false;
   return true;
 }
 

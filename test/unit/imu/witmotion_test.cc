@@ -70,6 +70,31 @@ TEST(WitMotion, AssemblesSamplesAndOrientation) {
   EXPECT_NEAR(samples[0].temperature_c, 25.0, 1e-9);
 }
 
+// A period whose angle frame was lost (a bad checksum drops it in the parser) closes a sample
+// without an orientation: not the one of the period before, which is stale by a period.
+TEST(WitMotion, ASampleWhoseAngleFrameWasLostHasNoOrientation) {
+  SampleAssembler a(kTypeMag);
+  auto frame = [](uint8_t type, std::array<int16_t, 4> v) {
+    Frame f;
+    f.type = type;
+    f.v = v;
+    return f;
+  };
+  ImuSample s;
+  EXPECT_FALSE(a.Add(frame(kTypeAccel, {0, 0, 2048, 2500}), &s));
+  EXPECT_FALSE(a.Add(frame(kTypeGyro, {0, 0, 100, 2500}), &s));
+  EXPECT_FALSE(a.Add(frame(kTypeAngle, {0, 0, 8192, 2500}), &s));
+  ASSERT_TRUE(a.Add(frame(kTypeMag, {1, 2, 3, 2500}), &s));
+  EXPECT_TRUE(s.has_orientation);
+  EXPECT_TRUE(s.has_mag);
+  EXPECT_FALSE(a.Add(frame(kTypeAccel, {0, 0, 2048, 2500}), &s));
+  EXPECT_FALSE(a.Add(frame(kTypeGyro, {0, 0, 100, 2500}), &s));
+  ASSERT_TRUE(a.Add(frame(kTypeMag, {1, 2, 3, 2500}), &s));  // the angle frame lost
+  EXPECT_FALSE(s.has_orientation);
+  EXPECT_TRUE(s.has_mag);
+  EXPECT_TRUE(s.has_temperature);  // from this period's accel frame
+}
+
 TEST(WitMotion, GarbageCostsOnlyCorruptedFrames) {
   const auto clean = Stream(200);
   std::mt19937 rng(7);
