@@ -117,11 +117,22 @@ Result<std::string> ReadMaybeGzipFile(const std::string& path) {
       return MakeError(ErrorCode::kIo, "'" + path + "': decompression failed after " +
                                            std::to_string(out.size()) + " bytes: " + msg);
     }
-    if (n == 0) break;
+    if (n == 0) {
+      // A .gz cut short (a copy or download stopped) reads as an end of file; zlib says so only
+      // here. Without this check the log would be imported short, or fail on its last line
+      // with an error that blames the line.
+      int errnum = 0;
+      gzerror(f, &errnum);
+      gzclose(f);
+      if (errnum == Z_BUF_ERROR)
+        return MakeError(ErrorCode::kIo, "'" + path +
+                                             "': the compressed data ends early (a truncated "
+                                             ".gz file?) after " +
+                                             std::to_string(out.size()) + " bytes");
+      return out;
+    }
     out.append(buf, static_cast<size_t>(n));
   }
-  gzclose(f);
-  return out;
 }
 
 namespace {
