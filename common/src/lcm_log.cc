@@ -278,6 +278,13 @@ Status LcmLogWriter::Write(int64_t utime, const std::string& channel, const void
   if (!f_) return MakeError(ErrorCode::kIo, "LCM log '" + path_ + "' is closed");
   if (channel.empty() || channel.size() > static_cast<size_t>(kMaxChannel))
     return MakeError(ErrorCode::kInvalidArgument, "channel name must be 1..255 bytes");
+  // The reader refuses more (and the 4-byte length field would wrap at 4 GiB, losing the
+  // framing of every event after it): refused here, before anything is written.
+  if (size > static_cast<size_t>(kMaxData))
+    return MakeError(ErrorCode::kInvalidArgument,
+                     "an event of " + std::to_string(size) + " bytes on " + channel +
+                         " is more than an LCM log event holds here (" + std::to_string(kMaxData) +
+                         " bytes); not written");
   uint8_t hdr[28];
   PutBe(hdr, kSync, 4);
   PutBe(hdr + 4, static_cast<uint64_t>(next_event_), 8);

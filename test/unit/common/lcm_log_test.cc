@@ -68,6 +68,30 @@ TEST(LcmLog, RoundTrip) {
   EXPECT_FALSE(*r->Next(&ev));
 }
 
+// An event larger than the reader takes (256 MiB) is refused before a byte is written: its
+// length used to be cut to 32 bits in the header, so the file could not be read past it.
+TEST(LcmLog, AnEventTooLargeToReadBackIsRefusedAndTheLogStaysReadable) {
+  const std::string path = omni::testing::TempDir() + "/big.lcmlog";
+  auto w = LcmLogWriter::Open(path);
+  ASSERT_TRUE(w.ok());
+  const std::string a = "hello";
+  for (uint64_t size : {uint64_t{256} * 1024 * 1024 + 1, uint64_t{4} * 1024 * 1024 * 1024 + 5}) {
+    // Refused before `data` is read: a small buffer stands for the large one.
+    const Status st = w->Write(100, "GRID", a.data(), static_cast<size_t>(size));
+    EXPECT_FALSE(st.ok());
+    EXPECT_NE(st.message().find("GRID"), std::string::npos) << st.message();
+  }
+  ASSERT_TRUE(w->Write(200, "A", a.data(), a.size()).ok());
+  ASSERT_TRUE(w->Close().ok());
+  auto r = LcmLogReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  LcmLogEvent ev;
+  ASSERT_TRUE(*r->Next(&ev));
+  EXPECT_EQ(ev.channel, "A");
+  EXPECT_EQ(ev.event_number, 0);
+  EXPECT_FALSE(*r->Next(&ev));
+}
+
 TEST(LcmLog, CorruptionNamesOffsetAndResyncSkipsIt) {
   const std::string path = WriteSample(omni::testing::TempDir());
   {
