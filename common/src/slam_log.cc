@@ -7,6 +7,7 @@
 
 #include "omni/bus/bus.h"
 #include "omni/bus/convert.h"
+#include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/imu_t.hpp"
 #include "omni/io/carmen.h"
@@ -108,6 +109,7 @@ Result<SlamLogResult> ReadLcm(io::LcmLogReader* reader, const SlamLogChannels& c
   SlamLogResult out;
   io::LcmLogEvent ev;
   int64_t last_seq = -1, last_utime = 0;
+  SeqGaps gaps;
   ScanHold hold(handlers);
   bool go_on = true;
   for (;;) {
@@ -132,7 +134,8 @@ Result<SlamLogResult> ReadLcm(io::LcmLogReader* reader, const SlamLogChannels& c
         ++out.scans_repeated;
         continue;
       }
-      if (last_seq >= 0 && m.seq > last_seq + 1) out.scans_lost += m.seq - last_seq - 1;
+      gaps.Add(m.seq);
+      out.scans_lost = gaps.lost();
       if (m.seq >= 0) last_seq = m.seq;
       last_utime = m.utime;
       SlamScan s;

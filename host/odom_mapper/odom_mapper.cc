@@ -78,16 +78,13 @@ void OdomMapper::Take(int64_t utime, const Pose2& pose) {
 
 bool OdomMapper::AddScan(const Scan& scan) {
   ++counters_.scans_in;
-  if (scan.seq > 0 && scan.seq == last_seq_ && scan.utime == last_scan_utime_) {
+  if (scan.seq > 0 && scan.seq == seq_gaps_.newest() && scan.utime == last_scan_utime_) {
     ++counters_.scans_duplicate;  // the same scan again (a repeating driver or bridge)
     return false;
   }
   last_scan_utime_ = scan.utime;
-  if (scan.seq >= 0) {
-    if (last_seq_ >= 0 && scan.seq > last_seq_ + 1)
-      counters_.scans_lost += scan.seq - last_seq_ - 1;
-    last_seq_ = scan.seq;
-  }
+  seq_gaps_.Add(scan.seq);
+  counters_.scans_lost = seq_gaps_.lost();
   int valid = 0;
   std::vector<float> ranges(scan.ranges_m.size());
   for (size_t i = 0; i < scan.ranges_m.size(); ++i) {

@@ -27,16 +27,13 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
       heartbeat_(bus, "pose_graph_mapper", clock) {
   bus_->Subscribe<omni::laser_scan_t>(
       o_.scan_channel, [this](const omni::laser_scan_t& m, int64_t) {
-        if (m.seq > 0 && m.seq == last_seq_ && m.utime == last_scan_utime_) {
+        if (m.seq > 0 && m.seq == seq_gaps_.newest() && m.utime == last_scan_utime_) {
           ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
           ++bus_->counters().drops;
           return;
         }
         last_scan_utime_ = m.utime;
-        if (m.seq >= 0) {
-          if (last_seq_ >= 0 && m.seq > last_seq_ + 1) scans_lost_ += m.seq - last_seq_ - 1;
-          last_seq_ = m.seq;
-        }
+        seq_gaps_.Add(m.seq);
         Item it;
         it.kind = Kind::kScan;
         it.utime = m.utime;
@@ -141,7 +138,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("absolute_invalid", [&c] { return c.absolute_invalid; });
   heartbeat_.AddCounter("absolute_bad_covariance", [this] { return absolute_bad_covariance_; });
   heartbeat_.AddCounter("absolute_wrong_frame", [this] { return absolute_wrong_frame_; });
-  heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
+  heartbeat_.AddCounter("scans_lost", [this] { return seq_gaps_.lost(); });
   heartbeat_.AddCounter("scans_forced", [this] { return scans_forced_; });
   heartbeat_.AddCounter("time_rebases",
                         [this, &c] { return c.time_rebases + scan_order_.rebases(); });
@@ -366,7 +363,7 @@ Status PoseGraphNode::WriteOutputs(const std::string& dir, SlamRunInfo info) {
 Status PoseGraphNode::SaveMaps(const std::string& dir, SlamRunInfo info) const {
   info.grid_resolution_m = o_.grid_resolution_m;
   info.decode_errors = bus_->counters().decode_errors.load();
-  info.extra.emplace_back("scans_lost", scans_lost_);
+  info.extra.emplace_back("scans_lost", seq_gaps_.lost());
   info.extra.emplace_back("scans_forced", scans_forced_);
   info.extra.emplace_back("max_scans_queued", max_queued_scans_);
   info.extra.emplace_back("poses_published", poses_published_);

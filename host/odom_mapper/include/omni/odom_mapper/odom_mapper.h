@@ -11,6 +11,7 @@
 #include "omni/common/config.h"
 #include "omni/common/geometry.h"
 #include "omni/common/result.h"
+#include "omni/common/seq_gaps.h"
 #include "omni/common/stamp_order.h"
 #include "omni/io/grid.h"
 
@@ -89,7 +90,7 @@ class OdomMapper {
   StampedBuffer<Pose2> odom_;
   std::vector<MappedScan> trajectory_;
   OdomMapperCounters counters_;
-  int64_t last_seq_ = -1;
+  SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t last_scan_utime_ = INT64_MIN;
   void Take(int64_t utime, const Pose2& pose);  // an in-order sample: jump check, buffer
   std::optional<Pose2> last_raw_;  // the newest accepted raw sample, for jump detection

@@ -34,6 +34,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/mapping_health.h"
+#include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/pose_graph_mapper/node_options.h"
 #include "omni/pose_graph_mapper/pose_graph_slam.h"
@@ -65,7 +66,7 @@ class PoseGraphNode {
   bus::Heartbeat& heartbeat() { return heartbeat_; }
   size_t queued_scans() const { return queued_scans_; }
   int64_t max_queued_scans() const { return max_queued_scans_; }
-  int64_t scans_lost() const { return scans_lost_; }
+  int64_t scans_lost() const { return seq_gaps_.lost(); }
   int64_t poses_published() const { return poses_published_; }
   int64_t grids_published() const { return grids_published_; }
   int64_t trajectories_published() const { return trajectories_published_; }
@@ -119,9 +120,9 @@ class PoseGraphNode {
   int64_t last_scan_utime_ = INT64_MIN;
   int64_t scans_duplicate_ = 0;            // same seq and stamp as the scan before: dropped
   int64_t handed_odom_utime_ = INT64_MIN;  // newest odometry given to the mapper
-  int64_t last_seq_ = -1;
+  SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t scan_index_ = 0;
-  int64_t scans_lost_ = 0, scans_forced_ = 0;
+  int64_t scans_forced_ = 0;
   int64_t poses_published_ = 0, grids_published_ = 0, trajectories_published_ = 0;
   int64_t last_trajectory_poses_ = 0;  // poses in the last trajectory message (thinned)
   int64_t pose_seq_ = 0;
