@@ -111,7 +111,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
     for (auto& [name, read] : OdometryCalibrationCounters(slam_.odometry_calibrator()))
       heartbeat_.AddCounter(name, std::move(read));
   }
-  heartbeat_.AddCounter("scans_lost", [this] { return scans_lost_; });
+  heartbeat_.AddCounter("scans_lost", [this] { return seq_gaps_.lost(); });
   // Poses in the last TRAJECTORY_RBPF (thinned, see bus::ThinTrajectoryMessage).
   heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
@@ -121,16 +121,13 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
 }
 
 void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
-  if (seq > 0 && seq == last_seq_ && scan.utime == last_scan_utime_) {
+  if (seq > 0 && seq == seq_gaps_.newest() && scan.utime == last_scan_utime_) {
     ++scans_duplicate_;  // the same scan again (a repeating driver or bridge): mapped once
     ++bus_->counters().drops;
     return;
   }
   last_scan_utime_ = scan.utime;
-  if (seq >= 0) {
-    if (last_seq_ >= 0 && seq > last_seq_ + 1) scans_lost_ += seq - last_seq_ - 1;
-    last_seq_ = seq;
-  }
+  seq_gaps_.Add(seq);
   // A scan older than the newest is held: alone it is a late scan and is given up; five in
   // order re-base the stream and are all mapped.
   const auto rebase = [this, &scan](int64_t) {
@@ -219,8 +216,6 @@ void RbpfNode::Process(const ScanInput& scan) {
     ++bus_->counters().drops;
     return;
   }
-  scan_times_s_.resize(static_cast<size_t>(r.scan_index) + 1, 0.0);
-  scan_times_s_[static_cast<size_t>(r.scan_index)] = UtimeToSeconds(scan.utime);
   omni::pose2d_t p{};
   p.utime = scan.utime;
   p.seq = pose_seq_++;
@@ -306,9 +301,20 @@ void RbpfNode::Tick() {
 void RbpfNode::Flush() { Drain(true, INT32_MAX); }
 
 Status RbpfNode::WriteOutputs(const std::string& dir) {
+  // Scans still queued at a stop can take longer to map than the supervisor waits before it
+  // kills the process (3000 scans, seconds to a minute on two cores): the map so far is written
+  // first, so that a kill during the flush leaves it, not nothing (or the previous run's).
+  if (!pending_.empty() && slam_.counters().scans_processed > 0) {
+    if (Status early = SaveMaps(dir); !early.ok()) {
+      LOG_WARN << "the map before the last " << pending_.size()
+               << " queued scans: " << early.message();
+    }
+  }
   Flush();
   PublishGrid();
   PublishTrajectory();
+  // Each scan the flush mapped said "mapping": the process is stopping.
+  heartbeat_.SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   heartbeat_.Tick(true);
   return SaveMaps(dir);
 }

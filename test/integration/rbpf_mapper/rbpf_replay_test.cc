@@ -276,6 +276,65 @@ TEST(RbpfMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   EXPECT_EQ(node.slam().counters().odom_jumps, 0);
 }
 
+// Stopping with scans still queued: they are mapped and the map written, and the heartbeat
+// sent with the outputs says the process is stopping (each scan the flush mapped used to set
+// it back to "mapping"). The map before the queued scans is written first, so that a kill
+// during a long flush leaves it.
+TEST(RbpfMapperNode, StoppingWithQueuedScansMapsThemAndSaysItIsStopping) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  rbpf::RbpfOptions opt;
+  opt.particles = 4;
+  ManualClock clock(1000000);
+  rbpf::RbpfNode node(&b, opt, &clock);
+  node.set_deferred(true);
+  std::vector<omni::heartbeat_t> beats;
+  b.Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    if (h.process == "rbpf_mapper") beats.push_back(h);
+  });
+  auto send = [&](int k) {
+    omni::odometry_t o{};
+    o.utime = 1000000 + k * 100000;
+    o.seq = k;
+    o.x_m = 0.05 * k;
+    b.Publish("WHEEL_ODOM", o);
+    omni::laser_scan_t m{};
+    m.utime = o.utime;
+    m.seq = k;
+    m.angle_min_rad = -1.5f;
+    m.angle_increment_rad = 0.01f;
+    m.range_min_m = 0.1f;
+    m.range_max_m = 30.f;
+    m.ranges_m.assign(300, 2.f);
+    m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+    b.Publish("LIDAR_SCAN", m);
+  };
+  auto drain = [&] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  for (int k = 0; k < 3; ++k) send(k);
+  drain();
+  node.ProcessReady(100);
+  ASSERT_GT(node.slam().counters().scans_processed, 0);
+  for (int k = 3; k < 8; ++k) send(k);
+  drain();
+  ASSERT_GT(node.pending(), 0u);
+  const std::string dir = omni::testing::TempDir() + "/rbpf_stop";
+  std::filesystem::create_directories(dir);
+  node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
+  ASSERT_TRUE(node.WriteOutputs(dir).ok());
+  drain();
+  EXPECT_EQ(node.pending(), 0u);
+  EXPECT_TRUE(std::filesystem::exists(dir + "/map.pgm"));
+  auto traj = io::ReadTrajectory(dir + "/trajectory.txt");
+  ASSERT_TRUE(traj.ok()) << traj.error().message;
+  EXPECT_EQ(traj->entries.size(), 8u);
+  ASSERT_FALSE(beats.empty());
+  EXPECT_EQ(beats.back().state, omni::heartbeat_t::STATE_STOPPING) << beats.back().status_text;
+}
+
 testing::NodeReplay ReplayToRbpfNode(const std::string& clf, int scans,
                                      const testing::Glitches& g) {
   return testing::ReplayToNode(clf, scans, g, "POSE_RBPF", [](bus::Bus* b, const Clock* clock) {

@@ -24,6 +24,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/mapping_health.h"
+#include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/rbpf_mapper/rbpf.h"
 
@@ -53,7 +54,7 @@ class RbpfNode {
   int64_t poses_published() const { return poses_published_; }
   int64_t grids_published() const { return grids_published_; }
   int64_t trajectories_published() const { return trajectories_published_; }
-  int64_t scans_lost() const { return scans_lost_; }
+  int64_t scans_lost() const { return seq_gaps_.lost(); }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
  private:
@@ -81,8 +82,7 @@ class RbpfNode {
   int64_t last_scan_utime_ = INT64_MIN;
   int64_t scans_duplicate_ = 0;  // same seq and stamp as the scan before: dropped
   int64_t scans_late_ = 0;       // older than the newest scan on arrival (held, see OnScan)
-  int64_t last_seq_ = -1;
-  int64_t scans_lost_ = 0;
+  SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t poses_published_ = 0;
   int64_t grids_published_ = 0;
   int64_t last_grid_utime_ = 0;
@@ -94,7 +94,6 @@ class RbpfNode {
   bool deferred_ = false;
   int64_t max_pending_seen_ = 0;
   static constexpr size_t kMaxPending = 3000;
-  std::vector<double> scan_times_s_;
 };
 
 }  // namespace omni::rbpf
