@@ -353,9 +353,18 @@ void PoseGraphNode::Tick() {
 }
 
 Status PoseGraphNode::WriteOutputs(const std::string& dir, SlamRunInfo info) {
+  // As the RBPF's: the map so far first when scans are still queued (the flush and the final
+  // optimisation can outlast the supervisor's grace period), and STOPPING in the last heartbeat.
+  if (queued_scans_ > 0 && !slam_.keyframes().empty()) {
+    if (Status early = SaveMaps(dir, info); !early.ok()) {
+      LOG_WARN << "the map before the last " << queued_scans_
+               << " queued scans: " << early.message();
+    }
+  }
   Flush();
   PublishTrajectory();
   PublishGrid();
+  heartbeat_.SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   heartbeat_.Tick(true);
   return SaveMaps(dir, std::move(info));
 }

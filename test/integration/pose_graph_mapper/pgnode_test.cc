@@ -26,6 +26,7 @@
 #include "omni/imu_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
+#include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/occupancy_grid_t.hpp"
 #include "omni/odometry_t.hpp"
@@ -618,6 +619,38 @@ TEST(PoseGraphMapperNode, HeartbeatReportsTheOdometryCalibration) {
 }
 
 // The shipped config leaves the absolute input and the gyro off.
+// Stopping with scans still queued: they are mapped and written, and the heartbeat sent with
+// the outputs says STOPPING (each scan the flush mapped set it back to "mapping").
+TEST(PoseGraphMapperNode, StoppingWithQueuedScansMapsThemAndSaysItIsStopping) {
+  MemqNode n;
+  std::vector<omni::heartbeat_t> beats;
+  n.b->Subscribe<omni::heartbeat_t>("HEARTBEAT", [&](const omni::heartbeat_t& h, int64_t) {
+    if (h.process == "pose_graph_mapper") beats.push_back(h);
+  });
+  auto send = [&](int k) {
+    const int64_t t = 1000000 + k * 100000;
+    n.b->Publish("WHEEL_ODOM", Odom(t, 0.05 * k, k));
+    n.b->Publish("LIDAR_SCAN", RingScan(t, k));
+  };
+  for (int k = 0; k < 4; ++k) send(k);
+  n.Pump();
+  n.node->ProcessReady(100);
+  for (int k = 4; k < 10; ++k) send(k);
+  n.Pump();
+  ASSERT_GT(n.node->queued_scans(), 0u);
+  const std::string dir = omni::testing::TempDir() + "/pg_stop";
+  std::filesystem::create_directories(dir);
+  n.node->heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
+  ASSERT_TRUE(n.node->WriteOutputs(dir, {}).ok());
+  n.Pump();
+  EXPECT_EQ(n.node->queued_scans(), 0u);
+  auto traj = io::ReadTrajectory(dir + "/trajectory.txt");
+  ASSERT_TRUE(traj.ok()) << traj.error().message;
+  EXPECT_EQ(traj->entries.size(), 10u);
+  ASSERT_FALSE(beats.empty());
+  EXPECT_EQ(beats.back().state, omni::heartbeat_t::STATE_STOPPING) << beats.back().status_text;
+}
+
 TEST(PoseGraphMapperNode, AbsoluteChannelIsOffByDefault) {
   pgm::PoseGraphSlamOptions slam;
   pgm::BatchOptions batch;
