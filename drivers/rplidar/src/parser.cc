@@ -224,6 +224,12 @@ bool RevolutionAssembler::Add(const Sample& s, std::vector<Sample>* done) {
     }
     started_ = true;
   }
+  if (current_.size() >= kMaxSamples) {
+    without_turn_ += static_cast<int64_t>(current_.size());
+    current_.clear();
+    started_ = false;  // the next start flag begins a revolution
+    sweep_deg_ = 0;
+  }
   current_.push_back(s);
   return completed;
 }

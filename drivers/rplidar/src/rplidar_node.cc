@@ -1,5 +1,9 @@
 #include "omni/rplidar/rplidar_node.h"
 
+#include <algorithm>
+#include <cmath>
+#include <string>
+
 #include "omni/bus/channels.h"
 #include "omni/heartbeat_t.hpp"
 
@@ -52,6 +56,9 @@ RplidarNode::RplidarNode(bus::Bus* bus, RplidarDriver* driver, NodeOptions optio
   heartbeat_.AddCounter("health_resets", [d] { return d->counters().health_resets; });
   heartbeat_.AddCounter("dtr_failures", [d] { return d->counters().dtr_failures; });
   heartbeat_.AddCounter("dropped_samples", [d] { return d->counters().dropped_samples; });
+  heartbeat_.AddCounter("samples_without_turn",
+                        [d] { return d->assembler().samples_without_turn(); });
+  heartbeat_.AddCounter("revolutions_missed", [this] { return revolutions_missed_; });
 }
 
 void RplidarNode::RunOnce(int timeout_ms) {
@@ -59,9 +66,35 @@ void RplidarNode::RunOnce(int timeout_ms) {
   driver_->Step(timeout_ms, &revolutions);
   for (const auto& rev : revolutions) {
     const PlanarScan scan = RevolutionToScan(rev, driver_->options().scan);
+    // Revolutions that never came (the device away or silent, samples lost): the number skips
+    // them, as laser_scan_t's contract says, so that a gap in time is a gap in the count.
+    if (last_scan_utime_ >= 0 && last_scan_time_s_ > 0.02 && last_scan_time_s_ < 1.0 &&
+        scan.utime > last_scan_utime_) {
+      const double periods =
+          static_cast<double>(scan.utime - last_scan_utime_) * 1e-6 / last_scan_time_s_;
+      if (periods > 1.5) {
+        const int64_t missed = std::min<int64_t>(std::llround(periods) - 1, 100000);
+        seq_ += missed;
+        revolutions_missed_ += missed;
+      }
+    }
+    last_scan_utime_ = scan.utime;
+    if (scan.scan_time_s > 0) last_scan_time_s_ = scan.scan_time_s;
     bus_->Publish(options_.channel, MakeLaserScan(scan, seq_++, options_, driver_->options().scan));
   }
-  if (driver_->state() == DriverState::kStreaming) {
+  const int64_t now = MonotonicMicros();
+  if (driver_->state() != DriverState::kStreaming) {
+    progress_us_ = -1;
+  } else if (!revolutions.empty() || progress_us_ < 0) {
+    progress_us_ = now;
+  }
+  if (driver_->state() == DriverState::kStreaming &&
+      now - progress_us_ > SecondsToUtime(kNoRevolutionS)) {
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED,
+                        "streaming, but no whole revolution for " +
+                            std::to_string((now - progress_us_) / 1000000) +
+                            " s (motor not turning? samples_without_turn counts what came)");
+  } else if (driver_->state() == DriverState::kStreaming) {
     heartbeat_.SetState(omni::heartbeat_t::STATE_OK, driver_->status_text());
   } else {
     heartbeat_.SetState(omni::heartbeat_t::STATE_ERROR,

@@ -3,6 +3,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -205,6 +206,38 @@ TEST(RplidarE2E, VanishedDeviceIsReconnectedWithoutRestart) {
   ASSERT_TRUE(h.RunUntilScans(3, 5.0)) << "no scans after the device came back";
   EXPECT_EQ(h.driver->counters().reconnects, 1);
   EXPECT_EQ(h.driver->state(), DriverState::kStreaming);
+  // The revolutions missed while it was away (0.5 s and more at 10 Hz) are skipped in the
+  // sequence numbers, so the mappers count them lost.
+  int64_t largest_step = 0;
+  for (size_t i = 1; i < h.scans.size(); ++i)
+    largest_step = std::max(largest_step, h.scans[i].seq - h.scans[i - 1].seq);
+  EXPECT_GE(largest_step, 5);
+  EXPECT_EQ(h.node->revolutions_missed(),
+            h.scans.back().seq + 1 - static_cast<int64_t>(h.scans.size()));
+}
+
+// A motor that does not turn (an A1 whose adapter has no DTR line, a jammed rotor) under a
+// forced scan: samples at one angle, no start flag. No scan can be made; the heartbeat says
+// DEGRADED instead of OK, and the samples are counted.
+TEST(RplidarE2E, AMotorThatDoesNotTurnMakesTheHeartbeatDegraded) {
+  EmulatorOptions o;
+  o.link_path = LinkPath("stalled");
+  for (int i = 0; i < 64; ++i) {
+    const auto node = EncodeStandardSample(42.0, 1500.0, 40, false);
+    o.capture.insert(o.capture.end(), node.begin(), node.end());
+  }
+  auto e = RplidarEmulator::Create(o);
+  ASSERT_TRUE(e.ok()) << e.error().message;
+  EmulatorThread emu(std::move(*e));
+  Harness h;
+  ASSERT_TRUE(h.Start(LinkPath("stalled")).ok());
+  h.RunFor(1.0 + RplidarNode::kNoRevolutionS + 0.3);
+  EXPECT_TRUE(h.scans.empty());
+  ASSERT_FALSE(h.heartbeats.empty());
+  EXPECT_EQ(h.heartbeats.back().state, omni::heartbeat_t::STATE_DEGRADED)
+      << h.heartbeats.back().status_text;
+  EXPECT_GT(h.driver->parser_counters().samples, 4000);
+  EXPECT_LE(h.driver->assembler().pending(), RevolutionAssembler::kMaxSamples);
 }
 
 TEST(RplidarE2E, SilentDeviceTimesOutAndIsRestarted) {

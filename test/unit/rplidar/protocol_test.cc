@@ -231,5 +231,35 @@ TEST(RplidarAssembler, RevolutionsEndAtStartFlags) {
   EXPECT_EQ(a.revolutions(), 3);
 }
 
+// A motor that does not turn under a forced scan: samples at one angle and no start flag, about
+// 4000 a second. The open revolution stays bounded (it grew without limit) and what is dropped
+// is counted; once the motor turns, revolutions come again.
+TEST(RplidarAssembler, SamplesWithoutATurnStayBoundedAndAreCounted) {
+  RevolutionAssembler a;
+  std::vector<Sample> done;
+  Sample stuck;
+  stuck.angle_deg = 42.0;
+  stuck.distance_mm = 1000;
+  constexpr int kStuck = 40000;  // 10 s
+  for (int i = 0; i < kStuck; ++i) {
+    EXPECT_FALSE(a.Add(stuck, &done));
+    ASSERT_LE(a.pending(), RevolutionAssembler::kMaxSamples);
+  }
+  EXPECT_GE(a.samples_without_turn(),
+            kStuck - static_cast<int64_t>(RevolutionAssembler::kMaxSamples));
+  int completed = 0;
+  for (int rev = 0; rev < 3; ++rev)
+    for (int i = 0; i < 360; ++i) {
+      Sample s;
+      s.angle_deg = i;
+      s.start = i == 0;
+      if (a.Add(s, &done)) {
+        ++completed;
+        EXPECT_EQ(done.size(), 360u);
+      }
+    }
+  EXPECT_EQ(completed, 2);
+}
+
 }  // namespace
 }  // namespace omni::rplidar

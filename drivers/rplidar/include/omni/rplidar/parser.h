@@ -92,6 +92,11 @@ class RevolutionAssembler {
     sweep_deg_ = 0;
   }
   static constexpr double kMaxSweepDeg = 370.0;
+  // A revolution holds at most this many samples (the SDK's limit per scan; an A3 sends about
+  // 1600 a turn at 10 Hz). More without a turn (a motor that does not turn under a forced
+  // scan sends samples at one angle) are dropped and counted, so that memory stays bounded.
+  static constexpr size_t kMaxSamples = 8192;
+  int64_t samples_without_turn() const { return without_turn_; }
   int64_t implied_starts() const { return implied_starts_; }
   size_t pending() const { return current_.size(); }
   int64_t revolutions() const { return revolutions_; }
@@ -104,6 +109,7 @@ class RevolutionAssembler {
   int64_t partial_dropped_ = 0;
   double sweep_deg_ = 0;  // angle swept since the revolution's first sample
   int64_t implied_starts_ = 0;
+  int64_t without_turn_ = 0;
 };
 
 }  // namespace omni::rplidar
