@@ -15,6 +15,7 @@
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/common/malloc_setup.h"
+#include "omni/common/odometry_restart.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
@@ -75,8 +76,11 @@ int main(int argc, char** argv) {
   auto& bus = **bus_or;
   omni::odom_mapper::OdomMapper mapper(opt);
   omni::SystemClock clock;
+  omni::OdometryRestartBridge odom_restarts;  // a restarted base bridge's odometry, laid on
   bus.Subscribe<omni::odometry_t>(opt.odom_channel, [&](const omni::odometry_t& m, int64_t) {
-    if (!mapper.AddOdometry(m.utime, omni::Pose2(m.x_m, m.y_m, m.yaw_rad))) ++bus.counters().drops;
+    if (!mapper.AddOdometry(m.utime,
+                            odom_restarts.Take(m.seq, omni::Pose2(m.x_m, m.y_m, m.yaw_rad))))
+      ++bus.counters().drops;
   });
   bus.Subscribe<omni::laser_scan_t>(opt.scan_channel, [&](const omni::laser_scan_t& m, int64_t) {
     if (!mapper.AddScan(omni::odom_mapper::ScanFromMessage(m))) ++bus.counters().drops;
@@ -84,6 +88,7 @@ int main(int argc, char** argv) {
   omni::bus::Heartbeat hb(&bus, "odom_mapper", &clock);
   const auto& c = mapper.counters();
   hb.AddCounter("scans_in", [&] { return c.scans_in; });
+  hb.AddCounter("odom_restarts", [&] { return odom_restarts.restarts(); });
   hb.AddCounter("scans_bad_geometry", [&] { return c.scans_bad_geometry; });
   hb.AddCounter("scans_mapped", [&] { return c.scans_mapped; });
   hb.AddCounter("scans_no_pose", [&] { return c.scans_no_pose; });

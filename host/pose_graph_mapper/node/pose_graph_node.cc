@@ -50,7 +50,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   bus_->Subscribe<omni::odometry_t>(o_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
     Item it;
     it.utime = m.utime;
-    it.odom = Pose2(m.x_m, m.y_m, m.yaw_rad);
+    it.odom = odom_restarts_.Take(m.seq, Pose2(m.x_m, m.y_m, m.yaw_rad));
     OnMessage(std::move(it));
   });
   if (slam.use_gyro)
@@ -97,6 +97,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
   heartbeat_.AddCounter("odom_invalid", [&c] { return c.odom_invalid; });
   heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
   heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
+  heartbeat_.AddCounter("odom_restarts", [this] { return odom_restarts_.restarts(); });
   heartbeat_.AddCounter("keyframes", [&c] { return c.keyframes; });
   heartbeat_.AddCounter("keyframes_retired", [&c] { return c.keyframes_retired; });
   heartbeat_.AddCounter("keyframes_removed", [&c] { return c.keyframes_removed; });

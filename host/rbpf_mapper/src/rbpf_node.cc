@@ -37,7 +37,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
         OnScan(s, m.seq);
       });
   bus_->Subscribe<omni::odometry_t>(opt_.odom_channel, [this](const omni::odometry_t& m, int64_t) {
-    if (!slam_.AddOdometry(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad))) {
+    if (!slam_.AddOdometry(m.utime, odom_restarts_.Take(m.seq, Pose2(m.x_m, m.y_m, m.yaw_rad)))) {
       ++bus_->counters().drops;
     } else {
       // The buffer's newest, which moves back when a future-stamped sample is dropped.
@@ -68,6 +68,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   heartbeat_.AddCounter("odom_invalid", [&c] { return c.odom_invalid; });
   heartbeat_.AddCounter("odom_out_of_order", [&c] { return c.odom_out_of_order; });
   heartbeat_.AddCounter("odom_jumps", [&c] { return c.odom_jumps; });
+  heartbeat_.AddCounter("odom_restarts", [this] { return odom_restarts_.restarts(); });
   heartbeat_.AddCounter("imu_invalid", [&c] { return c.imu_invalid; });
   if (slam_.options().use_imu) {
     heartbeat_.AddCounter("imu_bias_samples", [&c] { return c.imu_bias_samples; });

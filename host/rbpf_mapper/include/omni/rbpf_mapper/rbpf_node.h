@@ -24,6 +24,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/mapping_health.h"
+#include "omni/common/odometry_restart.h"
 #include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/rbpf_mapper/rbpf.h"
@@ -80,8 +81,9 @@ class RbpfNode {
   HeldRun<ScanInput> scan_stream_;
   int64_t scans_future_dropped_ = 0;  // queued scans dropped by such a re-base
   int64_t last_scan_utime_ = INT64_MIN;
-  int64_t scans_duplicate_ = 0;  // same seq and stamp as the scan before: dropped
-  int64_t scans_late_ = 0;       // older than the newest scan on arrival (held, see OnScan)
+  int64_t scans_duplicate_ = 0;          // same seq and stamp as the scan before: dropped
+  int64_t scans_late_ = 0;               // older than the newest scan on arrival (held, see OnScan)
+  OdometryRestartBridge odom_restarts_;  // a restarted base bridge's odometry, laid on
   SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t poses_published_ = 0;
   int64_t grids_published_ = 0;

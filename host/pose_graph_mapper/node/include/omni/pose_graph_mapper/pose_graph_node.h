@@ -34,6 +34,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/bus/mapping_health.h"
+#include "omni/common/odometry_restart.h"
 #include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/pose_graph_mapper/node_options.h"
@@ -120,6 +121,7 @@ class PoseGraphNode {
   int64_t last_scan_utime_ = INT64_MIN;
   int64_t scans_duplicate_ = 0;            // same seq and stamp as the scan before: dropped
   int64_t handed_odom_utime_ = INT64_MIN;  // newest odometry given to the mapper
+  OdometryRestartBridge odom_restarts_;    // a restarted base bridge's odometry, laid on
   SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t scan_index_ = 0;
   int64_t scans_forced_ = 0;

@@ -1,0 +1,47 @@
+// A restarted odometry source (the base bridge restarted by the supervisor, the firmware
+// reset) starts its pose again at the origin and its sequence numbers again from the start.
+// Handed on as it came, the restart's step is taken for motion whenever it is below the
+// mappers' jump limits (max_odom_jump_m, 3 m: a robot 2 m from where the source started).
+// OdometryRestartBridge lays the source's poses after a restart on from the last pose before
+// it, as if the base stood still while the source was down (the firmware's watchdog stops the
+// motors when commands stop).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <optional>
+
+#include "omni/common/geometry.h"
+
+namespace omni {
+
+class OdometryRestartBridge {
+ public:
+  // A number below the last one is a restart when the pose moved by more than this from the
+  // last (a late, reordered sample lies next to it); the mappers' stamp checks handle the late
+  // ones.
+  static constexpr double kMinStepM = 0.1, kMinStepRad = 0.1;
+
+  // The pose to hand on for a sample numbered `seq` (< 0: unnumbered, never a restart).
+  Pose2 Take(int64_t seq, const Pose2& raw) {
+    if (seq >= 0 && last_seq_ >= 0 && seq < last_seq_) {
+      const Pose2 d = last_raw_.Between(raw);
+      if (!(std::hypot(d.x, d.y) > kMinStepM || std::abs(d.theta) > kMinStepRad))
+        return correction_ * raw;  // late: the newest stays the reference
+      correction_ = (correction_ * last_raw_) * raw.Inverse();
+      ++restarts_;
+    }
+    if (seq >= 0) last_seq_ = seq;
+    last_raw_ = raw;
+    return correction_ * raw;
+  }
+  int64_t restarts() const { return restarts_; }
+
+ private:
+  int64_t last_seq_ = -1;
+  Pose2 last_raw_;
+  Pose2 correction_;
+  int64_t restarts_ = 0;
+};
+
+}  // namespace omni
