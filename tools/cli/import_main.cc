@@ -109,5 +109,33 @@ int main(int argc, char** argv) {
     for (const auto& [tag, n] : log->skipped) std::printf(" %s x%zu", tag.c_str(), n);
   }
   std::printf("\n");
+  // Stamps that make the log's time meaningless for replay and interpolation: the CSAIL logs
+  // have 406 ODOM lines stamped 0 (sorted to 1970, before everything) and their laser lines
+  // share two stamps between them (printed with 6 significant digits).
+  int64_t zero = 0, repeated_laser = 0, lasers_seen = 0;
+  double last_laser = 0;
+  for (const auto& r : log->records) {
+    if (!(r.timestamp_s() > 0)) ++zero;
+    if (r.kind != omni::io::CarmenRecord::Kind::kLaser) continue;
+    if (lasers_seen++ > 0 && r.laser.timestamp_s == last_laser) ++repeated_laser;
+    last_laser = r.laser.timestamp_s;
+  }
+  if (zero > 0)
+    std::fprintf(stderr,
+                 "omni import: warning: %lld lines are stamped 0 or less; sorted by time they come "
+                 "before every other line, and replaying or interpolating across them is "
+                 "meaningless\n",
+                 static_cast<long long>(zero));
+  if (lasers_seen > 1 && repeated_laser * 10 > lasers_seen)
+    std::fprintf(
+        stderr,
+        "omni import: warning: %lld of %lld laser lines repeat the stamp of the one before "
+        "(a log written with too few digits?): their times say little\n",
+        static_cast<long long>(repeated_laser), static_cast<long long>(lasers_seen));
+  if (scans == 0)
+    std::fprintf(stderr,
+                 "omni import: warning: no laser line was read (FLASER, RLASER, ROBOTLASER1); "
+                 "RAWLASER lines are not imported, so the log has odometry only and no mapper "
+                 "can map it\n");
   return 0;
 }

@@ -112,6 +112,20 @@ TEST(CliErrors, ValuesTheDocsPromiseOrForbid) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("not a CARMEN log"), std::string::npos) << r.output;
   EXPECT_FALSE(std::filesystem::exists(dir + "/e.lcmlog"));
+  // Imported, but said: lines stamped 0, laser lines sharing stamps, no laser line at all.
+  Write(dir + "/stamps.clf",
+        "ODOM 0 0 0 0 0 0 0 host 0\n"
+        "ODOM 0.1 0 0 0 0 0 5.0 host 5.0\n"
+        "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 5.0 host 5.0\n"
+        "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 5.0 host 5.0\n");
+  r = testing::Run(Bin("omni-import") + " carmen " + dir + "/stamps.clf " + dir + "/s.lcmlog");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("1 lines are stamped 0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("1 of 2 laser lines repeat the stamp"), std::string::npos) << r.output;
+  Write(dir + "/odom_only.clf", "ODOM 0 0 0 0 0 0 1.0 host 1.0\nRAWLASER1 1 2 3\n");
+  r = testing::Run(Bin("omni-import") + " carmen " + dir + "/odom_only.clf " + dir + "/o.lcmlog");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("no laser line was read"), std::string::npos) << r.output;
   // The drivers' --duration-s: NaN, negative, infinite ran forever.
   for (const char* v : {"nan", "-5", "inf", "1e300"}) {
     r = testing::Run("timeout 10 " + Bin("omni-rplidar-driver") +
