@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <limits>
 
 #include "omni/bus/convert.h"
 #include "omni/common/log.h"
@@ -225,29 +226,38 @@ void RbpfNode::Process(const ScanInput& scan) {
   p.x_m = r.pose.x;
   p.y_m = r.pose.y;
   p.yaw_rad = r.pose.theta;
-  // Spread of the particles as the covariance (x, y, yaw).
+  // The particles' weighted spread about their weighted mean as the covariance (x, y, yaw).
+  // Not about the published pose: for a scan between filter updates that is the reported
+  // particle moved on by odometry, and a 0.2 rad turn since the update read as 0.04 rad^2 of
+  // yaw variance with every particle agreeing (review finding).
   const auto& ps = slam_.particles();
-  double mx = 0, my = 0;
+  double max_lw = -std::numeric_limits<double>::infinity();
+  for (const auto& q : ps) max_lw = std::max(max_lw, q.log_weight);
+  double sw = 0, mx = 0, my = 0, ms = 0, mc = 0;
   for (const auto& q : ps) {
-    mx += q.pose.x;
-    my += q.pose.y;
+    const double w = std::isfinite(max_lw) ? std::exp(q.log_weight - max_lw) : 1.0;
+    sw += w;
+    mx += w * q.pose.x;
+    my += w * q.pose.y;
+    ms += w * std::sin(q.pose.theta);
+    mc += w * std::cos(q.pose.theta);
   }
-  mx /= static_cast<double>(ps.size());
-  my /= static_cast<double>(ps.size());
+  mx /= sw;
+  my /= sw;
+  const double mt = std::atan2(ms, mc);
   double cxx = 0, cyy = 0, cxy = 0, ctt = 0;
   for (const auto& q : ps) {
-    const double dx = q.pose.x - mx, dy = q.pose.y - my,
-                 dt = WrapAngle(q.pose.theta - r.pose.theta);
-    cxx += dx * dx;
-    cyy += dy * dy;
-    cxy += dx * dy;
-    ctt += dt * dt;
+    const double w = std::isfinite(max_lw) ? std::exp(q.log_weight - max_lw) : 1.0;
+    const double dx = q.pose.x - mx, dy = q.pose.y - my, dt = WrapAngle(q.pose.theta - mt);
+    cxx += w * dx * dx;
+    cyy += w * dy * dy;
+    cxy += w * dx * dy;
+    ctt += w * dt * dt;
   }
-  const double n = static_cast<double>(ps.size());
-  p.covariance[0] = cxx / n;
-  p.covariance[1] = p.covariance[3] = cxy / n;
-  p.covariance[4] = cyy / n;
-  p.covariance[8] = ctt / n;
+  p.covariance[0] = cxx / sw;
+  p.covariance[1] = p.covariance[3] = cxy / sw;
+  p.covariance[4] = cyy / sw;
+  p.covariance[8] = ctt / sw;
   if (bus_->Publish(opt_.pose_channel, p)) ++poses_published_;
   if (!health_.degraded()) heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "mapping");
 }

@@ -111,6 +111,12 @@ TEST(RbpfMapperNode, PublishesPosesAndGridsOnMemq) {
   b.Subscribe<omni::pose2d_t>("POSE_RBPF", [&](const omni::pose2d_t& p, int64_t) {
     EXPECT_EQ(p.source, "rbpf");
     EXPECT_TRUE(std::isfinite(p.x_m));
+    // The particles' spread: they agree on the heading to well under 0.1 rad, also for scans
+    // between filter updates (whose pose is moved on by odometry from the particles').
+    EXPECT_GE(p.covariance[0], 0.0);
+    EXPECT_GE(p.covariance[4], 0.0);
+    EXPECT_GE(p.covariance[8], 0.0);
+    EXPECT_LT(p.covariance[8], 0.01) << "scan " << published.size();
     published.push_back(p);
     ++poses;
   });
