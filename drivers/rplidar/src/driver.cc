@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <thread>
 
 #include "omni/common/config.h"
@@ -253,7 +254,26 @@ void RplidarDriver::Step(int timeout_ms, std::vector<std::vector<Sample>>* out) 
   }
   last_data_us_ = now_mono;
   // samples_ may still hold what came in with the scan's descriptor (Handshake): keep it.
-  parser_.Feed(chunk, *n, clock_->NowUtime(), &samples_);
+  const int64_t now = clock_->NowUtime();
+  parser_.Feed(chunk, *n, now, &samples_);
+  if (!samples_.empty()) {
+    const double count = static_cast<double>(samples_.size());
+    if (last_read_utime_ >= 0 && now > last_read_utime_ && now - last_read_utime_ < 500000) {
+      // Samples stream without pause: the time since the last read is what these took.
+      const double period = static_cast<double>(now - last_read_utime_) / count;
+      if (period >= 20 && period <= 10000)
+        sample_period_us_ = sample_period_us_ > 0 ? 0.9 * sample_period_us_ + 0.1 * period : period;
+    }
+    last_read_utime_ = now;
+    for (size_t i = 0; i < samples_.size(); ++i) {
+      int64_t t = now;
+      if (sample_period_us_ > 0)
+        t -= std::llround((count - 1 - static_cast<double>(i)) * sample_period_us_);
+      t = std::max(t, last_stamp_ + 1);
+      samples_[i].utime = t;
+      last_stamp_ = t;
+    }
+  }
   std::vector<Sample> done;
   for (const Sample& s : samples_) {
     if (assembler_.Add(s, &done)) {

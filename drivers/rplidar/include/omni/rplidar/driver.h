@@ -106,6 +106,14 @@ class RplidarDriver {
   int64_t next_attempt_us_ = 0;  // monotonic
   bool ever_connected_ = false;
   std::vector<Sample> samples_;
+  // Sample stamps: a read returns every sample that came since the one before, all with the
+  // read's time; each is put back by the sample period (estimated from reads: time between
+  // them over samples in them) from the read's time, the newest at it, so that a revolution's
+  // first sample and its length (laser_scan_t's utime and scan_time_s) hold also when the
+  // process was held up and one read brings two revolutions.
+  double sample_period_us_ = 0;   // 0: not estimated yet
+  int64_t last_read_utime_ = -1;  // clock_ time of the last read that brought samples
+  int64_t last_stamp_ = -1;       // the last sample's stamp (stamps only go forward)
 };
 
 }  // namespace omni::rplidar
