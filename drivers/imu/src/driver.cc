@@ -449,6 +449,9 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
   const bool closing_held = builder_.trigger() != 0 && parser_.held_type() == builder_.trigger();
   size_t group = closing_held ? 1 : 0;
   for (const Done& d : done) group += d.held ? 0 : 1;
+  // The sample was taken before its period's frames went down the line; the closing frame's
+  // arrival is that much later.
+  const int64_t line_delay_us = SerialLineDelayUs(builder_.cycle().types().size(), baud());
   size_t i = 0;
   for (const Done& d : done) {
     Utime t;
@@ -459,7 +462,7 @@ void ImuDriver::Feed(const uint8_t* data, size_t size, std::vector<StampedSample
     } else {
       t = stamper_.Stamp(held_read_utime_ > 0 ? held_read_utime_ : read_utime, 0, 1);
     }
-    out->push_back({t, d.sample});
+    out->push_back({t - line_delay_us, d.sample});
     ++counters_.samples;
   }
   held_read_utime_ = read_utime;  // the time of the frame held now, if any

@@ -29,6 +29,12 @@ TEST(WitMotion, KnownFrameFromTheManual) {
   EXPECT_EQ(out[0].v[3], 2500);
 }
 
+TEST(WitMotion, SerialLineDelay) {
+  EXPECT_EQ(SerialLineDelayUs(4, 9600), 45833);  // 4 x 11 bytes x 10 bits / 9600 baud
+  EXPECT_EQ(SerialLineDelayUs(3, 115200), 2864);
+  EXPECT_EQ(SerialLineDelayUs(4, 0), 0);  // unknown baud rate
+}
+
 TEST(WitMotion, UnitConversionsRoundTrip) {
   EXPECT_EQ(Ms2ToAccel(AccelToMs2(1234)), 1234);
   EXPECT_EQ(RadSToGyro(GyroToRadS(-321)), -321);

@@ -154,4 +154,13 @@ class SampleAssembler {
 // Rotation Rz(yaw) * Ry(pitch) * Rx(roll) as a unit quaternion w, x, y, z.
 std::array<double, 4> EulerToQuaternion(double roll, double pitch, double yaw);
 
+// Microseconds a period of `frames` frames takes on the serial line at `baud` (11 bytes a
+// frame, 10 bits a byte with start and stop bits): how long before its closing frame arrived
+// the period's sample was taken (0 when the baud rate is unknown). 4 frames at the factory
+// 9600 baud: 45.8 ms, about 2.6 degrees of heading at 1 rad/s.
+inline int64_t SerialLineDelayUs(size_t frames, int baud) {
+  if (baud <= 0) return 0;
+  return static_cast<int64_t>(frames) * static_cast<int64_t>(kFrameSize) * 10 * 1000000 / baud;
+}
+
 }  // namespace omni::imu
