@@ -233,7 +233,17 @@ Result<bool> LcmLogReader::Next(LcmLogEvent* ev, bool resync) {
     // search restarting inside it. Otherwise the event stands and the bytes after it are the
     // damage, which the next call reports (or skips).
     static constexpr uint8_t kSyncBytes[4] = {0xED, 0xA1, 0xDA, 0x01};
-    if (std::search(ev->data.begin(), ev->data.end(), kSyncBytes, kSyncBytes + 4) == ev->data.end())
+    // A length 1-3 bytes too large takes the start of the next event's sync word into this
+    // one's data: the word then straddles the data's end and the 4 bytes after it. Treated as
+    // a sync word inside the data, or the next event would be lost with this one's damage.
+    uint8_t edge[7];
+    const size_t tail = std::min<size_t>(3, ev->data.size());
+    std::copy(ev->data.end() - static_cast<std::ptrdiff_t>(tail), ev->data.end(), edge);
+    std::copy(next, next + sizeof(next), edge + tail);
+    const bool straddles = std::search(edge, edge + tail + sizeof(next), kSyncBytes,
+                                       kSyncBytes + 4) != edge + tail + sizeof(next);
+    if (!straddles &&
+        std::search(ev->data.begin(), ev->data.end(), kSyncBytes, kSyncBytes + 4) == ev->data.end())
       return true;
     if (!resync) {
       return MakeError(ErrorCode::kParse,

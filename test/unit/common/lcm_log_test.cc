@@ -181,7 +181,10 @@ TEST(LcmLog, ACorruptLengthLosesOnlyItsEvent) {
       stamps->push_back(ev.utime);
     }
   };
-  for (const uint32_t len : {100u + 130u * 20u + 50u, 100u + (1u << 20)}) {  // inside, past the end
+  // Inside the file, past its end, and 1-3 bytes too large (the next event's sync word then
+  // straddles the data's end: it was taken for damage after the event, and the next event was
+  // lost with it).
+  for (const uint32_t len : {100u + 130u * 20u + 50u, 100u + (1u << 20), 101u, 102u, 103u}) {
     corrupt(len);
     std::vector<int64_t> stamps;
     Status s = read_all(false, &stamps);
