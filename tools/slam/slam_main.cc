@@ -311,10 +311,12 @@ int main(int argc, char** argv) {
       static_cast<long long>(read->scans_lost));
   std::fprintf(f,
                ", \"imu_in\": %lld, \"imu_invalid\": %lld, \"imu_bias_samples\": %lld, "
-               "\"imu_bias_refused\": %lld, \"imu_bias_rad_s\": %.7f",
+               "\"imu_bias_refused\": %lld, \"imu_bias_rad_s\": %.7f, "
+               "\"imu_uncovered_updates\": %lld",
                static_cast<long long>(c.imu_in), static_cast<long long>(c.imu_invalid),
                static_cast<long long>(c.imu_bias_samples),
-               static_cast<long long>(c.imu_bias_refused), slam.imu_bias_rad_s());
+               static_cast<long long>(c.imu_bias_refused), slam.imu_bias_rad_s(),
+               static_cast<long long>(c.imu_uncovered_updates));
   {
     // How far the published (reported) particle ends from the final estimate's particle.
     const omni::Pose2& fin = slam.particles()[static_cast<size_t>(slam.final_index())].pose;

@@ -549,7 +549,10 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, bool first) {
   const Pose2 raw_delta = first ? Pose2() : last_update_odom_.Between(odom);
   const Pose2 delta = CalibratedStep(raw_delta);
   std::optional<double> imu_dtheta;
-  if (opt_.use_imu && !first) imu_dtheta = ImuYawIncrement(last_update_utime_, scan.utime);
+  if (opt_.use_imu && !first) {
+    imu_dtheta = ImuYawIncrement(last_update_utime_, scan.utime);
+    if (!imu_dtheta) ++counters_.imu_uncovered_updates;
+  }
   const int n = static_cast<int>(particles_.size());
   std::vector<uint8_t> failed(static_cast<size_t>(n), 0), searched(static_cast<size_t>(n), 0);
   pool_.ParallelFor(n, [&](int i) {

@@ -75,6 +75,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
     heartbeat_.AddCounter("imu_bias_samples", [&c] { return c.imu_bias_samples; });
     heartbeat_.AddCounter("imu_bias_refused", [&c] { return c.imu_bias_refused; });
     heartbeat_.AddCounter("imu_bias_uncovered", [&c] { return c.imu_bias_uncovered; });
+    heartbeat_.AddCounter("imu_uncovered_updates", [&c] { return c.imu_uncovered_updates; });
     heartbeat_.AddCounter("imu_bias_urad_s", [this] {
       return static_cast<int64_t>(std::llround(slam_.imu_bias_rad_s() * 1e6));
     });

@@ -162,6 +162,9 @@ struct RbpfCounters {
   // Gyro bias samples taken while the base stood still, and refused (the base turned beyond
   // imu_bias_learning.max_rad_s although its wheels did not).
   int64_t imu_bias_samples = 0, imu_bias_refused = 0, imu_bias_uncovered = 0;
+  // use_imu: filter updates whose interval the gyro did not cover (its samples late or
+  // missing), which fell back to the odometry's turn.
+  int64_t imu_uncovered_updates = 0;
   int64_t match_failures = 0;  // particle updates that fell back to odometry
   int64_t match_searches = 0;  // particle updates that needed the correlative search
   int64_t resamplings = 0;
