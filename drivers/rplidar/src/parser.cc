@@ -187,8 +187,26 @@ void MeasurementParser::ParseExpress(int64_t utime, std::vector<Sample>* out) {
     }
     const Capsule c = DecodeCapsule(p);
     pos_ += kCapsuleSize;
+    // The checks pass by chance once in 4096 windows (4 sync bits, an 8-bit XOR): a start
+    // angle of 360 degrees or more is such a capsule, dropped whole; a start far from where the
+    // one before ended would spread that capsule's 32 ranges over a wrong arc, so its samples
+    // are dropped (a capsule spans a few degrees: 32 samples at 2-16 kHz and 5-20 Hz).
+    if (c.start_angle_q6 >= 360 * 64) {
+      ++counters_.bad_angles;
+      have_prev_capsule_ = false;
+      continue;
+    }
     ++counters_.capsules;
     if (c.start) have_prev_capsule_ = false;  // first capsule of a new scan: no predecessor
+    if (have_prev_capsule_) {
+      const int step = (static_cast<int>(c.start_angle_q6) -
+                        static_cast<int>(prev_capsule_.start_angle_q6) + 360 * 64) %
+                       (360 * 64);
+      if (step > kMaxCapsuleStepDeg * 64) {
+        ++counters_.angle_jumps;
+        have_prev_capsule_ = false;
+      }
+    }
     if (have_prev_capsule_) {
       const size_t before = out->size();
       CapsuleToSamples(prev_capsule_, c, utime, out);

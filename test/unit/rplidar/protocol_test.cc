@@ -114,6 +114,39 @@ TEST(RplidarExpress, DecodesAcrossConsecutiveCapsules) {
   EXPECT_EQ(parser.counters().capsules, 30);
 }
 
+// A capsule that passes the sync and XOR checks by chance (once in 4096 windows) with a start
+// angle of 360 degrees or more, or one far from its neighbours', does not spread 32 ranges over
+// a wrong arc: it and its predecessor lose their samples, and the rest decode.
+TEST(RplidarExpress, ACapsuleWithAnImpossibleStartAngleIsDropped) {
+  for (const double bad_start : {400.0, std::fmod(5 * 16.0 + 180.0, 360.0)}) {
+    std::vector<double> expected;
+    auto bytes = MakeExpressStream(10, 16.0, &expected);
+    Capsule c = DecodeCapsule(&bytes[5 * kCapsuleSize]);
+    c.start_angle_q6 = static_cast<uint16_t>(std::lround(bad_start * 64.0)) & 0x7FFF;
+    const auto b = EncodeCapsule(c);  // with a checksum that matches
+    std::copy(b.begin(), b.end(), bytes.begin() + 5 * static_cast<long>(kCapsuleSize));
+    MeasurementParser parser(StreamMode::kExpressLegacy);
+    std::vector<Sample> out;
+    parser.Feed(bytes.data(), bytes.size(), 0, &out);
+    EXPECT_EQ(parser.counters().checksum_errors, 0);
+    if (bad_start >= 360) {
+      EXPECT_EQ(parser.counters().bad_angles, 1);
+    } else {
+      EXPECT_EQ(parser.counters().angle_jumps, 2);  // into capsule 5 and out of it
+    }
+    // Capsules 0-3 and 6-8 decode (9 has no successor); 4 and 5 lose their samples.
+    ASSERT_EQ(out.size(), 7u * 32u) << bad_start;
+    for (const Sample& s : out) {
+      // On its own capsule's arc: capsule k spans 16 k .. 16 (k + 1) degrees.
+      const long k = (std::lround(s.distance_mm) - 1000) / 32;
+      EXPECT_NE(k, 4);
+      EXPECT_NE(k, 5);
+      EXPECT_GE(s.angle_deg, 16.0 * k - 1e-9) << k;
+      EXPECT_LT(s.angle_deg, 16.0 * (k + 1)) << k;
+    }
+  }
+}
+
 TEST(RplidarExpress, CorruptedCapsuleIsCountedAndSkipped) {
   std::vector<double> expected;
   auto bytes = MakeExpressStream(10, 16.0, &expected);

@@ -82,6 +82,9 @@ class MeasurementParser {
 // scan of 720 degrees with twice the scan time: once a revolution has swept
 // kMaxSweepDeg (360 + 10; real start flags come within about a degree of a full turn), the
 // next sample starts a new one as if flagged (counted as implied_starts).
+// Express capsules: the largest plausible step between two capsules' start angles, degrees.
+inline constexpr int kMaxCapsuleStepDeg = 90;
+
 class RevolutionAssembler {
  public:
   // Returns true and fills `done` when `s` completed a revolution.
