@@ -34,11 +34,20 @@ TEST(OdometryRestartBridge, LateSamplesAndUnnumberedOnesAreNotRestarts) {
   ExpectPose(b.Take(13, Pose2(1.03, 0, 0)), 1.03, 0, 0);
   ExpectPose(b.Take(-1, Pose2(0, 0, 0)), 0, 0, 0);  // unnumbered: handed on as it is
   EXPECT_EQ(b.restarts(), 0);
-  // A restart near where the source began is a small step: handed on (harmless).
-  OdometryRestartBridge near;
-  near.Take(100, Pose2(0.05, 0, 0));
-  ExpectPose(near.Take(1, Pose2(0, 0, 0)), 0, 0, 0);
-  EXPECT_EQ(near.restarts(), 0);
+}
+
+// A restart near where the source began (the base parked at its start point) is a restart too,
+// and the samples after it go on from the last pose: classed as late by their nearness, they
+// once left the newest number behind, and a later sample 0.11 m on was taken for a restart
+// that put every pose after it 0.11 m off (review finding).
+TEST(OdometryRestartBridge, ARestartNearTheOldPoseStaysContinuous) {
+  OdometryRestartBridge b;
+  b.Take(100, Pose2(0.05, 0, 0));
+  ExpectPose(b.Take(1, Pose2(0, 0, 0)), 0.05, 0, 0);
+  ExpectPose(b.Take(2, Pose2(0.08, 0, 0)), 0.13, 0, 0);
+  ExpectPose(b.Take(3, Pose2(0.16, 0, 0)), 0.21, 0, 0);
+  ExpectPose(b.Take(4, Pose2(0.30, 0, 0)), 0.35, 0, 0);
+  EXPECT_EQ(b.restarts(), 1);
 }
 
 }  // namespace

@@ -37,6 +37,15 @@ TEST(SeqGaps, ARestartedOrCorruptCountIsNotALoss) {
   EXPECT_EQ(restarted.restarts(), 1);
   EXPECT_EQ(restarted.lost(), 1);
   EXPECT_EQ(restarted.newest(), 4);
+  // A driver restarted after 3000 scans counts from 0 again: the losses counted before stay,
+  // and those after the restart are counted (late scans within 100 of the newest only).
+  SeqGaps early;
+  // 1502 comes where 1500 should: 1500 and 1501 skipped, then 1501 comes late (1500 lost).
+  for (int64_t s = 0; s <= 3000; ++s) early.Add(s == 1500 ? 1502 : s);
+  EXPECT_EQ(early.lost(), 1);
+  for (int64_t s : {0, 1, 2, 5, 6}) early.Add(s);
+  EXPECT_EQ(early.restarts(), 1);
+  EXPECT_EQ(early.lost(), 3);  // 1500 before the restart, 3 and 4 after it
   // A corrupt number far ahead: not ~9e18 sweeps lost.
   const SeqGaps corrupt = Fed({7, INT64_MAX, INT64_MAX - 5});
   EXPECT_EQ(corrupt.restarts(), 1);

@@ -7,7 +7,6 @@
 // motors when commands stop).
 #pragma once
 
-#include <cmath>
 #include <cstdint>
 #include <optional>
 
@@ -17,17 +16,14 @@ namespace omni {
 
 class OdometryRestartBridge {
  public:
-  // A number below the last one is a restart when the pose moved by more than this from the
-  // last (a late, reordered sample lies next to it); the mappers' stamp checks handle the late
-  // ones.
-  static constexpr double kMinStepM = 0.1, kMinStepRad = 0.1;
+  // A number at most this far below the newest is a late (reordered) sample, handed on for the
+  // mappers' stamp checks; further below, the source restarted (its count began again).
+  static constexpr int64_t kLateWindow = 20;
 
   // The pose to hand on for a sample numbered `seq` (< 0: unnumbered, never a restart).
   Pose2 Take(int64_t seq, const Pose2& raw) {
     if (seq >= 0 && last_seq_ >= 0 && seq < last_seq_) {
-      const Pose2 d = last_raw_.Between(raw);
-      if (!(std::hypot(d.x, d.y) > kMinStepM || std::abs(d.theta) > kMinStepRad))
-        return correction_ * raw;  // late: the newest stays the reference
+      if (last_seq_ - seq <= kLateWindow) return correction_ * raw;  // late: the newest stays
       correction_ = (correction_ * last_raw_) * raw.Inverse();
       ++restarts_;
     }

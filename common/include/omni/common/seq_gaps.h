@@ -10,13 +10,14 @@ namespace omni {
 
 class SeqGaps {
  public:
-  // A number this far behind the newest, or this far ahead of it, is not a reordering or a
-  // loss: the sender restarted (its count began again) or the number is corrupt. Counting starts
-  // again from it.
+  // A number more than kLateWindow behind the newest, or kRestartGap or more ahead of it, is
+  // not a reordering or a loss: the sender restarted (its count began again) or the number is
+  // corrupt. Counting starts again from it.
+  static constexpr int64_t kLateWindow = 100;
   static constexpr int64_t kRestartGap = 1000000;
 
   // Takes the next message's number (< 0: the sender does not number them; ignored). A number
-  // above the newest counts the ones skipped as lost; one below it, within kRestartGap, is a
+  // above the newest counts the ones skipped as lost; one below it, within kLateWindow, is a
   // late message: it fills one of the gaps counted (lost goes down by one) and the newest stays.
   void Add(int64_t seq) {
     if (seq < 0) return;
@@ -33,7 +34,7 @@ class SeqGaps {
       }
       newest_ = seq;
     } else if (seq < newest_) {
-      if (newest_ - seq >= kRestartGap) {
+      if (newest_ - seq > kLateWindow) {
         ++restarts_;
         newest_ = seq;
       } else {
