@@ -222,6 +222,9 @@ void RplidarDriver::Lose(const std::string& why) {
   counters_.dropped_samples += static_cast<int64_t>(assembler_.pending());
   samples_.clear();
   assembler_.Reset();
+  // The next connection's samples are timed afresh (the handshake's leftovers would skew it).
+  sample_period_us_ = 0;
+  last_read_utime_ = -1;
   next_attempt_us_ = MonotonicMicros() + SecondsToUtime(options_.reconnect_interval_s);
 }
 
@@ -256,6 +259,20 @@ void RplidarDriver::Step(int timeout_ms, std::vector<std::vector<Sample>>* out) 
   // samples_ may still hold what came in with the scan's descriptor (Handshake): keep it.
   const int64_t now = clock_->NowUtime();
   parser_.Feed(chunk, *n, now, &samples_);
+  // A full chunk: more is waiting (the process was held up). All of it came by now, so it is
+  // read before the samples are stamped back from now (at most 64 chunks, 256 KB).
+  for (int more = 0; *n == sizeof(chunk) && more < 64; ++more) {
+    n = port_->Read(chunk, sizeof(chunk), 0);
+    if (!n.ok()) {
+      Lose(n.error().message);
+      return;
+    }
+    if (*n == 0) break;
+    parser_.Feed(chunk, *n, now, &samples_);
+  }
+  // The wall clock set back by more than a second: followed, not hidden behind stamps 1 us
+  // apart (the mappers re-base on such a step; their other inputs show it too).
+  if (last_stamp_ >= 0 && now < last_stamp_ - 1000000) last_stamp_ = -1;
   if (!samples_.empty()) {
     const double count = static_cast<double>(samples_.size());
     if (last_read_utime_ >= 0 && now > last_read_utime_ && now - last_read_utime_ < 500000) {

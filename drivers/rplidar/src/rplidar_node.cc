@@ -64,6 +64,7 @@ RplidarNode::RplidarNode(bus::Bus* bus, RplidarDriver* driver, NodeOptions optio
 void RplidarNode::RunOnce(int timeout_ms) {
   std::vector<std::vector<Sample>> revolutions;
   driver_->Step(timeout_ms, &revolutions);
+  const int64_t read_mono = MonotonicMicros();
   for (const auto& rev : revolutions) {
     const PlanarScan scan = RevolutionToScan(rev, driver_->options().scan);
     // Revolutions that never came (the device away or silent, samples lost): the number skips
@@ -72,13 +73,19 @@ void RplidarNode::RunOnce(int timeout_ms) {
         scan.utime > last_scan_utime_) {
       const double periods =
           static_cast<double>(scan.utime - last_scan_utime_) * 1e-6 / last_scan_time_s_;
-      if (periods > 1.5) {
-        const int64_t missed = std::min<int64_t>(std::llround(periods) - 1, 100000);
+      // Bounded by the time that passed here (a wall clock set forward is not a loss): one
+      // revolution more than the monotonic gap holds, for the stamps' own spread.
+      const double mono_periods =
+          static_cast<double>(read_mono - last_publish_mono_) * 1e-6 / last_scan_time_s_;
+      if (periods > 1.5 && mono_periods > 0.5) {
+        const int64_t missed =
+            std::min<int64_t>({std::llround(periods) - 1, std::llround(mono_periods), 100000});
         seq_ += missed;
         revolutions_missed_ += missed;
       }
     }
     last_scan_utime_ = scan.utime;
+    last_publish_mono_ = read_mono;
     if (scan.scan_time_s > 0) last_scan_time_s_ = scan.scan_time_s;
     bus_->Publish(options_.channel, MakeLaserScan(scan, seq_++, options_, driver_->options().scan));
   }

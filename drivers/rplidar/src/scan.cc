@@ -27,15 +27,18 @@ PlanarScan RevolutionToScan(const std::vector<Sample>& revolution, const ScanOpt
           ? std::remainder(options.angle_offset_rad, 2.0 * M_PI)
           : std::remainder(std::round(ccw(revolution.front()) / step) * step, 2.0 * M_PI);
   if (revolution.empty()) return scan;
+  // The first sample's place in beam 0 (within half a bin of its centre): samples up to a bin's
+  // eighth behind it are angle jitter at the start; further behind, the turn's last ones.
+  const double d0 = std::remainder(scan.angle_min_rad - ccw(revolution.front()), 2.0 * M_PI);
   scan.utime = revolution.front().utime;
   scan.scan_time_s = (revolution.back().utime - revolution.front().utime) * 1e-6;
   for (const Sample& s : revolution) {
     const double r = s.distance_mm * 1e-3;
     if (!(r >= options.range_min_m) || r >= options.range_max_m) continue;
-    // Clockwise from beam 0, in [-step / 2, 2 pi - step / 2): a sample a little before the first
-    // one's bin goes in beam 0, the last ones of the turn in beam n - 1 (not round to beam 0).
+    // Clockwise from beam 0's centre: a sample just behind the first one is jitter at the start
+    // (beam 0), one further behind is from the end of the turn (beam n - 1, not beam 0).
     double d = std::remainder(scan.angle_min_rad - ccw(s), 2.0 * M_PI);
-    if (d < -step / 2) d += 2.0 * M_PI;
+    if (d < d0 - step / 8) d += 2.0 * M_PI;
     const long bin = std::clamp<long>(std::lround(d / step), 0, n - 1);
     float& slot = scan.ranges_m[static_cast<size_t>(bin)];
     if (std::isnan(slot) || r < slot) {

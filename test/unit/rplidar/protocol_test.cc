@@ -246,6 +246,26 @@ TEST(RplidarScan, BeamsAreInTheOrderTheLidarMeasuredThem) {
     }
 }
 
+// The turn's last samples reach the first one's angle again: they go in the last beam, not
+// beam 0 (where the nearer range would replace the first sample's, stamped at the scan's start).
+TEST(RplidarScan, TheTurnsLastSampleGoesInTheLastBeam) {
+  std::vector<Sample> rev;
+  for (int k = 0; k <= 720; ++k) {
+    Sample s;
+    // The first 0.1 degrees past its bin's centre, the last 359.9 degrees after it.
+    s.angle_deg = k == 720 ? 0.0 : std::fmod(0.1 + k * 0.5, 360.0);
+    s.distance_mm = k == 720 ? 500 : 1000;
+    s.utime = 1000 + k * 139;
+    s.start = k == 0;
+    rev.push_back(s);
+  }
+  ScanOptions opt;
+  opt.beams = 720;
+  const PlanarScan scan = RevolutionToScan(rev, opt);
+  EXPECT_FLOAT_EQ(scan.ranges_m[0], 1.0f);
+  EXPECT_FLOAT_EQ(scan.ranges_m[719], 0.5f);
+}
+
 TEST(RplidarAssembler, RevolutionsEndAtStartFlags) {
   RevolutionAssembler a;
   std::vector<Sample> done;

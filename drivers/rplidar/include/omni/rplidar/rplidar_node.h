@@ -40,9 +40,10 @@ class RplidarNode {
   bus::Heartbeat heartbeat_;
   int64_t seq_ = 0;
   int64_t revolutions_missed_ = 0;
-  int64_t last_scan_utime_ = -1;  // the last published scan's stamp
-  double last_scan_time_s_ = 0;   // and its revolution time
-  int64_t progress_us_ = -1;      // monotonic: the last revolution, or when streaming began
+  int64_t last_scan_utime_ = -1;   // the last published scan's stamp
+  double last_scan_time_s_ = 0;    // and its revolution time
+  int64_t last_publish_mono_ = 0;  // monotonic time it was published
+  int64_t progress_us_ = -1;       // monotonic: the last revolution, or when streaming began
 };
 
 }  // namespace omni::rplidar
