@@ -12,7 +12,9 @@ namespace {
 // lidar sweeps 181 beams over [-45, +45] degrees in `sweep_s` seconds starting at t = 1 s:
 // beam i measures the wall from where the base is at its own time. Returns the x extent of the
 // occupied cells (metres) of the resulting map.
-std::pair<double, double> WallExtent(float sweep_s, float scan_time_told, OdomMapperCounters* c) {
+// `clockwise`: the beams run from +45 to -45 degrees (angle_increment < 0), as an RPLidar's do.
+std::pair<double, double> WallExtent(float sweep_s, float scan_time_told, OdomMapperCounters* c,
+                                     bool clockwise = false) {
   OdomMapper m(OdomMapperOptions{});
   for (int k = 0; k <= 300; ++k) {
     const int64_t t = 10000 * k;
@@ -20,8 +22,8 @@ std::pair<double, double> WallExtent(float sweep_s, float scan_time_told, OdomMa
   }
   Scan s;
   s.utime = 1000000;
-  s.angle_min_rad = static_cast<float>(-M_PI / 4);
-  s.angle_increment_rad = static_cast<float>(M_PI / 2 / 180);
+  s.angle_min_rad = static_cast<float>(clockwise ? M_PI / 4 : -M_PI / 4);
+  s.angle_increment_rad = static_cast<float>((clockwise ? -1 : 1) * M_PI / 2 / 180);
   s.range_max_m = 20;
   s.scan_time_s = scan_time_told;
   for (int i = 0; i <= 180; ++i) {
@@ -59,6 +61,11 @@ TEST(OdomMapper, PlacesEachBeamOfASweepAtItsOwnOdometryPose) {
   e = WallExtent(0.1f, 0.f, &c);
   EXPECT_LT(e.first, 4.95);
   EXPECT_NEAR(e.second, 5.025, 1e-9);
+  // Beams measured clockwise (negative increment, the RPLidar's order): corrected alike.
+  e = WallExtent(0.1f, 0.1f, &c, /*clockwise=*/true);
+  EXPECT_NEAR(e.first, 5.025, 1e-9);
+  EXPECT_NEAR(e.second, 5.025, 1e-9);
+  EXPECT_EQ(c.sweeps_corrected, 1);
 }
 
 // A scan whose geometry is absurd (a NaN mount pose, beams over more than a turn) is refused
