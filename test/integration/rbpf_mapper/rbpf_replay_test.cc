@@ -232,6 +232,29 @@ TEST(RbpfMapperNode, PublishesAFineMapOnCoarserCells) {
   EXPECT_GT(occupied, 100u);
 }
 
+// A scan of 300 beams, all 2 m, over [-1.5, 1.5] rad, and an odometry pose along x: the
+// inputs of the node tests below that need no real data.
+omni::laser_scan_t FlatScan(int64_t utime, int64_t seq) {
+  omni::laser_scan_t m{};
+  m.utime = utime;
+  m.seq = seq;
+  m.angle_min_rad = -1.5f;
+  m.angle_increment_rad = 0.01f;
+  m.range_min_m = 0.1f;
+  m.range_max_m = 30.f;
+  m.ranges_m.assign(300, 2.f);
+  m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
+  return m;
+}
+
+omni::odometry_t OdomAlongX(int64_t utime, double x, int64_t seq) {
+  omni::odometry_t m{};
+  m.utime = utime;
+  m.seq = seq;
+  m.x_m = x;
+  return m;
+}
+
 // The process defers the filter and drains the socket first; a scan must still use the
 // odometry that had arrived when it was covered, not a later sample with the same stamp
 // (Intel's log repeats stamps).
@@ -248,24 +271,9 @@ TEST(RbpfMapperNode, DeferredScansKeepTheOdometryOfTheirArrival) {
   b.Subscribe<omni::pose2d_t>("POSE_RBPF",
                               [&](const omni::pose2d_t& p, int64_t) { poses.push_back(p); });
   auto odom = [&](int64_t utime, double x, int64_t seq) {
-    omni::odometry_t m{};
-    m.utime = utime;
-    m.seq = seq;
-    m.x_m = x;
-    b.Publish("WHEEL_ODOM", m);
+    b.Publish("WHEEL_ODOM", OdomAlongX(utime, x, seq));
   };
-  auto scan = [&](int64_t utime, int64_t seq) {
-    omni::laser_scan_t m{};
-    m.utime = utime;
-    m.seq = seq;
-    m.angle_min_rad = -1.5f;
-    m.angle_increment_rad = 0.01f;
-    m.range_min_m = 0.1f;
-    m.range_max_m = 30.f;
-    m.ranges_m.assign(300, 2.f);
-    m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
-    b.Publish("LIDAR_SCAN", m);
-  };
+  auto scan = [&](int64_t utime, int64_t seq) { b.Publish("LIDAR_SCAN", FlatScan(utime, seq)); };
   odom(1000000, 0.0, 0);
   scan(1000000, 0);
   odom(2000000, 0.1, 1);
@@ -300,21 +308,9 @@ TEST(RbpfMapperNode, StoppingWithQueuedScansMapsThemAndSaysItIsStopping) {
     if (h.process == "rbpf_mapper") beats.push_back(h);
   });
   auto send = [&](int k) {
-    omni::odometry_t o{};
-    o.utime = 1000000 + k * 100000;
-    o.seq = k;
-    o.x_m = 0.05 * k;
-    b.Publish("WHEEL_ODOM", o);
-    omni::laser_scan_t m{};
-    m.utime = o.utime;
-    m.seq = k;
-    m.angle_min_rad = -1.5f;
-    m.angle_increment_rad = 0.01f;
-    m.range_min_m = 0.1f;
-    m.range_max_m = 30.f;
-    m.ranges_m.assign(300, 2.f);
-    m.num_ranges = static_cast<int32_t>(m.ranges_m.size());
-    b.Publish("LIDAR_SCAN", m);
+    const int64_t t = 1000000 + k * 100000;
+    b.Publish("WHEEL_ODOM", OdomAlongX(t, 0.05 * k, k));
+    b.Publish("LIDAR_SCAN", FlatScan(t, k));
   };
   auto drain = [&] {
     while (b.HandleTimeout(0) > 0) {
