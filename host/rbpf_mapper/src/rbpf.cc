@@ -278,6 +278,7 @@ void RbpfSlam::Reset(const RbpfOptions& o) {
   next_scan_index_ = 0;
   scan_order_ = StampOrder();
   last_raw_odom_.reset();
+  last_raw_odom_utime_ = 0;
   odom_correction_ = Pose2();
   have_update_ = false;
   calibrator_ = OdometryCalibrator(o.odometry_calibration);
@@ -409,14 +410,29 @@ std::optional<Pose2> RbpfSlam::CorrectedOdom(const ScanInput& scan) {
   if (!raw) raw = RawOdometryAt(scan.utime);
   if (!raw) return std::nullopt;
   if (last_raw_odom_) {
-    const Pose2 d = last_raw_odom_->Between(*raw);
-    if (std::hypot(d.x, d.y) > opt_.max_odom_jump_m || std::abs(d.theta) > opt_.max_odom_jump_rad) {
-      // A jump (reset, wrap, glitch): keep the jump-free odometry where it was.
-      ++counters_.odom_jumps;
-      odom_correction_ = (odom_correction_ * *last_raw_odom_) * raw->Inverse();
-    }
+    // Judged step by step through the WHEEL_ODOM samples between the two scans, where there are
+    // any: a base that drove 5 m while the lidar was away has not jumped. A jump (reset, wrap,
+    // glitch) is left out of the jump-free odometry; the steps around it are kept.
+    Pose2 prev = *last_raw_odom_;
+    Pose2 kept;
+    bool jumped = false;
+    const auto step = [&](const Pose2& next) {
+      const Pose2 d = prev.Between(next);
+      if (std::hypot(d.x, d.y) > opt_.max_odom_jump_m ||
+          std::abs(d.theta) > opt_.max_odom_jump_rad) {
+        ++counters_.odom_jumps;
+        jumped = true;
+      } else {
+        kept = kept * d;
+      }
+      prev = next;
+    };
+    for (const Pose2& p : odom_buffer_.Inside(last_raw_odom_utime_, scan.utime)) step(p);
+    step(*raw);
+    if (jumped) odom_correction_ = (odom_correction_ * *last_raw_odom_ * kept) * raw->Inverse();
   }
   last_raw_odom_ = raw;
+  last_raw_odom_utime_ = scan.utime;
   return odom_correction_ * *raw;
 }
 

@@ -73,6 +73,19 @@ TEST(Geometry, StampedBufferRecoversFromAFutureStamp) {
   EXPECT_EQ(buf.rebases(), 1);
 }
 
+TEST(Geometry, StampedBufferListsTheSamplesStrictlyInsideAnInterval) {
+  StampedBuffer<Pose2> buf;
+  for (int i = 0; i < 5; ++i) ASSERT_TRUE(buf.Insert(100 * i, Pose2(i, 0, 0)));
+  const std::vector<Pose2> in = buf.Inside(100, 400);
+  ASSERT_EQ(in.size(), 2u);
+  EXPECT_EQ(in[0].x, 2.0);
+  EXPECT_EQ(in[1].x, 3.0);
+  EXPECT_EQ(buf.Inside(-50, 50).size(), 1u);
+  EXPECT_EQ(buf.Inside(350, 1000).size(), 1u);
+  EXPECT_TRUE(buf.Inside(400, 100).empty());
+  EXPECT_TRUE(buf.Inside(110, 190).empty());
+}
+
 TEST(StampOrder, RebasesOnlyOnAConsistentRun) {
   StampOrder o(3);
   EXPECT_EQ(o.Check(100), StampOrder::Verdict::kInOrder);

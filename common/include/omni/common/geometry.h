@@ -1,6 +1,7 @@
 // SE(2)/SE(3) helpers on Eigen: angle wrapping, composition, interpolation in time.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <deque>
@@ -125,6 +126,16 @@ class StampedBuffer {
     }
     const double f = static_cast<double>(utime - a.first) / static_cast<double>(b.first - a.first);
     return Interpolate(a.second, b.second, f);
+  }
+
+  // The entries stamped strictly between `t0` and `t1`, oldest first (none when t1 <= t0).
+  std::vector<PoseT> Inside(int64_t t0, int64_t t1) const {
+    std::vector<PoseT> out;
+    if (t1 <= t0) return out;
+    auto it = std::upper_bound(items_.begin(), items_.end(), t0,
+                               [](int64_t t, const auto& item) { return t < item.first; });
+    for (; it != items_.end() && it->first < t1; ++it) out.push_back(it->second);
+    return out;
   }
 
   bool empty() const { return items_.empty(); }

@@ -428,6 +428,7 @@ class RbpfSlam {
   int64_t next_scan_index_ = 0;
   StampOrder scan_order_;
   std::optional<Pose2> last_raw_odom_;  // raw odometry of the previous accepted scan
+  int64_t last_raw_odom_utime_ = 0;     // ... and that scan's stamp
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
   OdometryCalibrator calibrator_;
