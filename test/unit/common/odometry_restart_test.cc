@@ -50,5 +50,20 @@ TEST(OdometryRestartBridge, ARestartNearTheOldPoseStaysContinuous) {
   EXPECT_EQ(b.restarts(), 1);
 }
 
+// A dying source's last sample was NaN (or absurd), then it restarted: laid on from that
+// pose, every pose after the restart was NaN and all odometry was refused until the mapper
+// restarted (review finding). The bad sample is handed on for the mapper to refuse.
+TEST(OdometryRestartBridge, ABadPoseBeforeARestartDoesNotSpoilThePosesAfterIt) {
+  for (const Pose2& bad : {Pose2(NAN, 0, 0), Pose2(1e232, 0, 0)}) {
+    OdometryRestartBridge b;
+    b.Take(4999, Pose2(2.0, 1.0, 0.5));
+    EXPECT_FALSE(PlausibleOdometryPose(b.Take(5000, bad)));
+    ExpectPose(b.Take(0, Pose2(0, 0, 0)), 2.0, 1.0, 0.5);
+    EXPECT_EQ(b.restarts(), 1);
+    ExpectPose(b.Take(1, Pose2(0.1, 0, 0)), 2.0 + 0.1 * std::cos(0.5), 1.0 + 0.1 * std::sin(0.5),
+               0.5);
+  }
+}
+
 }  // namespace
 }  // namespace omni

@@ -11,6 +11,7 @@
 #include <optional>
 
 #include "omni/common/geometry.h"
+#include "omni/common/scan_checks.h"
 
 namespace omni {
 
@@ -20,8 +21,11 @@ class OdometryRestartBridge {
   // mappers' stamp checks; further below, the source restarted (its count began again).
   static constexpr int64_t kLateWindow = 20;
 
-  // The pose to hand on for a sample numbered `seq` (< 0: unnumbered, never a restart).
+  // The pose to hand on for a sample numbered `seq` (< 0: unnumbered, never a restart). A pose
+  // no odometry can have (NaN, absurd) is handed on as it came, for the mapper to refuse and
+  // count, and leaves the bridge as it was: laid on from, it would spoil every pose after it.
   Pose2 Take(int64_t seq, const Pose2& raw) {
+    if (!PlausibleOdometryPose(raw)) return raw;
     if (seq >= 0 && last_seq_ >= 0 && seq < last_seq_) {
       if (last_seq_ - seq <= kLateWindow) return correction_ * raw;  // late: the newest stays
       correction_ = (correction_ * last_raw_) * raw.Inverse();
