@@ -357,11 +357,13 @@ Status WriteFusionOutputs(const FusionResult& r, const std::string& dir) {
   Status s = io::WriteMapServer(r.fused, base);
   if (s.ok()) s = io::WritePng(base + ".png", io::RenderGrid(r.fused, {}, 1));
   if (!s.ok()) return s;
-  std::FILE* f = std::fopen((dir + "/fusion.json").c_str(), "w");
-  if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + dir + "/fusion.json");
+  // Written beside and renamed over, so a kill mid-write leaves the previous report whole.
+  const std::string json = dir + "/fusion.json", tmp = json + ".tmp";
+  std::FILE* f = std::fopen(tmp.c_str(), "w");
+  if (!f) return MakeError(ErrorCode::kUnavailable, "cannot write " + tmp);
   const bool written = std::fprintf(f, "%s\n", ReportJson(r).c_str()) >= 0;
-  if (std::fclose(f) != 0 || !written)
-    return MakeError(ErrorCode::kIo, "cannot write " + dir + "/fusion.json");
+  if (std::fclose(f) != 0 || !written || std::rename(tmp.c_str(), json.c_str()) != 0)
+    return MakeError(ErrorCode::kIo, "cannot write " + json);
   return Status::Ok();
 }
 

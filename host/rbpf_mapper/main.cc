@@ -15,6 +15,7 @@
 #include "omni/common/log.h"
 #include "omni/common/malloc_setup.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/io/previous_outputs.h"
 #include "omni/rbpf_mapper/rbpf_node.h"
 
 namespace {
@@ -69,6 +70,7 @@ int main(int argc, char** argv) {
                  ec.message().c_str());
     return 1;
   }
+  omni::io::MovePreviousRunAside(out_dir, omni::rbpf::RbpfNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "rbpf_mapper: %s\n", bus_or.error().message.c_str());

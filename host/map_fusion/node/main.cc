@@ -13,6 +13,7 @@
 #include "omni/common/cli.h"
 #include "omni/common/log.h"
 #include "omni/common/malloc_setup.h"
+#include "omni/io/previous_outputs.h"
 #include "omni/map_fusion/map_fusion_node.h"
 
 namespace {
@@ -114,6 +115,7 @@ int main(int argc, char** argv) {
   }
 
   if (omni::Status s = opt.ValidateForBus(); !s.ok()) return Fail("bad config: " + s.message());
+  omni::io::MovePreviousRunAside(out_dir, omni::map_fusion::MapFusionNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) return Fail(bus_or.error().message);
   auto& bus = **bus_or;

@@ -12,6 +12,7 @@
 #include "omni/common/log.h"
 #include "omni/common/malloc_setup.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/io/previous_outputs.h"
 #include "omni/octomap_builder/depth_io.h"
 #include "omni/octomap_builder/octomap_node.h"
 
@@ -64,6 +65,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   if (!out_dir.empty()) opt->out_dir = out_dir;
+  omni::io::MovePreviousRunAside(opt->out_dir, omni::octo::OctomapNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", bus_or.error().message.c_str());
@@ -128,9 +130,18 @@ int main(int argc, char** argv) {
   // No more input: frames still waiting for a pose are counted as dropped without one (they
   // used to vanish uncounted), those waiting for a colour partner go in with what has come.
   node.pipeline().FinishInput();
-  // A rebuild asked for or under way: the saved map is at the newest trajectory.
+  // A rebuild asked for or under way: the saved map is at the newest trajectory. A rebuild of a
+  // large store takes tens of seconds (past a supervisor's stop grace), so the live tree is
+  // written before it.
+  omni::Status s = omni::Status::Ok();
+  if (opt->repose.enabled && c.frames_inserted > 0) {
+    s = node.SaveOutputs();
+    if (!s.ok()) {
+      LOG_WARN << s.message();
+    }
+  }
   node.pipeline().FinishRepose();
-  omni::Status s = node.SaveOutputs();
+  s = node.SaveOutputs();
   std::printf(
       "octomap_builder: %lld frames in (%lld lost before arriving), %lld posed, %lld inserted, "
       "%lld dropped without pose, %lld dropped (queue), %lld out of order, %lld decode errors -> "
@@ -159,6 +170,10 @@ int main(int argc, char** argv) {
         static_cast<long long>(c.keyframes_retired), static_cast<long long>(c.rebuilds_done),
         c.last_rebuild_us * 1e-6, c.last_rebuild_shift_mm * 1e-3,
         c.repose_stopped ? "; stopped at repose.max_points" : "");
+  if (c.frames_inserted == 0) {  // a stop with nothing mapped is no failure; no empty map
+    std::printf("octomap_builder: %s\n", s.message().c_str());
+    return 0;
+  }
   if (!s.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", s.message().c_str());
     return 1;

@@ -153,6 +153,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   const auto& c = pipeline_.counters();
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
   heartbeat_.AddCounter("grid_errors", [this] { return grid_errors_; });
+  heartbeat_.AddCounter("save_errors", [this] { return save_errors_; });
   heartbeat_.AddCounter("frames_lost", [this] { return depth_frames_lost_; });
   heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });
   heartbeat_.AddCounter("frames_dropped_no_pose", [&pc] { return pc.frames_dropped_no_pose; });
@@ -221,10 +222,12 @@ void OctomapNode::Tick(int64_t mono_us) {
   }
   if (due(&last_save_us_, options_.save_interval_s) && inserted > saved_frames_) {
     Status s = SaveOutputs();
-    if (!s.ok()) {
+    if (s.ok()) {
+      saved_frames_ = inserted;
+    } else {  // tried again at the next interval
+      ++save_errors_;
       LOG_WARN << s.message();
     }
-    saved_frames_ = inserted;
   }
   if (inserted > 0) {
     const auto& pc = pipeline_.poser_counters();
@@ -265,6 +268,10 @@ bool OctomapNode::PublishGrid() {
 }
 
 Status OctomapNode::SaveOutputs(const std::string& dir) const {
+  // An empty tree is no map: written, it would stand in for (and on a restart push aside) a
+  // real one.
+  if (pipeline_.counters().frames_inserted == 0)
+    return MakeError(ErrorCode::kNotFound, "no frame was inserted: nothing to write to " + dir);
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) return MakeError(ErrorCode::kIo, "cannot create " + dir + ": " + ec.message());

@@ -15,6 +15,7 @@
 #include "omni/common/malloc_setup.h"
 #include "omni/common/time.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/io/previous_outputs.h"
 #include "omni/pose_graph_mapper/pose_graph_node.h"
 
 namespace {
@@ -64,6 +65,7 @@ int main(int argc, char** argv) {
                  out_dir.c_str(), ec.message().c_str());
     return 1;
   }
+  omni::io::MovePreviousRunAside(out_dir, omni::pgm::PoseGraphNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", bus_or.error().message.c_str());

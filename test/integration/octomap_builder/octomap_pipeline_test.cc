@@ -565,6 +565,11 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   EXPECT_EQ(counters["decode_errors"], 1);
   EXPECT_EQ(hb.process, "octomap_builder");
   ASSERT_TRUE(node.SaveOutputs().ok());
+  for (const auto& e : fs::directory_iterator(opt->out_dir)) {  // all of them moved on a restart
+    const std::vector<std::string>& names = OctomapNode::OutputFiles();
+    EXPECT_NE(std::find(names.begin(), names.end(), e.path().filename().string()), names.end())
+        << e.path() << " is not in the node's list of outputs";
+  }
   EXPECT_TRUE(fs::exists(opt->out_dir + "/map.bt"));
   EXPECT_TRUE(fs::exists(opt->out_dir + "/grid.yaml"));
   EXPECT_FALSE(maps.empty());

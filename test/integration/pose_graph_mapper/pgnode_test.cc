@@ -165,6 +165,7 @@ TEST(PoseGraphMapperNode, PublishesPosesTrajectoriesAndGridsOnMemq) {
   std::filesystem::create_directories(out);
   const Status written = node.WriteOutputs(out, {});
   ASSERT_TRUE(written.ok()) << written.message();
+  omni::testing::ExpectOnlyListedFiles(out, pgm::PoseGraphNode::OutputFiles());
   while (b.HandleTimeout(0) > 0) {
   }
   const auto& c = node.slam().counters();

@@ -327,6 +327,7 @@ TEST(RbpfMapperNode, StoppingWithQueuedScansMapsThemAndSaysItIsStopping) {
   std::filesystem::create_directories(dir);
   node.heartbeat().SetState(omni::heartbeat_t::STATE_STOPPING, "writing map");
   ASSERT_TRUE(node.WriteOutputs(dir).ok());
+  omni::testing::ExpectOnlyListedFiles(dir, rbpf::RbpfNode::OutputFiles());
   drain();
   EXPECT_EQ(node.pending(), 0u);
   EXPECT_TRUE(std::filesystem::exists(dir + "/map.pgm"));

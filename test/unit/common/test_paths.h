@@ -1,8 +1,10 @@
 #pragma once
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -30,6 +32,17 @@ inline std::string TempDir() {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir.string();
+}
+
+// Every file a process wrote in `dir` is one of `names` (its list of outputs, which a restart
+// moves aside as a set: a file left off the list would be overwritten by the next run).
+inline void ExpectOnlyListedFiles(const std::string& dir, const std::vector<std::string>& names) {
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    const std::string n = e.path().filename().string();
+    EXPECT_NE(std::find(names.begin(), names.end(), n), names.end())
+        << n << " was written in " << dir << " but is not in the process's list of outputs";
+  }
 }
 
 }  // namespace omni::testing

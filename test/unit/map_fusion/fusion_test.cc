@@ -767,6 +767,7 @@ TEST(MapFusionNode, FusesTheLatestGridsAndCountsBadOnes) {
   EXPECT_EQ(node.last()->maps_used, 3u);
   const std::string out = ::testing::TempDir() + "/fusion_node_out";
   ASSERT_TRUE(node.WriteOutputs(out).ok());
+  omni::testing::ExpectOnlyListedFiles(out, MapFusionNode::OutputFiles());
   EXPECT_TRUE(fs::exists(out + "/fused_map.pgm"));
   EXPECT_TRUE(fs::exists(out + "/fused_map.yaml"));
   EXPECT_TRUE(fs::exists(out + "/fused_map.png"));

@@ -20,6 +20,7 @@
 #include <deque>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
@@ -48,6 +49,12 @@ class RbpfNode {
   // Publishes the final grid and trajectory and writes DIR/map.{pgm,yaml,png} and
   // DIR/trajectory.txt.
   Status WriteOutputs(const std::string& dir);
+  // The files WriteOutputs and SaveMaps write in their folder.
+  static const std::vector<std::string>& OutputFiles() {
+    static const std::vector<std::string> names = {"map.pgm", "map.yaml", "map.png",
+                                                   "trajectory.txt"};
+    return names;
+  }
   // The same files, now, from the best particle as it stands (a map save request while
   // mapping: nothing is flushed, the filter goes on).
   Status SaveMaps(const std::string& dir) const;

@@ -53,6 +53,12 @@ class MapFusionNode {
   // The last fusion if it is of the grids held now, else FuseNow; then DIR/fused_map.{pgm,yaml,
   // png} and DIR/fusion.json.
   Status WriteOutputs(const std::string& dir);
+  // The files WriteOutputs writes in its folder.
+  static const std::vector<std::string>& OutputFiles() {
+    static const std::vector<std::string> names = {"fused_map.pgm", "fused_map.yaml",
+                                                   "fused_map.png", "fusion.json"};
+    return names;
+  }
   // From now on the heartbeat's state stays STATE_STOPPING (its text still tells what runs).
   void SetStopping();
 

@@ -7,6 +7,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
@@ -55,6 +56,13 @@ class OctomapNode {
   Status SaveOutputs() const { return SaveOutputs(options_.out_dir); }
   // The same files in `dir` (a map save request while mapping).
   Status SaveOutputs(const std::string& dir) const;
+  // The files SaveOutputs (and the process's map.pcd) write in their folder.
+  static const std::vector<std::string>& OutputFiles() {
+    static const std::vector<std::string> names = {"map.bt",       "map.ot",         "grid.pgm",
+                                                   "grid.yaml",    "grid.png",       "view.png",
+                                                   "map_color.ot", "view_color.png", "map.pcd"};
+    return names;
+  }
 
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }
@@ -75,6 +83,7 @@ class OctomapNode {
   int64_t trajectories_rejected_ = 0;
   int64_t grid_errors_ = 0;  // grids that could not be made for GRID_OCTO
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
+  int64_t save_errors_ = 0;  // periodic saves that failed
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
 };
 

@@ -30,6 +30,7 @@
 #include <deque>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
@@ -59,6 +60,13 @@ class PoseGraphNode {
   // Flush, publish the final grid and trajectory, write DIR/{trajectory.txt, map.*, graph.g2o,
   // stats.json}.
   Status WriteOutputs(const std::string& dir, SlamRunInfo info);
+  // The files WriteOutputs and SaveMaps write in their folder.
+  static const std::vector<std::string>& OutputFiles() {
+    static const std::vector<std::string> names = {
+        "trajectory.txt",     "map.pgm",   "map.yaml",  "map.png",
+        "map_trajectory.png", "graph.g2o", "stats.json"};
+    return names;
+  }
   // The same files, now, at the current optimised estimate (a map save request while mapping:
   // nothing is flushed and no final optimisation runs; the mapper goes on).
   Status SaveMaps(const std::string& dir, SlamRunInfo info) const;
