@@ -27,13 +27,15 @@ GyroRateHistory::Added GyroRateHistory::Add(int64_t utime, double rate) {
 
 bool GyroRateHistory::Push(int64_t utime, double rate) {
   double integral = 0.0;
+  int64_t gaps = 0;
   if (!samples_.empty()) {
     const Sample& last = samples_.back();
     if (utime == last.utime) return false;
     integral =
         last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
+    gaps = last.gaps + (utime - last.utime > kMaxGapUs ? 1 : 0);
   }
-  samples_.push_back({utime, rate, integral});
+  samples_.push_back({utime, rate, integral, gaps});
   while (samples_.size() > capacity_) samples_.pop_front();
   return true;
 }
@@ -53,6 +55,12 @@ double GyroRateHistory::IntegralAt(int64_t t) const {
 std::optional<double> GyroRateHistory::Between(int64_t t0, int64_t t1) const {
   if (samples_.empty() || t1 < t0 || t0 < samples_.front().utime || t1 > samples_.back().utime)
     return std::nullopt;
+  // The samples around the interval: the last at or before t0, the first at or after t1.
+  const auto before = [](int64_t v, const Sample& s) { return v < s.utime; };
+  const auto after = [](const Sample& s, int64_t v) { return s.utime < v; };
+  const auto lo = std::upper_bound(samples_.begin(), samples_.end(), t0, before) - 1;
+  const auto hi = std::lower_bound(samples_.begin(), samples_.end(), t1, after);
+  if (hi->gaps != lo->gaps) return std::nullopt;
   return IntegralAt(t1) - IntegralAt(t0);
 }
 

@@ -97,6 +97,27 @@ TEST(PoseGraphGyro, IntegratesTheRateLinearBetweenSamples) {
   EXPECT_EQ(gyro.size(), 201u);
 }
 
+// The IMU away for 2 s while the base turned 60 degrees: the straight line between the rates
+// at the gap's ends (both 0) measured no turn, with a variance small enough to outweigh the
+// odometry's heading (review finding). A gap inside an interval leaves it uncovered.
+TEST(PoseGraphGyro, AGapInTheSamplesIsNotMeasured) {
+  GyroYawSource gyro;
+  for (int k = 0; k <= 100; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.0));    // 0 to 1 s
+  for (int k = 300; k <= 400; ++k) EXPECT_TRUE(gyro.AddSample(10'000 * k, 0.0));  // 3 to 4 s
+  EXPECT_TRUE(gyro.Between(0, 1'000'000));
+  EXPECT_TRUE(gyro.Between(3'000'000, 4'000'000));
+  EXPECT_FALSE(gyro.Between(500'000, 3'500'000));  // across the gap
+  EXPECT_FALSE(gyro.Between(1'000'000, 3'000'000));
+  EXPECT_FALSE(gyro.Between(1'500'000, 1'600'000));  // inside it
+  // Samples 0.5 s apart (a 2 Hz IMU) are no gap; a bit more is.
+  GyroYawSource slow;
+  for (int k = 0; k <= 4; ++k) EXPECT_TRUE(slow.AddSample(500'000 * k, 1.0));
+  EXPECT_TRUE(slow.AddSample(2'500'001, 1.0));
+  ASSERT_TRUE(slow.Between(0, 2'000'000));
+  EXPECT_NEAR(slow.Between(0, 2'000'000)->delta_rad, 2.0, 1e-12);
+  EXPECT_FALSE(slow.Between(1'900'000, 2'100'000));
+}
+
 // One sample stamped an hour ahead: the five in-order samples after it re-base the gyro, so
 // the heading over later intervals is integrated from real samples, not toward the future one.
 TEST(PoseGraphGyro, AFutureStampedSampleIsDroppedAfterFiveInOrder) {

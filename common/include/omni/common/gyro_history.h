@@ -18,6 +18,12 @@ namespace omni {
 
 class GyroRateHistory {
  public:
+  // Two samples further apart than this bound a gap (the IMU or its driver was away): the
+  // rate inside it was not measured, and a straight line between its ends may miss a whole
+  // turn. 0.5 s: five periods of the factory 10 Hz output; an IMU set below 2 Hz has every step
+  // uncovered.
+  static constexpr int64_t kMaxGapUs = 500000;
+
   explicit GyroRateHistory(size_t capacity) : capacity_(capacity < 2 ? 2 : capacity) {}
 
   enum class Added {
@@ -30,7 +36,7 @@ class GyroRateHistory {
   // The oldest samples are dropped beyond `capacity`.
   Added Add(int64_t utime, double rate_rad_s);
   // The heading change over [t0, t1] (rad, as measured: no bias removed), nullopt when the
-  // samples do not cover the interval.
+  // samples do not cover the interval or a gap (kMaxGapUs) lies inside it.
   std::optional<double> Between(int64_t t0_us, int64_t t1_us) const;
   // Forgets every sample and the stream's order (the caller moved to another time line).
   void Reset() {
@@ -47,6 +53,7 @@ class GyroRateHistory {
     int64_t utime;
     double rate;      // rad/s
     double integral;  // rad, from the oldest sample ever kept to this one
+    int64_t gaps;     // gaps (kMaxGapUs) between the oldest sample ever kept and this one
   };
   double IntegralAt(int64_t utime) const;  // utime within the kept samples
   bool Push(int64_t utime, double rate);   // appends unless the same time as the newest
