@@ -89,9 +89,11 @@ bool OdomMapper::AddScan(const Scan& scan) {
   std::vector<float> ranges(scan.ranges_m.size());
   for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
     const float r = scan.ranges_m[i];
-    if (std::isfinite(r) && r > 0.f) {
+    if (std::isfinite(r) && r > 0.f && r >= scan.range_min_m) {
       ranges[i] = r;
       if (r < scan.range_max_m) ++valid;
+    } else if (std::isfinite(r) && r > 0.f) {
+      ranges[i] = std::nanf("");  // below range_min: no return, as the SLAM mappers take it
     } else {
       if (!std::isnan(r) || std::signbit(r)) ++counters_.invalid_beams;  // inf / negative
       ranges[i] = std::nanf("");

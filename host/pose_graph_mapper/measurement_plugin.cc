@@ -19,7 +19,8 @@ std::vector<Eigen::Vector2d> ScanToPoints(const LaserScan2& scan, ScanConversion
       ++local.not_finite;
       continue;
     }
-    if (r < scan.min_range_m || (scan.max_range_m > 0 && r >= scan.max_range_m)) {
+    // (A zero or negative range is no return whatever min_range says, NaN included.)
+    if (!(r > 0.f) || r < scan.min_range_m || (scan.max_range_m > 0 && r >= scan.max_range_m)) {
       ++local.out_of_range;
       continue;
     }

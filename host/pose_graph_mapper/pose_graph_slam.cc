@@ -1109,13 +1109,21 @@ bool PoseGraphSlam::LastScanCovariance(Eigen::Matrix3d* covariance) {
 
 io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
   io::LogOddsGrid grid(options);
+  std::vector<float> ranges;
   for (size_t i = 0; i < keyframes_.size(); ++i) {
     if (keyframes_[i].retired) continue;
     const LaserScan2& s = kf_scans_[i].scan;
     const std::optional<Pose2>& sweep = kf_scans_[i].sweep;
+    // The beams matching left out (below min_range: the robot's own chassis or mast) are no
+    // walls in the map either; max_range 0 means no limit here too (the grid takes it as none).
+    ranges = s.ranges_m;
+    for (float& r : ranges)
+      if (r < s.min_range_m) r = std::numeric_limits<float>::quiet_NaN();
+    const float max_range =
+        s.max_range_m > 0 ? s.max_range_m : std::numeric_limits<float>::infinity();
     if (!sweep || s.ranges_m.size() < 2) {
-      grid.IntegrateScan(keyframes_[i].estimate * s.laser_in_base, s.ranges_m, s.angle_min_rad,
-                         s.angle_increment_rad, s.max_range_m);
+      grid.IntegrateScan(keyframes_[i].estimate * s.laser_in_base, ranges, s.angle_min_rad,
+                         s.angle_increment_rad, max_range);
       continue;
     }
     // A sweep: each beam from where the laser was when it measured it (as ScanToPoints).
@@ -1125,7 +1133,7 @@ io::GridMap PoseGraphSlam::RenderMap(const io::LogOddsOptions& options) const {
         [&](size_t b) {
           return kf * Interpolate(Pose2(), *sweep, static_cast<double>(b) / last) * s.laser_in_base;
         },
-        s.ranges_m, s.angle_min_rad, s.angle_increment_rad, s.max_range_m);
+        ranges, s.angle_min_rad, s.angle_increment_rad, max_range);
   }
   if (grid.refused_beams() > 0) {
     LOG_WARN << "map: " << grid.refused_beams()

@@ -93,6 +93,34 @@ TEST(OdomMapper, AScanWithAbsurdGeometryIsRefusedAndCounted) {
   EXPECT_EQ(m.counters().scans_mapped, 1);
 }
 
+// Returns below range_min (a mast 0.10 m from a lidar whose range_min is 0.15 m) are no walls:
+// the map once had them as an obstacle beside the robot (review finding).
+TEST(OdomMapper, ReturnsBelowRangeMinAreNotMapped) {
+  OdomMapper m(OdomMapperOptions{});
+  for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
+  Scan s;
+  s.utime = 50000;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_min_m = 0.15f;
+  s.range_max_m = 20;
+  s.ranges_m.assign(200, 2.f);
+  for (int b = 0; b < 10; ++b) s.ranges_m[b] = 0.10f;
+  ASSERT_TRUE(m.AddScan(s));
+  const io::GridMap g = m.Map();
+  int walls = 0, near = 0;
+  for (int row = 0; row < g.height; ++row)
+    for (int col = 0; col < g.width; ++col)
+      if (g.at(col, row) > 50) {
+        ++walls;
+        const double x = g.origin_x_m + (col + 0.5) * g.resolution_m;
+        const double y = g.origin_y_m + (row + 0.5) * g.resolution_m;
+        near += std::hypot(x, y) < 0.5 ? 1 : 0;
+      }
+  EXPECT_GT(walls, 20);  // the arc at 2 m
+  EXPECT_EQ(near, 0);
+}
+
 TEST(OdomMapper, ASweepBeyondTheOdometryIsMappedAsItIsAndCounted) {
   OdomMapper m(OdomMapperOptions{});
   ASSERT_TRUE(m.AddOdometry(0, Pose2(0, 0, 0)));

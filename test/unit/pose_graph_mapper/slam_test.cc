@@ -39,6 +39,43 @@ LaserScan2 BoxScan(int64_t utime, const Pose2& p) {
   return s;
 }
 
+// Returns below min_range (a mast 0.10 m from an RPLidar whose range_min is 0.15 m) are left
+// out of matching and were painted as walls along the whole path in map.pgm; a scan whose
+// max_range is 0 (no limit, as matching reads it) gave an empty map (review findings).
+TEST(PoseGraphSlam, TheMapLeavesOutWhatMatchingLeftOut) {
+  for (const float max_range : {30.f, 0.f}) {
+    SCOPED_TRACE(max_range);
+    PoseGraphSlamOptions o;
+    o.keyframe_distance_m = 0.5;
+    PoseGraphSlam slam(o, BatchOptions{}, nullptr);
+    for (int i = 0; i <= 40; ++i) {
+      const Pose2 p(2 + 0.1 * i, 3, 0);
+      const int64_t t = 1000000 + 100000 * i;
+      slam.AddOdometry(t, p);
+      LaserScan2 scan = BoxScan(t, p);
+      scan.min_range_m = 0.15f;
+      scan.max_range_m = max_range;
+      for (int b = 100; b < 110; ++b) scan.ranges_m[b] = 0.10f;  // the mast
+      ASSERT_TRUE(slam.AddScan(i, scan)) << i;
+    }
+    io::LogOddsOptions lo;
+    lo.resolution_m = 0.05;
+    const io::GridMap m = slam.RenderMap(lo);
+    int walls = 0, near_path = 0;
+    for (int y = 0; y < m.height; ++y)
+      for (int x = 0; x < m.width; ++x) {
+        if (m.at(x, y) <= 50) continue;
+        ++walls;
+        // The map frame is the first pose's: the path runs along y = 0 from x = 0 to 4.
+        const double cx = m.origin_x_m + (x + 0.5) * lo.resolution_m;
+        const double cy = m.origin_y_m + (y + 0.5) * lo.resolution_m;
+        if (cx > -0.3 && cx < 4.3 && std::abs(cy) < 0.3) ++near_path;
+      }
+    EXPECT_GT(walls, 300);  // the room's 32 m of walls at 5 cm
+    EXPECT_EQ(near_path, 0);
+  }
+}
+
 // The stamp tests below: odometry at 50 Hz, a keyframe every 0.2 m, a glitch an hour off.
 constexpr int64_t kHour = 3600000000LL;
 int64_t At50Hz(int i) { return 1000000 + int64_t{20000} * i; }

@@ -62,6 +62,7 @@ struct Scan {
   Pose2 sensor_in_base;  // mounting pose
   float angle_min_rad = 0;
   float angle_increment_rad = 0;
+  float range_min_m = 0;  // returns below: the robot's own chassis or mast, no walls
   float range_max_m = 0;
   // Time from the first beam (utime) to the last: a spinning lidar measures its beams one
   // after another while the base moves (0: every beam at utime).

@@ -16,6 +16,7 @@ inline Scan ScanFromMessage(const omni::laser_scan_t& m) {
   s.sensor_in_base = Pose2(m.sensor_x_m, m.sensor_y_m, m.sensor_yaw_rad);
   s.angle_min_rad = m.angle_min_rad;
   s.angle_increment_rad = m.angle_increment_rad;
+  s.range_min_m = m.range_min_m;
   s.range_max_m = m.range_max_m;
   s.scan_time_s = bus::SweepTime(m.scan_time_s);
   s.ranges_m = m.ranges_m;
