@@ -13,9 +13,10 @@ Result<PoseGraphNodeOptions> PoseGraphNodeOptions::Load(ConfigReader& r) {
   r.Get("absolute_channel", &o.absolute_channel, Optional());
   r.Get("imu_channel", &o.imu_channel, Optional(), NonEmpty());
   r.Get("max_odom_wait_s", &o.max_odom_wait_s, Optional(), InRange(0.0, 60.0));
-  r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), NonNegative<double>());
+  // (Bounded: a huge "never" overflowed its microseconds and published at every tick.)
+  r.Get("grid_publish_interval_s", &o.grid_publish_interval_s, Optional(), InRange(0.0, 86400.0));
   r.Get("trajectory_publish_interval_s", &o.trajectory_publish_interval_s, Optional(),
-        NonNegative<double>());
+        InRange(0.0, 86400.0));
   r.Get("grid_resolution_m", &o.grid_resolution_m, Optional(), InRange(0.005, 1.0));
   return o;
 }

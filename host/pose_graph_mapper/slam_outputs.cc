@@ -23,9 +23,11 @@ double Percentile(std::vector<double> v, double p) {
 
 namespace {
 
+// Written beside and renamed over: a kill mid-write leaves the previous stats.json whole.
 Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const SlamRunInfo& info) {
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) return MakeError(ErrorCode::kIo, "cannot write " + path + ": " + std::strerror(errno));
+  const std::string tmp = path + ".tmp";
+  std::FILE* f = std::fopen(tmp.c_str(), "w");
+  if (!f) return MakeError(ErrorCode::kIo, "cannot write " + tmp + ": " + std::strerror(errno));
   const SlamCounters& c = slam.counters();
   const auto& lat = slam.window_latency_ms();
   const auto& glat = slam.global_latency_ms();
@@ -98,7 +100,8 @@ Status WriteStats(const PoseGraphSlam& slam, const std::string& path, const Slam
   for (const auto& [k, v] : info.extra)
     std::fprintf(f, ", \"%s\": %lld", JsonEscape(k).c_str(), ll(v));
   std::fprintf(f, "}\n");
-  if (std::fclose(f) != 0)
+  const bool failed = std::ferror(f) != 0;
+  if (std::fclose(f) != 0 || failed || std::rename(tmp.c_str(), path.c_str()) != 0)
     return MakeError(ErrorCode::kIo, "cannot write " + path + ": " + std::strerror(errno));
   return Status();
 }

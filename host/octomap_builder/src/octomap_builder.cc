@@ -104,10 +104,10 @@ Result<OctomapBuilderOptions> OctomapBuilderOptions::Load(ConfigReader& r) {
 
   auto out = r.Section("output");
   out.Get("dir", &o.out_dir, Optional(), NonEmpty());
-  out.Get("save_interval_s", &o.save_interval_s, Optional(), Positive<double>());
-  out.Get("octomap_interval_s", &o.octomap_interval_s, Optional(), Positive<double>());
+  out.Get("save_interval_s", &o.save_interval_s, Optional(), InRange(0.01, 86400.0));
+  out.Get("octomap_interval_s", &o.octomap_interval_s, Optional(), InRange(0.01, 86400.0));
   out.Get("octomap_binary", &o.octomap_binary, Optional());
-  out.Get("grid_interval_s", &o.grid_interval_s, Optional(), Positive<double>());
+  out.Get("grid_interval_s", &o.grid_interval_s, Optional(), InRange(0.01, 86400.0));
   out.Get("keep_cloud", &o.keep_cloud, Optional());
   out.Get("cloud_voxel_m", &o.cloud_voxel_m, Optional(), Positive<double>());
   r.Get("heartbeat_period_s", &o.heartbeat_period_s, Optional(), InRange(0.05, 60.0));

@@ -692,5 +692,27 @@ TEST(PoseGraphMapperNode, MatchRangesAreReadAndChecked) {
   EXPECT_NE(st.error().message.find("max_range_m"), std::string::npos) << st.error().message;
 }
 
+// A publish interval meant as "never" (1e13 s) overflowed its conversion to microseconds and
+// published at every tick (review finding): refused, naming the key.
+TEST(PoseGraphMapperNode, AHugePublishIntervalIsRefused) {
+  const std::string path = std::string(OMNI_SOURCE_DIR) + "/config/pose_graph_mapper.yaml";
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string bad = text.str();
+  const auto at = bad.find("trajectory_publish_interval_s: 2.0");
+  ASSERT_NE(at, std::string::npos);
+  bad.replace(at, 34, "trajectory_publish_interval_s: 1e13");
+  const std::string dir = testing::TempDir();
+  std::ofstream(dir + "/bad.yaml") << bad;
+  pgm::PoseGraphSlamOptions slam;
+  pgm::BatchOptions batch;
+  pgm::PoseGraphNodeOptions node;
+  const Status st = pgm::LoadSlamConfigFile(dir + "/bad.yaml", &slam, &batch, &node);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.error().message.find("trajectory_publish_interval_s"), std::string::npos)
+      << st.error().message;
+}
+
 }  // namespace
 }  // namespace omni
