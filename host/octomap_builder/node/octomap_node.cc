@@ -103,6 +103,16 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
                  static_cast<int64_t>(options.heartbeat_period_s * 1e6)) {
   // A NaN or absurd pose is refused and counted by the poser (poses_invalid).
   bus_->Subscribe<omni::pose2d_t>(options_.PoseChannel(), [this](const omni::pose2d_t& m, int64_t) {
+    // A SLAM process restarted (by the supervisor after a crash) numbers its poses from 0 again
+    // in a new map frame, its origin where the robot stood then: said loudly, since the tree
+    // keeps the old frame's frames beside the new ones.
+    const int64_t restarts = pose_seq_.restarts();
+    pose_seq_.Add(m.seq);
+    if (pose_seq_.restarts() > restarts) {
+      LOG_WARN << "the pose source on " << options_.PoseChannel()
+               << " restarted (its poses numbered again from " << m.seq
+               << "): its new map frame is not the tree's; restart octomap_builder for a new map";
+    }
     pipeline_.AddPose(m.utime, Pose2(m.x_m, m.y_m, m.yaw_rad));
   });
   bus_->Subscribe<omni::depth_image_t>(
@@ -110,11 +120,14 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
         // Gaps in the driver's sequence numbers: frames lost before they reached us (a smaller
         // number is a restarted driver, not a loss; nor is a jump of more than a day of frames
         // at 30 Hz, a corrupt number, which would add ~9e18 to the count).
-        if (last_depth_seq_ >= 0 && m.seq > last_depth_seq_) {
-          const int64_t gap = m.seq - last_depth_seq_ - 1;  // both >= 0: no overflow
-          if (gap <= 3000000) depth_frames_lost_ += gap;
+        // The same frame again (a repeating bridge or driver) would be inserted twice: one
+        // sighting read as two.
+        if (m.seq >= 0 && m.seq == depth_seq_.newest() && m.utime == last_depth_utime_) {
+          ++depth_frames_duplicate_;
+          return;
         }
-        last_depth_seq_ = m.seq;
+        depth_seq_.Add(m.seq);
+        last_depth_utime_ = m.utime;
         auto im = FromDepthMessage(m);
         if (!im.ok()) {
           ++depth_decode_errors_;
@@ -154,7 +167,9 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
   heartbeat_.AddCounter("grid_errors", [this] { return grid_errors_; });
   heartbeat_.AddCounter("save_errors", [this] { return save_errors_; });
-  heartbeat_.AddCounter("frames_lost", [this] { return depth_frames_lost_; });
+  heartbeat_.AddCounter("frames_lost", [this] { return depth_seq_.lost(); });
+  heartbeat_.AddCounter("frames_duplicate", [this] { return depth_frames_duplicate_; });
+  heartbeat_.AddCounter("pose_restarts", [this] { return pose_seq_.restarts(); });
   heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });
   heartbeat_.AddCounter("frames_dropped_no_pose", [&pc] { return pc.frames_dropped_no_pose; });
   heartbeat_.AddCounter("frames_dropped_queue", [&pc] { return pc.frames_dropped_queue; });
@@ -229,7 +244,10 @@ void OctomapNode::Tick(int64_t mono_us) {
       LOG_WARN << s.message();
     }
   }
-  if (inserted > 0) {
+  if (pose_seq_.restarts() > 0) {
+    heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED,
+                        "the pose source restarted: the map holds two frames");
+  } else if (inserted > 0) {
     const auto& pc = pipeline_.poser_counters();
     if (pc.frames_dropped_no_pose > pc.frames_posed)
       heartbeat_.SetState(omni::heartbeat_t::STATE_DEGRADED, "most frames have no pose");

@@ -480,6 +480,47 @@ TEST(OctomapNode, RebuildsWhenTheTrajectoryMovesOnMemq) {
   EXPECT_EQ(counters["decode_errors"], 1);
 }
 
+// A SLAM process restarted by the supervisor numbers its poses from 0 again, in a new map
+// frame: the builder cannot lay the new frames onto the old tree, so it says so (a warning,
+// pose_restarts, DEGRADED) instead of mapping on as if nothing happened (review finding).
+TEST(OctomapNode, ARestartedPoseSourceIsSaidAndDegrades) {
+  auto bus = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus.ok()) << bus.error().message;
+  auto opt = OctomapBuilderOptions::LoadFile(Config());
+  ASSERT_TRUE(opt.ok()) << opt.error().message;
+  opt->out_dir = testing::TempDir() + "/octo_pose_restart";
+  ManualClock clock(1700000000000000);
+  OctomapNode node(bus->get(), *opt, &clock);
+  std::vector<omni::heartbeat_t> beats;
+  (*bus)->Subscribe<omni::heartbeat_t>(
+      "HEARTBEAT", [&](const omni::heartbeat_t& m, int64_t) { beats.push_back(m); });
+  const int64_t t0 = 1700000000000000;
+  int64_t mono = 0;
+  const auto pump = [&] {
+    while ((*bus)->HandleTimeout(0) > 0) {
+    }
+    mono += 300000;
+    clock.Advance(300000);
+    node.Tick(mono);
+    node.heartbeat().Tick(true);
+    while ((*bus)->HandleTimeout(0) > 0) {
+    }
+  };
+  int64_t t = t0;
+  for (int i = 0; i <= 150; ++i, t += 100000) (*bus)->Publish("POSE_RBPF", Pose(t, 0.01 * i, i));
+  (*bus)->Publish("DEPTH", WallFrame(t0 + 50000, 0.005, 1));
+  pump();
+  ASSERT_FALSE(beats.empty());
+  EXPECT_NE(beats.back().state, omni::heartbeat_t::STATE_DEGRADED);
+  EXPECT_EQ(node.pose_restarts(), 0);
+  for (int i = 0; i <= 5; ++i, t += 100000) (*bus)->Publish("POSE_RBPF", Pose(t, 0.01 * i, i));
+  pump();
+  EXPECT_EQ(node.pose_restarts(), 1);
+  EXPECT_EQ(beats.back().state, omni::heartbeat_t::STATE_DEGRADED);
+  EXPECT_NE(beats.back().status_text.find("pose source restarted"), std::string::npos)
+      << beats.back().status_text;
+}
+
 TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   auto bus = bus::Bus::Create("memq://");
   ASSERT_TRUE(bus.ok()) << bus.error().message;
@@ -523,6 +564,8 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
     pump();
   }
   (*bus)->Publish("POSE_RBPF", Pose(t0, 0.0, 99));  // out of order
+  // Frame 8 again (a repeating bridge): dropped, not inserted a second time.
+  (*bus)->Publish("DEPTH", WallFrame(t0 + 5 * 100000 + 50000, 0.55, 8));
   std::vector<uint8_t> junk(10, 0xff);
   (*bus)->PublishRaw("DEPTH", junk.data(), static_cast<int>(junk.size()));  // undecodable
   for (int i = 0; i < 6; ++i) pump();
@@ -558,6 +601,8 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   for (int i = 0; i < hb.num_counters; ++i) counters[hb.counter_names[i]] = hb.counter_values[i];
   EXPECT_EQ(counters["frames_in"], 7);
   EXPECT_EQ(counters["frames_lost"], 2);
+  EXPECT_EQ(counters["frames_duplicate"], 1);
+  EXPECT_EQ(counters["pose_restarts"], 0);
   EXPECT_EQ(node.depth_frames_lost(), 2);
   EXPECT_EQ(counters["frames_posed"], 6);
   EXPECT_EQ(counters["frames_dropped_no_pose"], 1);

@@ -12,6 +12,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/color_image_t.hpp"
+#include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/depth_image_t.hpp"
 #include "omni/octomap_builder/octomap_builder.h"
@@ -67,7 +68,11 @@ class OctomapNode {
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }
   // Depth frames missing from the sequence numbers received (lost on the bus or by the driver).
-  int64_t depth_frames_lost() const { return depth_frames_lost_; }
+  int64_t depth_frames_lost() const { return depth_seq_.lost(); }
+  // The same depth frame (number and stamp) again: dropped.
+  int64_t depth_frames_duplicate() const { return depth_frames_duplicate_; }
+  // Times the pose source numbered its poses from the start again (a restarted SLAM process).
+  int64_t pose_restarts() const { return pose_seq_.restarts(); }
   int64_t color_decode_errors() const { return color_decode_errors_; }
   int64_t trajectories_rejected() const { return trajectories_rejected_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
@@ -78,7 +83,9 @@ class OctomapNode {
   OctomapPipeline pipeline_;
   bus::Heartbeat heartbeat_;
   int64_t depth_decode_errors_ = 0;
-  int64_t depth_frames_lost_ = 0, last_depth_seq_ = -1;
+  SeqGaps depth_seq_;  // the depth frames' numbers: lost frames, a restarted driver
+  int64_t last_depth_utime_ = 0, depth_frames_duplicate_ = 0;
+  SeqGaps pose_seq_;  // the poses' numbers: a restarted SLAM process
   int64_t color_decode_errors_ = 0;
   int64_t trajectories_rejected_ = 0;
   int64_t grid_errors_ = 0;  // grids that could not be made for GRID_OCTO
