@@ -101,6 +101,10 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
       pipeline_(options),
       heartbeat_(bus, "octomap_builder", clock,
                  static_cast<int64_t>(options.heartbeat_period_s * 1e6)) {
+  // A burst of frames (poses that came late) goes in over several ticks, the heartbeat beating
+  // between them: at 50-80 ms a 640x480 frame, 60 queued frames held it 3-5 s, about a
+  // supervisor's heartbeat timeout.
+  pipeline_.set_insert_budget_us(kInsertBudgetUs);
   // A NaN or absurd pose is refused and counted by the poser (poses_invalid).
   bus_->Subscribe<omni::pose2d_t>(options_.PoseChannel(), [this](const omni::pose2d_t& m, int64_t) {
     // A SLAM process restarted (by the supervisor after a crash) numbers its poses from 0 again
@@ -168,6 +172,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("grid_errors", [this] { return grid_errors_; });
   heartbeat_.AddCounter("save_errors", [this] { return save_errors_; });
   heartbeat_.AddCounter("frames_lost", [this] { return depth_seq_.lost(); });
+  heartbeat_.AddCounter("frames_dropped_backlog", [&c] { return c.frames_dropped_backlog; });
   heartbeat_.AddCounter("frames_duplicate", [this] { return depth_frames_duplicate_; });
   heartbeat_.AddCounter("pose_restarts", [this] { return pose_seq_.restarts(); });
   heartbeat_.AddCounter("frames_posed", [&pc] { return pc.frames_posed; });

@@ -367,7 +367,14 @@ void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
 int OctomapPipeline::Process(int64_t now_utime) {
   const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
-  for (auto& posed : poser_.Poll(now_utime)) {
+  for (auto& posed : poser_.Poll(now_utime)) ready_.push_back(std::move(posed));
+  for (; ready_.size() > kMaxBacklog; ready_.pop_front()) ++counters_.frames_dropped_backlog;
+  const int64_t deadline = insert_budget_us_ < 0
+                               ? std::numeric_limits<int64_t>::max()
+                               : ParallelKeySetInserter::NowMicros() + insert_budget_us_;
+  while (!ready_.empty() && (n == 0 || ParallelKeySetInserter::NowMicros() < deadline)) {
+    Posed posed = std::move(ready_.front());
+    ready_.pop_front();
     if (!o.color) {
       const int64_t before = counters_.frames_inserted;
       Insert(posed, nullptr);
@@ -376,24 +383,30 @@ int OctomapPipeline::Process(int64_t now_utime) {
       awaiting_color_.push_back(std::move(posed));
     }
   }
-  n += PairAndInsert(now_utime, false);
+  n += PairAndInsert(now_utime, false, deadline);
   StepRepose();
   return n;
 }
 
-int OctomapPipeline::FlushAwaitingColor() { return PairAndInsert(newest_utime(), true); }
+int OctomapPipeline::FlushAwaitingColor() {
+  return PairAndInsert(newest_utime(), true, std::numeric_limits<int64_t>::max());
+}
 
 int OctomapPipeline::FinishInput() {
+  const int64_t budget = insert_budget_us_;
+  insert_budget_us_ = -1;  // the end: everything goes in
   int n = Process(newest_utime());
   n += Process(std::numeric_limits<int64_t>::max() / 2);  // every wait has expired
   n += FlushAwaitingColor();
+  insert_budget_us_ = budget;
   return n;
 }
 
-int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force) {
+int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force, int64_t deadline_us) {
   const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
   while (!awaiting_color_.empty()) {
+    if (n > 0 && ParallelKeySetInserter::NowMicros() >= deadline_us) break;  // the next call
     const Posed& f = awaiting_color_.front();
     const bool later_color_seen =
         !colors_.empty() && colors_.back().image.utime > f.utime + o.color_max_dt_us;

@@ -164,6 +164,12 @@ class OctomapPipeline {
   // Time a rebuild may take per Process call (monotonic µs); < 0 (the default): to its end at
   // once. The node sets repose.rebuild_budget_ms.
   void set_rebuild_budget_us(int64_t us) { rebuild_budget_us_ = us; }
+  // Time the insertions may take per Process call (monotonic µs; at least one frame goes in);
+  // the frames left wait for the next call, at most kMaxBacklog of them (older ones dropped,
+  // counted). < 0 (the default): every posed frame at once. The node sets it so that a burst
+  // of frames (poses that came late) cannot hold its heartbeat for seconds.
+  void set_insert_budget_us(int64_t us) { insert_budget_us_ = us; }
+  static constexpr size_t kMaxBacklog = 300;
   // Runs a started rebuild to its end, then one more if the newest trajectory still moves a
   // keyframe by more than min_shift_m, whatever min_interval_s says (end of a log, exit).
   void FinishRepose();
@@ -190,7 +196,8 @@ class OctomapPipeline {
     // thousands of km out): nothing was mapped.
     int64_t frames_out_of_range = 0;
     int64_t points_inserted = 0;
-    int64_t last_frame_us = 0;  // time the last insertion took (monotonic clock)
+    int64_t last_frame_us = 0;           // time the last insertion took (monotonic clock)
+    int64_t frames_dropped_backlog = 0;  // posed, but more than kMaxBacklog waited for the budget
     // Colour option only:
     int64_t color_frames_in = 0;
     int64_t color_out_of_order = 0;  // older than the previous colour frame: rejected
@@ -231,7 +238,7 @@ class OctomapPipeline {
   // Inserts one posed frame (with `color` or without) and counts.
   void Insert(const Posed& posed, const ColorImage* color);
   // Pairs and inserts the frames waiting for colour whose partner is decided (all with force).
-  int PairAndInsert(int64_t now_utime, bool force);
+  int PairAndInsert(int64_t now_utime, bool force, int64_t deadline_us);
   // Index of the colour frame nearest to `utime` within color_max_dt_us, or -1.
   int NearestColor(int64_t utime) const;
 
@@ -249,6 +256,7 @@ class OctomapPipeline {
   std::unique_ptr<OctomapBuilder> builder_;
   FramePoser<DepthImage> poser_;
   std::deque<Posed> awaiting_color_;  // posed, waiting for their colour partner
+  std::deque<Posed> ready_;           // posed, left for the next Process by the insert budget
   struct BufferedColor {
     ColorImage image;
     bool used = false;  // paired with a depth frame
@@ -268,6 +276,7 @@ class OctomapPipeline {
   double running_shift_m_ = 0;              // the shift that started the running rebuild
   int64_t last_rebuild_start_utime_ = INT64_MIN;
   int64_t rebuild_budget_us_ = -1;
+  int64_t insert_budget_us_ = -1;
 };
 
 }  // namespace omni::octo

@@ -65,6 +65,8 @@ class OctomapNode {
     return names;
   }
 
+  static constexpr int64_t kInsertBudgetUs = 500000;  // insertions per tick (see the .cc)
+
   OctomapPipeline& pipeline() { return pipeline_; }
   int64_t depth_decode_errors() const { return depth_decode_errors_; }
   // Depth frames missing from the sequence numbers received (lost on the bus or by the driver).
