@@ -213,7 +213,7 @@ void PoseGraphNode::OnMessage(Item item) {
   }
   queue_.push_back(std::move(item));
   // The mapper is far behind or odometry stopped: stay bounded by forcing the oldest scans.
-  while (queued_scans_ > kMaxQueued) Drain(true, 1);
+  while (queued_scans_ > kMaxQueued || queue_.size() > kMaxQueuedItems) Drain(true, 1);
   if (!deferred_) Drain(false, INT32_MAX);
 }
 

@@ -424,6 +424,25 @@ TEST(PoseGraphMapperNode, ScansWaitForTheirOdometryThenGiveUp) {
   EXPECT_EQ(n.node->queued_scans(), 0u);
 }
 
+// A scan stamped a minute ahead of the base's clock waits for odometry that never reaches its
+// time; the odometry queued behind it once grew without bound (review finding). Beyond
+// kMaxQueuedItems the scan is forced and the odometry handed over.
+TEST(PoseGraphMapperNode, OdometryBehindAWaitingScanStaysBounded) {
+  MemqNode n;
+  n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));
+  n.b->Publish("LIDAR_SCAN", RingScan(61000000, 0));  // the lidar's clock a minute ahead
+  const int kOdom = static_cast<int>(pgm::PoseGraphNode::kMaxQueuedItems) + 10;
+  for (int i = 1; i <= kOdom; ++i) {
+    n.b->Publish("WHEEL_ODOM", Odom(1000000 + 1000 * i, 0.0, i));
+    if (i % 1000 == 0) n.Pump();
+  }
+  n.Pump();
+  EXPECT_LE(n.node->queued_items(), pgm::PoseGraphNode::kMaxQueuedItems);
+  EXPECT_EQ(n.node->queued_scans(), 0u);
+  EXPECT_EQ(n.node->scans_forced(), 1);
+  EXPECT_GT(n.node->slam().counters().odom_in, 0);
+}
+
 omni::pose2d_t Fix(int64_t utime, double x, double var, const std::string& frame) {
   omni::pose2d_t m{};
   m.utime = utime;

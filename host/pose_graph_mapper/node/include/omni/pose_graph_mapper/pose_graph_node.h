@@ -18,8 +18,8 @@
 //
 // Deferred mode (the process): the bus callbacks only queue and the owner calls ProcessReady()
 // between draining the socket, so a slow keyframe (matching, loop search, global optimisation)
-// never leaves datagrams to overflow the kernel buffer. The queue is bounded (kMaxQueued):
-// beyond it the oldest scan is processed at once.
+// never leaves datagrams to overflow the kernel buffer. The queue is bounded (kMaxQueued scans,
+// kMaxQueuedItems in all): beyond it the oldest scan is processed at once.
 //
 // POSE_PG's covariance: PoseGraphSlam::LastScanCovariance (the window's marginal of the scan's
 // keyframe composed with the odometry since it).
@@ -74,6 +74,7 @@ class PoseGraphNode {
   const PoseGraphSlam& slam() const { return slam_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
   size_t queued_scans() const { return queued_scans_; }
+  size_t queued_items() const { return queue_.size(); }
   int64_t max_queued_scans() const { return max_queued_scans_; }
   int64_t scans_lost() const { return seq_gaps_.lost(); }
   int64_t poses_published() const { return poses_published_; }
@@ -85,6 +86,10 @@ class PoseGraphNode {
   int64_t absolute_wrong_frame() const { return absolute_wrong_frame_; }
 
   static constexpr size_t kMaxQueued = 3000;  // scans
+  // Everything queued (odometry and absolute poses too): odometry older than a waiting scan
+  // piled up behind it without bound when the scan's time was never reached (a lidar clock
+  // ahead of the base's, then the lidar stopped).
+  static constexpr size_t kMaxQueuedItems = 32768;
   // The grid is rendered from every keyframe, so its cost grows with the run (about 2 s per
   // render after an 8 h shift): the wait between grid messages is at least this many times the
   // last render's duration, which keeps rendering to a tenth of the node's time.
