@@ -283,8 +283,10 @@ void OctomapPipeline::AddDepth(DepthImage image) {
 }
 
 int64_t OctomapPipeline::newest_utime() const {
-  return std::max({poser_.newest_pose_utime(), poser_.newest_frame_utime(),
-                   color_order_.have() ? color_order_.newest() : int64_t{0}});
+  // Not the colour frames' time: colour stamped ahead of depth (another clock, or one frame
+  // stamped in the future) expired every depth frame still waiting for its pose. A colour frame
+  // later than a depth frame's window already lets that frame go (PairAndInsert).
+  return std::max(poser_.newest_pose_utime(), poser_.newest_frame_utime());
 }
 
 void OctomapPipeline::AddColor(ColorImage image) {

@@ -482,6 +482,29 @@ TEST(OctomapPipeline, FinishInputPosesWhatItCanAndCountsTheRest) {
   EXPECT_EQ(p.poser_counters().frames_dropped_no_pose, 1);
 }
 
+// A colour frame stamped 2.5 s ahead of the depth frames (another clock, or a glitch) moved the
+// pipeline's time on, and every depth frame still waiting for its pose expired and was dropped
+// as having none (review finding). The pipeline's time follows poses and depth frames only.
+TEST(ColorOctomap, ColourStampedAheadDoesNotExpireFramesWaitingForTheirPose) {
+  OctomapBuilderOptions opt = ColorOptions();
+  opt.poser.max_latency_us = 1000000;
+  OctomapPipeline p(opt);
+  const int64_t t0 = 1000000000;
+  DepthImage d = FlatDepth(64, 48, 50.0, 31.5, 23.5, 2030);
+  p.AddPose(t0, Pose2(0, 0, 0));
+  d.utime = t0 + 50000;
+  p.AddDepth(d);  // its pose after it is late
+  ColorImage ahead = SplitColorImage(64, 48);
+  ahead.utime = t0 + 2500000;
+  p.AddColor(ahead);
+  EXPECT_EQ(p.Process(p.newest_utime()), 0);
+  EXPECT_EQ(p.poser_counters().frames_dropped_no_pose, 0);
+  p.AddPose(t0 + 100000, Pose2(0, 0, 0));
+  EXPECT_EQ(p.Process(p.newest_utime()), 1);  // posed; the colour is too far: uncoloured
+  EXPECT_EQ(p.counters().frames_inserted, 1);
+  EXPECT_EQ(p.counters().frames_uncolored, 1);
+}
+
 // Pipeline pairing: poses every 100 ms, depth frames at 50 ms offsets.
 TEST(ColorOctomap, PipelinePairsNearestColorAndCountsTheRest) {
   OctomapBuilderOptions opt = ColorOptions();

@@ -184,7 +184,8 @@ class OctomapPipeline {
   // dropped without pose, and inserts those waiting for a colour partner. Returns the number
   // inserted.
   int FinishInput();
-  // Newest time of any pose or frame taken so far (the default `now`); it moves back when a
+  // Newest time of any pose or depth frame taken so far (the default `now`; not the colour
+  // frames', which may run on another clock); it moves back when a
   // stream's future-stamped message is dropped (stamp_order.h), so one such message cannot
   // expire every frame's latency.
   int64_t newest_utime() const;
