@@ -107,6 +107,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   pipeline_.set_insert_budget_us(kInsertBudgetUs);
   // A NaN or absurd pose is refused and counted by the poser (poses_invalid).
   bus_->Subscribe<omni::pose2d_t>(options_.PoseChannel(), [this](const omni::pose2d_t& m, int64_t) {
+    if (!StampPlausible(m.utime)) return;
     // A SLAM process restarted (by the supervisor after a crash) numbers its poses from 0 again
     // in a new map frame, its origin where the robot stood then: said loudly, since the tree
     // keeps the old frame's frames beside the new ones.
@@ -121,6 +122,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   });
   bus_->Subscribe<omni::depth_image_t>(
       options_.depth_channel, [this](const omni::depth_image_t& m, int64_t) {
+        if (!StampPlausible(m.utime)) return;
         // Gaps in the driver's sequence numbers: frames lost before they reached us (a smaller
         // number is a restarted driver, not a loss; nor is a jump of more than a day of frames
         // at 30 Hz, a corrupt number, which would add ~9e18 to the count).
@@ -143,6 +145,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   if (options_.color) {
     bus_->Subscribe<omni::color_image_t>(
         options_.color_channel, [this](const omni::color_image_t& m, int64_t) {
+          if (!StampPlausible(m.utime)) return;
           auto im = FromColorMessage(m);
           if (!im.ok()) {
             ++color_decode_errors_;
@@ -171,6 +174,7 @@ OctomapNode::OctomapNode(bus::Bus* bus, const OctomapBuilderOptions& options, co
   heartbeat_.AddCounter("frames_in", [&pc] { return pc.frames_in; });
   heartbeat_.AddCounter("grid_errors", [this] { return grid_errors_; });
   heartbeat_.AddCounter("save_errors", [this] { return save_errors_; });
+  heartbeat_.AddCounter("stamps_invalid", [this] { return stamps_invalid_; });
   heartbeat_.AddCounter("frames_lost", [this] { return depth_seq_.lost(); });
   heartbeat_.AddCounter("frames_dropped_backlog", [&c] { return c.frames_dropped_backlog; });
   heartbeat_.AddCounter("frames_duplicate", [this] { return depth_frames_duplicate_; });

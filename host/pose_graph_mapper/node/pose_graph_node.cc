@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Cholesky>
 
@@ -167,6 +168,16 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
 }
 
 void PoseGraphNode::OnMessage(Item item) {
+  // A stamp beyond +-2^61 us (tens of thousands of years: corrupt) goes straight to the mapper,
+  // which refuses and counts it; queued, the waiting arithmetic on it would overflow.
+  constexpr int64_t kMaxStamp = std::numeric_limits<int64_t>::max() / 4;
+  if (item.utime > kMaxStamp || item.utime < -kMaxStamp) {
+    if (item.kind == Kind::kScan) HandleScan(item.scan);
+    if (item.kind == Kind::kOdometry) slam_.AddOdometry(item.utime, item.odom);
+    if (item.kind == Kind::kAbsolute)
+      (void)slam_.AddAbsolutePose(item.utime, item.odom, item.information);
+    return;
+  }
   // Absolute poses may come late by design: they do not advance the time scans wait against.
   if (item.kind == Kind::kScan && scan_order_.Check(item.utime) == StampOrder::Verdict::kRebase) {
     // In-order scans older than the queue's newest keep coming: those newer than this one that

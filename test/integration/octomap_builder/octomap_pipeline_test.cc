@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <memory>
 
@@ -564,6 +565,10 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
     pump();
   }
   (*bus)->Publish("POSE_RBPF", Pose(t0, 0.0, 99));  // out of order
+  // Corrupt stamps (at the ends of int64, or 0): dropped and counted before any arithmetic.
+  (*bus)->Publish("DEPTH", WallFrame(std::numeric_limits<int64_t>::min() + 1, 0.0, 20));
+  (*bus)->Publish("POSE_RBPF", Pose(std::numeric_limits<int64_t>::max(), 0.0, 100));
+  (*bus)->Publish("DEPTH", WallFrame(0, 0.0, 21));
   // Frame 8 again (a repeating bridge): dropped, not inserted a second time.
   (*bus)->Publish("DEPTH", WallFrame(t0 + 5 * 100000 + 50000, 0.55, 8));
   std::vector<uint8_t> junk(10, 0xff);
@@ -602,6 +607,7 @@ TEST(OctomapNode, MapsOnMemqAndPublishesCounters) {
   EXPECT_EQ(counters["frames_in"], 7);
   EXPECT_EQ(counters["frames_lost"], 2);
   EXPECT_EQ(counters["frames_duplicate"], 1);
+  EXPECT_EQ(counters["stamps_invalid"], 3);
   EXPECT_EQ(counters["pose_restarts"], 0);
   EXPECT_EQ(node.depth_frames_lost(), 2);
   EXPECT_EQ(counters["frames_posed"], 6);

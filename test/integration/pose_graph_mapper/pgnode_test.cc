@@ -443,6 +443,30 @@ TEST(PoseGraphMapperNode, OdometryBehindAWaitingScanStaysBounded) {
   EXPECT_GT(n.node->slam().counters().odom_in, 0);
 }
 
+// Stamps at the ends of int64 (corrupt): the node's waiting arithmetic (a scan's last beam, how
+// stale it is) overflowed on them (undefined; UBSan aborts). They go straight to the mapper,
+// which refuses and counts them; the stream around them is mapped as usual.
+TEST(PoseGraphMapperNode, StampsAtTheEndsOfInt64AreRefusedAndCounted) {
+  MemqNode n;
+  n.b->Publish("WHEEL_ODOM", Odom(1000000, 0.0, 0));
+  n.b->Publish("LIDAR_SCAN", RingScan(1000000, 0));
+  n.b->Publish("WHEEL_ODOM", Odom(std::numeric_limits<int64_t>::min() + 1, 0.0, 1));
+  omni::laser_scan_t late = RingScan(std::numeric_limits<int64_t>::max(), 1);
+  late.scan_time_s = 0.1f;
+  n.b->Publish("LIDAR_SCAN", late);
+  n.b->Publish("LIDAR_SCAN", RingScan(std::numeric_limits<int64_t>::min(), 2));
+  n.b->Publish("WHEEL_ODOM", Odom(2000000, 0.1, 2));
+  n.b->Publish("LIDAR_SCAN", RingScan(2000000, 3));
+  n.Pump();
+  (void)n.node->ProcessReady(10);
+  n.node->Flush();
+  n.Pump();
+  const auto& c = n.node->slam().counters();
+  EXPECT_EQ(c.odom_invalid, 1);
+  EXPECT_EQ(c.scans_no_odom, 2);
+  EXPECT_EQ(c.scans_used, 2);
+}
+
 omni::pose2d_t Fix(int64_t utime, double x, double var, const std::string& frame) {
   omni::pose2d_t m{};
   m.utime = utime;

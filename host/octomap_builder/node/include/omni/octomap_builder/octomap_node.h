@@ -5,6 +5,8 @@
 // heartbeat with the frame counters.
 #pragma once
 
+#include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -77,6 +79,7 @@ class OctomapNode {
   int64_t pose_restarts() const { return pose_seq_.restarts(); }
   int64_t color_decode_errors() const { return color_decode_errors_; }
   int64_t trajectories_rejected() const { return trajectories_rejected_; }
+  int64_t stamps_invalid() const { return stamps_invalid_; }
   bus::Heartbeat& heartbeat() { return heartbeat_; }
 
  private:
@@ -93,6 +96,14 @@ class OctomapNode {
   int64_t grid_errors_ = 0;  // grids that could not be made for GRID_OCTO
   int64_t last_save_us_ = -1, last_octomap_us_ = -1, last_grid_us_ = -1;
   int64_t save_errors_ = 0;  // periodic saves that failed
+  // Messages stamped at or before the epoch or beyond 2^61 us (corrupt): dropped, since the
+  // poser's time arithmetic would overflow on them.
+  int64_t stamps_invalid_ = 0;
+  bool StampPlausible(int64_t utime) {
+    if (utime > 0 && utime <= std::numeric_limits<int64_t>::max() / 4) return true;
+    ++stamps_invalid_;
+    return false;
+  }
   int64_t saved_frames_ = 0, published_octomap_frames_ = 0, published_grid_frames_ = 0;
 };
 
