@@ -369,21 +369,22 @@ void OctomapPipeline::Insert(const Posed& posed, const ColorImage* color) {
 int OctomapPipeline::Process(int64_t now_utime) {
   const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
-  for (auto& posed : poser_.Poll(now_utime)) ready_.push_back(std::move(posed));
-  for (; ready_.size() > kMaxBacklog; ready_.pop_front()) ++counters_.frames_dropped_backlog;
+  std::deque<Posed>& waiting = o.color ? awaiting_color_ : ready_;
+  for (auto& posed : poser_.Poll(now_utime)) waiting.push_back(std::move(posed));
+  // With a budget frames can wait past this call: at most kMaxBacklog (the oldest dropped).
+  if (insert_budget_us_ >= 0)
+    for (; waiting.size() > kMaxBacklog; waiting.pop_front()) ++counters_.frames_dropped_backlog;
   const int64_t deadline = insert_budget_us_ < 0
                                ? std::numeric_limits<int64_t>::max()
                                : ParallelKeySetInserter::NowMicros() + insert_budget_us_;
-  while (!ready_.empty() && (n == 0 || ParallelKeySetInserter::NowMicros() < deadline)) {
+  // At least one frame is tried a call (inserted or not: a frame out of range takes its time).
+  for (int tried = 0;
+       !ready_.empty() && (tried == 0 || ParallelKeySetInserter::NowMicros() < deadline); ++tried) {
     Posed posed = std::move(ready_.front());
     ready_.pop_front();
-    if (!o.color) {
-      const int64_t before = counters_.frames_inserted;
-      Insert(posed, nullptr);
-      n += static_cast<int>(counters_.frames_inserted - before);
-    } else {
-      awaiting_color_.push_back(std::move(posed));
-    }
+    const int64_t before = counters_.frames_inserted;
+    Insert(posed, nullptr);
+    n += static_cast<int>(counters_.frames_inserted - before);
   }
   n += PairAndInsert(now_utime, false, deadline);
   StepRepose();
@@ -407,8 +408,8 @@ int OctomapPipeline::FinishInput() {
 int OctomapPipeline::PairAndInsert(int64_t now_utime, bool force, int64_t deadline_us) {
   const OctomapBuilderOptions& o = builder_->options();
   int n = 0;
-  while (!awaiting_color_.empty()) {
-    if (n > 0 && ParallelKeySetInserter::NowMicros() >= deadline_us) break;  // the next call
+  for (int tried = 0; !awaiting_color_.empty(); ++tried) {
+    if (tried > 0 && ParallelKeySetInserter::NowMicros() >= deadline_us) break;  // the next call
     const Posed& f = awaiting_color_.front();
     const bool later_color_seen =
         !colors_.empty() && colors_.back().image.utime > f.utime + o.color_max_dt_us;

@@ -505,6 +505,32 @@ TEST(ColorOctomap, ColourStampedAheadDoesNotExpireFramesWaitingForTheirPose) {
   EXPECT_EQ(p.counters().frames_uncolored, 1);
 }
 
+// With colour on, frames waiting for the insert budget wait among those waiting for colour:
+// at most kMaxBacklog of them, the oldest dropped and counted (they grew without bound, review
+// finding); the end of the input inserts all that are left, without a cap.
+TEST(ColorOctomap, TheInsertBudgetsBacklogIsBoundedWithColourToo) {
+  OctomapBuilderOptions opt = ColorOptions();
+  opt.poser.max_queued_frames = 1000;  // the poser's own queue lets them all through
+  OctomapPipeline p(opt);
+  p.set_insert_budget_us(0);  // one frame a call
+  const int64_t t0 = 1000000000;
+  const int kFrames = static_cast<int>(OctomapPipeline::kMaxBacklog) + 20;
+  DepthImage d = FlatDepth(16, 12, 12.5, 7.5, 5.5, 2030);
+  for (int i = 0; i < kFrames; ++i) {
+    d.utime = t0 + 10000 * i;
+    p.AddDepth(d);
+  }
+  p.AddPose(t0 - 1, Pose2(0, 0, 0));
+  p.AddPose(t0 + 10000 * kFrames, Pose2(0, 0, 0));
+  ColorImage late = SplitColorImage(16, 12);
+  late.utime = t0 + 10000 * kFrames + 1000000;  // lets every frame go (uncoloured)
+  p.AddColor(late);
+  EXPECT_EQ(p.Process(p.newest_utime()), 1);
+  EXPECT_EQ(p.counters().frames_dropped_backlog, 20);
+  EXPECT_EQ(p.FinishInput(), static_cast<int>(OctomapPipeline::kMaxBacklog) - 1);
+  EXPECT_EQ(p.counters().frames_inserted, static_cast<int64_t>(OctomapPipeline::kMaxBacklog));
+}
+
 // Pipeline pairing: poses every 100 ms, depth frames at 50 ms offsets.
 TEST(ColorOctomap, PipelinePairsNearestColorAndCountsTheRest) {
   OctomapBuilderOptions opt = ColorOptions();
