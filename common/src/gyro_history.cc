@@ -33,11 +33,24 @@ bool GyroRateHistory::Push(int64_t utime, double rate) {
     if (utime == last.utime) return false;
     integral =
         last.integral + 0.5 * (last.rate + rate) * 1e-6 * static_cast<double>(utime - last.utime);
-    gaps = last.gaps + (utime - last.utime > kMaxGapUs ? 1 : 0);
+    // Judged with itself among the recent steps (the first step cannot be told from the rate).
+    const int64_t step = utime - last.utime;
+    spacing_[spacing_next_] = step;
+    spacing_next_ = (spacing_next_ + 1) % spacing_.size();
+    spacing_n_ = std::min(spacing_n_ + 1, spacing_.size());
+    gaps = last.gaps + (step > GapUs() ? 1 : 0);
   }
   samples_.push_back({utime, rate, integral, gaps});
   while (samples_.size() > capacity_) samples_.pop_front();
   return true;
+}
+
+int64_t GyroRateHistory::GapUs() const {
+  if (spacing_n_ == 0) return kMaxGapUs;
+  std::array<int64_t, 9> s = spacing_;
+  const auto mid = s.begin() + static_cast<std::ptrdiff_t>(spacing_n_ / 2);
+  std::nth_element(s.begin(), mid, s.begin() + static_cast<std::ptrdiff_t>(spacing_n_));
+  return std::max(kMaxGapUs, 3 * *mid);
 }
 
 double GyroRateHistory::IntegralAt(int64_t t) const {

@@ -109,13 +109,20 @@ TEST(PoseGraphGyro, AGapInTheSamplesIsNotMeasured) {
   EXPECT_FALSE(gyro.Between(500'000, 3'500'000));  // across the gap
   EXPECT_FALSE(gyro.Between(1'000'000, 3'000'000));
   EXPECT_FALSE(gyro.Between(1'500'000, 1'600'000));  // inside it
-  // Samples 0.5 s apart (a 2 Hz IMU) are no gap; a bit more is.
-  GyroYawSource slow;
-  for (int k = 0; k <= 4; ++k) EXPECT_TRUE(slow.AddSample(500'000 * k, 1.0));
-  EXPECT_TRUE(slow.AddSample(2'500'001, 1.0));
-  ASSERT_TRUE(slow.Between(0, 2'000'000));
-  EXPECT_NEAR(slow.Between(0, 2'000'000)->delta_rad, 2.0, 1e-12);
-  EXPECT_FALSE(slow.Between(1'900'000, 2'100'000));
+  // A slow IMU's own spacing is no gap (2 Hz with 30 ms of read-time jitter, 1 Hz); three
+  // times its recent spacing is.
+  for (const int64_t period : {500'000, 1'000'000}) {
+    GyroYawSource slow;
+    int64_t end = 0;
+    for (int k = 0; k <= 20; ++k) {
+      end = k * period + (k % 2 ? 30'000 : -30'000) * (k > 0);
+      EXPECT_TRUE(slow.AddSample(end, 1.0));
+    }
+    ASSERT_TRUE(slow.Between(0, end)) << period;
+    EXPECT_NEAR(slow.Between(0, end)->delta_rad, 1e-6 * static_cast<double>(end), 1e-9);
+    EXPECT_TRUE(slow.AddSample(end + 4 * period, 1.0));
+    EXPECT_FALSE(slow.Between(end - 1, end + 1)) << period;
+  }
 }
 
 // One sample stamped an hour ahead: the five in-order samples after it re-base the gyro, so

@@ -7,6 +7,7 @@
 // The pose graph's gyro source and the base bridge's slip check keep their samples in one.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -18,10 +19,10 @@ namespace omni {
 
 class GyroRateHistory {
  public:
-  // Two samples further apart than this bound a gap (the IMU or its driver was away): the
-  // rate inside it was not measured, and a straight line between its ends may miss a whole
-  // turn. 0.5 s: five periods of the factory 10 Hz output; an IMU set below 2 Hz has every step
-  // uncovered.
+  // Two samples further apart than this, or than three times the stream's recent spacing (the
+  // median of its last nine steps) if that is longer, bound a gap (the IMU or its driver was
+  // away): the rate inside it was not measured, and a straight line between its ends may miss a
+  // whole turn. 0.5 s: five periods of the factory 10 Hz output; a 1 Hz IMU's steps are no gaps.
   static constexpr int64_t kMaxGapUs = 500000;
 
   explicit GyroRateHistory(size_t capacity) : capacity_(capacity < 2 ? 2 : capacity) {}
@@ -42,6 +43,7 @@ class GyroRateHistory {
   void Reset() {
     samples_.clear();
     held_.Reset();
+    spacing_n_ = spacing_next_ = 0;
   }
   int64_t rebases() const { return held_.order().rebases(); }
   bool empty() const { return samples_.empty(); }
@@ -58,8 +60,12 @@ class GyroRateHistory {
   double IntegralAt(int64_t utime) const;  // utime within the kept samples
   bool Push(int64_t utime, double rate);   // appends unless the same time as the newest
 
+  int64_t GapUs() const;  // the gap rule's bound now (kMaxGapUs)
+
   size_t capacity_;
   std::deque<Sample> samples_;
+  std::array<int64_t, 9> spacing_{};  // the last steps between samples, a ring
+  size_t spacing_n_ = 0, spacing_next_ = 0;
   HeldRun<double> held_;
 };
 

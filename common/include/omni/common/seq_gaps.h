@@ -16,6 +16,10 @@ class SeqGaps {
   static constexpr int64_t kLateWindow = 100;
   static constexpr int64_t kRestartGap = 1000000;
 
+  // `late_window`: how far behind the newest a number may be and still be a late message (a
+  // stream whose sender restarts early in its count wants a small one).
+  explicit SeqGaps(int64_t late_window = kLateWindow) : late_window_(late_window) {}
+
   // Takes the next message's number (< 0: the sender does not number them; ignored). A number
   // above the newest counts the ones skipped as lost; one below it, within kLateWindow, is a
   // late message: it fills one of the gaps counted (lost goes down by one) and the newest stays.
@@ -34,7 +38,7 @@ class SeqGaps {
       }
       newest_ = seq;
     } else if (seq < newest_) {
-      if (newest_ - seq > kLateWindow) {
+      if (newest_ - seq > late_window_) {
         ++restarts_;
         newest_ = seq;
       } else {
@@ -49,6 +53,7 @@ class SeqGaps {
   int64_t restarts() const { return restarts_; }
 
  private:
+  int64_t late_window_;
   int64_t newest_ = -1;
   int64_t lost_ = 0;
   int64_t late_ = 0;

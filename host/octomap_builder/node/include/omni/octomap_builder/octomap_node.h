@@ -90,7 +90,10 @@ class OctomapNode {
   int64_t depth_decode_errors_ = 0;
   SeqGaps depth_seq_;  // the depth frames' numbers: lost frames, a restarted driver
   int64_t last_depth_utime_ = 0, depth_frames_duplicate_ = 0;
-  SeqGaps pose_seq_;  // the poses' numbers: a restarted SLAM process
+  // The poses' numbers: a restarted SLAM process. Poses come in order on one host, so a number
+  // more than 20 back is a restart (a process that crashed within its first 100 poses, 10 s, was
+  // taken for late messages with the default window).
+  SeqGaps pose_seq_{20};
   int64_t color_decode_errors_ = 0;
   int64_t trajectories_rejected_ = 0;
   int64_t grid_errors_ = 0;  // grids that could not be made for GRID_OCTO
