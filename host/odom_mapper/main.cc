@@ -17,6 +17,7 @@
 #include "omni/common/malloc_setup.h"
 #include "omni/common/odometry_restart.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/io/previous_outputs.h"
 #include "omni/io/trajectory_io.h"
 #include "omni/laser_scan_t.hpp"
 #include "omni/odom_mapper/odom_mapper.h"
@@ -68,6 +69,9 @@ int main(int argc, char** argv) {
                  ec.message().c_str());
     return 1;
   }
+  // The files write_maps writes (below), moved aside from a previous run.
+  omni::io::MovePreviousRunAside(out_dir, {"odom_map.pgm", "odom_map.yaml", "odom_map.png",
+                                           "odom_trajectory.txt", "odom_trajectory.png"});
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", bus_or.error().message.c_str());

@@ -245,8 +245,9 @@ void OctomapNode::Tick(int64_t mono_us) {
     published_grid_frames_ = inserted;
   }
   if (due(&last_save_us_, options_.save_interval_s) && inserted > saved_frames_) {
-    Status s = SaveOutputs();
-    if (s.ok()) {
+    bool only_grid_failed = false;
+    Status s = SaveOutputs(options_.out_dir, &only_grid_failed);
+    if (s.ok() || only_grid_failed) {  // (a grid that cannot be made is counted in grid_errors)
       saved_frames_ = inserted;
     } else {  // tried again at the next interval
       ++save_errors_;
@@ -294,7 +295,8 @@ bool OctomapNode::PublishGrid() {
                           "octomap", options_.map_frame);
 }
 
-Status OctomapNode::SaveOutputs(const std::string& dir) const {
+Status OctomapNode::SaveOutputs(const std::string& dir, bool* only_grid_failed) const {
+  if (only_grid_failed != nullptr) *only_grid_failed = false;
   // An empty tree is no map: written, it would stand in for (and on a restart push aside) a
   // real one.
   if (pipeline_.counters().frames_inserted == 0)
@@ -324,6 +326,7 @@ Status OctomapNode::SaveOutputs(const std::string& dir) const {
     if (Status s = WritePcd(dir + "/map.pcd", pipeline_.builder().AggregateCloud(), true); !s.ok())
       return s;
   }
+  if (!grid.ok() && only_grid_failed != nullptr) *only_grid_failed = true;
   if (!grid.ok())
     return MakeError(grid.error().code, "no grid written (" + grid.error().message +
                                             "); the tree and the other outputs are in " + dir);

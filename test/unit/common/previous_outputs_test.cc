@@ -32,7 +32,7 @@ TEST(PreviousOutputs, EachRestartMovesTheRunBeforeAsideAndKeepsThree) {
   for (int run = 1; run <= 5; ++run) {
     Write(dir / "map.pgm", "pgm of run " + std::to_string(run));
     if (run != 3) Write(dir / "map.yaml", "yaml of run " + std::to_string(run));  // run 3: no yaml
-    const Result<int> moved = KeepPreviousOutputs(dir.string(), names);
+    const Result<int> moved = KeepPreviousOutputs(dir.string(), names, 3);
     ASSERT_TRUE(moved.ok()) << moved.error().message;
     EXPECT_EQ(*moved, run == 3 ? 1 : 2);
     EXPECT_FALSE(fs::exists(dir / "map.pgm"));

@@ -58,7 +58,9 @@ class OctomapNode {
   // option out_dir/map_color.ot and out_dir/view_color.png, and with keep_cloud out_dir/map.pcd.
   Status SaveOutputs() const { return SaveOutputs(options_.out_dir); }
   // The same files in `dir` (a map save request while mapping).
-  Status SaveOutputs(const std::string& dir) const;
+  // `only_grid_failed`, if given, is set when the error is only that no grid could be made
+  // (the tree and the other outputs were written).
+  Status SaveOutputs(const std::string& dir, bool* only_grid_failed = nullptr) const;
   // The files SaveOutputs (and the process's map.pcd) write in their folder.
   static const std::vector<std::string>& OutputFiles() {
     static const std::vector<std::string> names = {"map.bt",       "map.ot",         "grid.pgm",
