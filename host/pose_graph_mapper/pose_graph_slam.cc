@@ -24,8 +24,7 @@ namespace {
 
 // Stamps beyond +-73,000 years (us) are corrupt: refused, so that no sum of a stamp and the
 // time line's offset (at most twice this, AddOdometry) can overflow.
-constexpr int64_t kMaxStamp = std::numeric_limits<int64_t>::max() / 4;
-bool StampInRange(int64_t utime) { return utime <= kMaxStamp && utime >= -kMaxStamp; }
+constexpr int64_t kMaxStamp = kMaxStampUs;  // StampInRange (scan_checks.h)
 
 // Anchors the window's oldest pose (1 mm, 1 mrad): the global solution places the window.
 Eigen::Matrix3d AnchorInformation() { return 1e6 * Eigen::Matrix3d::Identity(); }

@@ -9,6 +9,7 @@
 
 #include "omni/bus/convert.h"
 #include "omni/common/log.h"
+#include "omni/common/scan_checks.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/imu_t.hpp"
 #include "omni/laser_scan_t.hpp"
@@ -170,8 +171,7 @@ PoseGraphNode::PoseGraphNode(bus::Bus* bus, const PoseGraphNodeOptions& node,
 void PoseGraphNode::OnMessage(Item item) {
   // A stamp beyond +-2^61 us (tens of thousands of years: corrupt) goes straight to the mapper,
   // which refuses and counts it; queued, the waiting arithmetic on it would overflow.
-  constexpr int64_t kMaxStamp = std::numeric_limits<int64_t>::max() / 4;
-  if (item.utime > kMaxStamp || item.utime < -kMaxStamp) {
+  if (!StampInRange(item.utime)) {
     if (item.kind == Kind::kScan) HandleScan(item.scan);
     if (item.kind == Kind::kOdometry) slam_.AddOdometry(item.utime, item.odom);
     if (item.kind == Kind::kAbsolute)

@@ -5,10 +5,18 @@
 
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
+#include <limits>
 
 #include "omni/common/geometry.h"
 
 namespace omni {
+
+// A stamp within +-2^61 us (tens of thousands of years either side of the epoch): the time
+// arithmetic on two such stamps (differences, a sweep's end) cannot overflow. Beyond, the stamp
+// is corrupt and is refused before any of it.
+inline constexpr int64_t kMaxStampUs = std::numeric_limits<int64_t>::max() / 4;
+inline bool StampInRange(int64_t utime) { return utime <= kMaxStampUs && utime >= -kMaxStampUs; }
 
 // Beams per scan above which a scan is refused (an RPLidar gives ~2000, a Hokuyo ~1100).
 inline constexpr size_t kMaxScanBeams = 100000;

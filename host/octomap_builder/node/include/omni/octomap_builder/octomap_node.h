@@ -6,7 +6,6 @@
 #pragma once
 
 #include <cstdint>
-#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -14,6 +13,7 @@
 #include "omni/bus/bus.h"
 #include "omni/bus/heartbeat.h"
 #include "omni/color_image_t.hpp"
+#include "omni/common/scan_checks.h"
 #include "omni/common/seq_gaps.h"
 #include "omni/common/time.h"
 #include "omni/depth_image_t.hpp"
@@ -105,7 +105,7 @@ class OctomapNode {
   // poser's time arithmetic would overflow on them.
   int64_t stamps_invalid_ = 0;
   bool StampPlausible(int64_t utime) {
-    if (utime > 0 && utime <= std::numeric_limits<int64_t>::max() / 4) return true;
+    if (utime > 0 && StampInRange(utime)) return true;
     ++stamps_invalid_;
     return false;
   }
