@@ -1,5 +1,11 @@
 #include "omni/io/previous_outputs.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 
 #include "omni/common/log.h"
@@ -56,6 +62,55 @@ void MovePreviousRunAside(const std::string& dir, const std::vector<std::string>
     LOG_INFO << "the previous run's outputs (" << *moved << " files) moved to " << dir
              << "/previous/1";
   }
+}
+
+OutputFolderLock::~OutputFolderLock() {
+  if (fd_ >= 0) ::close(fd_);  // closing the last descriptor lets the flock go
+}
+
+Result<std::unique_ptr<OutputFolderLock>> OutputFolderLock::Take(const std::string& dir,
+                                                                 const std::string& process) {
+  const std::string path = (fs::path(dir) / kFileName).string();
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0)
+    return MakeError(ErrorCode::kIo, "cannot open '" + path + "': " + std::strerror(errno));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    std::string holder;
+    if (err == EWOULDBLOCK) {
+      char buf[256];
+      const ssize_t n = ::pread(fd, buf, sizeof(buf) - 1, 0);
+      if (n > 0) holder.assign(buf, static_cast<size_t>(n));
+      while (!holder.empty() && (holder.back() == '\n' || holder.back() == '\0')) holder.pop_back();
+    }
+    ::close(fd);
+    if (err != EWOULDBLOCK)
+      return MakeError(ErrorCode::kIo, "cannot lock '" + path + "': " + std::strerror(err));
+    return MakeError(ErrorCode::kUnavailable,
+                     "'" + dir + "' is being written by " +
+                         (holder.empty() ? std::string("another process") : holder) +
+                         "; give each process its own --out folder");
+  }
+  // Ours now: say who holds it (for the next one refused). Failing to write only loses the name.
+  const std::string who = process + " (pid " + std::to_string(::getpid()) + ")\n";
+  if (::ftruncate(fd, 0) == 0) {
+    const ssize_t n = ::pwrite(fd, who.data(), who.size(), 0);
+    (void)n;
+  }
+  return std::unique_ptr<OutputFolderLock>(new OutputFolderLock(fd));
+}
+
+Result<std::unique_ptr<OutputFolderLock>> ClaimOutputFolder(const std::string& dir,
+                                                            const std::string& process,
+                                                            const std::vector<std::string>& names) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec)
+    return MakeError(ErrorCode::kIo, "cannot create output folder '" + dir + "': " + ec.message());
+  auto lock = OutputFolderLock::Take(dir, process);
+  if (!lock.ok()) return lock;
+  MovePreviousRunAside(dir, names);
+  return lock;
 }
 
 }  // namespace omni::io

@@ -2,7 +2,6 @@
 
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <string>
 
 #include "omni/bus/bus.h"
@@ -32,14 +31,16 @@ void Usage(std::FILE* f) {
                "  Maps LIDAR_SCAN at the WHEEL_ODOM pose of each scan (no correction), publishes\n"
                "  GRID_ODOM and HEARTBEAT, and on SIGINT/SIGTERM (or after S seconds without\n"
                "  messages once data has arrived) writes DIR/odom_map.{pgm,yaml,png},\n"
-               "  DIR/odom_trajectory.{txt,png} (default DIR: out); while mapping, on a MAP_SAVE\n"
-               "  request (omni save-map) too.\n");
+               "  DIR/odom_trajectory.{txt,png} (default DIR: out/odom); while mapping, on a\n"
+               "  MAP_SAVE request (omni save-map) too. DIR is this process's while it runs:\n"
+               "  another process writing it is refused.\n");
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   omni::MapperArgs m;
+  m.out = "out/odom";
   omni::ArgReader args(argc, argv, "odom_mapper", Usage);
   while (args.Next()) {
     if (omni::ReadMapperArg(args, &m)) continue;
@@ -62,16 +63,15 @@ int main(int argc, char** argv) {
     }
     opt = *loaded;
   }
-  std::error_code ec;
-  std::filesystem::create_directories(out_dir, ec);
-  if (ec) {
-    std::fprintf(stderr, "odom_mapper: cannot create output folder '%s': %s\n", out_dir.c_str(),
-                 ec.message().c_str());
+  // The files write_maps writes (below), moved aside from a previous run.
+  const auto out_lock =
+      omni::io::ClaimOutputFolder(out_dir, "odom_mapper",
+                                  {"odom_map.pgm", "odom_map.yaml", "odom_map.png",
+                                   "odom_trajectory.txt", "odom_trajectory.png"});
+  if (!out_lock.ok()) {
+    std::fprintf(stderr, "odom_mapper: %s\n", out_lock.error().message.c_str());
     return 1;
   }
-  // The files write_maps writes (below), moved aside from a previous run.
-  omni::io::MovePreviousRunAside(out_dir, {"odom_map.pgm", "odom_map.yaml", "odom_map.png",
-                                           "odom_trajectory.txt", "odom_trajectory.png"});
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "odom_mapper: %s\n", bus_or.error().message.c_str());

@@ -3,7 +3,6 @@
 // writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt.
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <limits>
 #include <string>
 
@@ -21,20 +20,23 @@
 namespace {
 
 void Usage(std::FILE* f) {
-  std::fprintf(f,
-               "usage: rbpf_mapper [--config FILE] [--out DIR] [--url LCM_URL] [--idle-exit S]\n"
-               "                   [--seed N]\n"
-               "  RBPF SLAM on the bus: LIDAR_SCAN + WHEEL_ODOM (+ IMU with use_imu) ->\n"
-               "  POSE_RBPF at every scan, GRID_RBPF every grid_publish_interval_s, HEARTBEAT.\n"
-               "  On SIGINT/SIGTERM, when a file:// log ends, or S seconds after the last\n"
-               "  message, writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt (default out);\n"
-               "  while mapping, on a MAP_SAVE request (omni save-map) too.\n");
+  std::fprintf(
+      f,
+      "usage: rbpf_mapper [--config FILE] [--out DIR] [--url LCM_URL] [--idle-exit S]\n"
+      "                   [--seed N]\n"
+      "  RBPF SLAM on the bus: LIDAR_SCAN + WHEEL_ODOM (+ IMU with use_imu) ->\n"
+      "  POSE_RBPF at every scan, GRID_RBPF every grid_publish_interval_s, HEARTBEAT.\n"
+      "  On SIGINT/SIGTERM, when a file:// log ends, or S seconds after the last\n"
+      "  message, writes DIR/map.{pgm,yaml,png} and DIR/trajectory.txt (default\n"
+      "  out/rbpf); while mapping, on a MAP_SAVE request (omni save-map) too. DIR is this\n"
+      "  process's while it runs: another process writing it is refused.\n");
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   omni::MapperArgs m;
+  m.out = "out/rbpf";
   long long seed = -1;
   omni::ArgReader args(argc, argv, "rbpf_mapper", Usage);
   while (args.Next()) {
@@ -63,14 +65,12 @@ int main(int argc, char** argv) {
     opt = *loaded;
   }
   if (seed >= 0) opt.seed = static_cast<uint64_t>(seed);
-  std::error_code ec;
-  std::filesystem::create_directories(out_dir, ec);
-  if (ec) {
-    std::fprintf(stderr, "rbpf_mapper: cannot create output folder '%s': %s\n", out_dir.c_str(),
-                 ec.message().c_str());
+  const auto out_lock =
+      omni::io::ClaimOutputFolder(out_dir, "rbpf_mapper", omni::rbpf::RbpfNode::OutputFiles());
+  if (!out_lock.ok()) {
+    std::fprintf(stderr, "rbpf_mapper: %s\n", out_lock.error().message.c_str());
     return 1;
   }
-  omni::io::MovePreviousRunAside(out_dir, omni::rbpf::RbpfNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "rbpf_mapper: %s\n", bus_or.error().message.c_str());

@@ -29,8 +29,9 @@ void Usage(std::FILE* f) {
       "  On the bus: fuses the latest GRID_PG, GRID_RBPF and GRID_OCTO (config: grid_channels)\n"
       "  every fuse_interval_s when one changed, publishes GRID_FUSED and HEARTBEAT, and on\n"
       "  SIGINT/SIGTERM (or after S idle seconds) writes DIR/fused_map.{pgm,yaml,png} and\n"
-      "  DIR/fusion.json (alignment and vote counts per map); on a MAP_SAVE request (omni\n"
-      "  save-map) fuses and writes them while running.\n"
+      "  DIR/fusion.json (alignment and vote counts per map; default DIR: out/fusion); on a\n"
+      "  MAP_SAVE request (omni save-map) fuses and writes them while running. DIR is this\n"
+      "  process's while it runs: another process writing it is refused.\n"
       "  --fuse: the same on ROS map_server files (e.g. the mappers' map.yaml); --base N: the\n"
       "  N-th file (1-based) is the base, the others are aligned onto it (default: the first).\n");
 }
@@ -44,6 +45,7 @@ int Fail(const std::string& msg) {
 
 int main(int argc, char** argv) {
   omni::MapperArgs m;
+  m.out = "out/fusion";
   std::vector<std::string> files;
   bool offline = false;
   int base_index = 0;
@@ -76,6 +78,9 @@ int main(int argc, char** argv) {
   std::error_code ec;
   std::filesystem::create_directories(out_dir, ec);
   if (ec) return Fail("cannot create output folder '" + out_dir + "': " + ec.message());
+  // Held to the end, offline too: a fusion written into a running process's folder would mix.
+  const auto out_lock = omni::io::OutputFolderLock::Take(out_dir, "map_fusion");
+  if (!out_lock.ok()) return Fail(out_lock.error().message);
 
   if (offline) {
     if (files.size() < 2) {

@@ -65,7 +65,12 @@ int main(int argc, char** argv) {
     return 1;
   }
   if (!out_dir.empty()) opt->out_dir = out_dir;
-  omni::io::MovePreviousRunAside(opt->out_dir, omni::octo::OctomapNode::OutputFiles());
+  const auto out_lock = omni::io::ClaimOutputFolder(opt->out_dir, "octomap_builder",
+                                                    omni::octo::OctomapNode::OutputFiles());
+  if (!out_lock.ok()) {
+    std::fprintf(stderr, "octomap_builder: %s\n", out_lock.error().message.c_str());
+    return 1;
+  }
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "octomap_builder: %s\n", bus_or.error().message.c_str());

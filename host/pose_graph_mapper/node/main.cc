@@ -4,7 +4,6 @@
 // graph.g2o, stats.json}.
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <string>
 
 #include "omni/bus/bus.h"
@@ -28,7 +27,9 @@ void Usage(std::FILE* f) {
       "  TRAJECTORY_PG and GRID_PG at the intervals of the config's `node` section, HEARTBEAT.\n"
       "  On SIGINT/SIGTERM, when a file:// log ends, or S seconds after the last message,\n"
       "  writes DIR/trajectory.txt, map.{pgm,yaml,png}, map_trajectory.png, graph.g2o and\n"
-      "  stats.json (default DIR: out); while mapping, on a MAP_SAVE request (omni save-map) too.\n"
+      "  stats.json (default DIR: out/posegraph); while mapping, on a MAP_SAVE request (omni\n"
+      "  save-map) too. DIR is this process's while it runs: another process writing it is\n"
+      "  refused.\n"
       "  --config FILE   config/pose_graph_mapper.yaml form; default: built-in defaults\n");
 }
 
@@ -36,6 +37,7 @@ void Usage(std::FILE* f) {
 
 int main(int argc, char** argv) {
   omni::MapperArgs m;
+  m.out = "out/posegraph";
   omni::ArgReader args(argc, argv, "pose_graph_mapper", Usage);
   while (args.Next()) {
     if (omni::ReadMapperArg(args, &m)) continue;
@@ -58,14 +60,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", s.message().c_str());
     return 2;
   }
-  std::error_code ec;
-  std::filesystem::create_directories(out_dir, ec);
-  if (ec) {
-    std::fprintf(stderr, "pose_graph_mapper: cannot create output folder '%s': %s\n",
-                 out_dir.c_str(), ec.message().c_str());
+  const auto out_lock = omni::io::ClaimOutputFolder(out_dir, "pose_graph_mapper",
+                                                    omni::pgm::PoseGraphNode::OutputFiles());
+  if (!out_lock.ok()) {
+    std::fprintf(stderr, "pose_graph_mapper: %s\n", out_lock.error().message.c_str());
     return 1;
   }
-  omni::io::MovePreviousRunAside(out_dir, omni::pgm::PoseGraphNode::OutputFiles());
   auto bus_or = omni::bus::Bus::Create(url);
   if (!bus_or.ok()) {
     std::fprintf(stderr, "pose_graph_mapper: %s\n", bus_or.error().message.c_str());

@@ -9,6 +9,7 @@
 
 #include "../../unit/common/test_paths.h"
 #include "omni/io/lcm_log.h"
+#include "omni/io/previous_outputs.h"
 #include "run.h"
 
 namespace omni {
@@ -18,6 +19,28 @@ using testing::Bin;
 
 void Write(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;
+}
+
+// A mapper started on a folder another process is writing (a second copy beside the supervisor's,
+// or two mappers left on one folder) refuses to start, naming the holder, and leaves the
+// holder's files where they are; the mappers' default folders differ, so two started by hand
+// without --out do not meet.
+TEST(CliErrors, AMapperRefusesAFolderAnotherProcessWrites) {
+  const std::string dir = testing::TempDir();
+  Write(dir + "/map.pgm", "the running mapper's");
+  auto held = io::OutputFolderLock::Take(dir, "rbpf_mapper");
+  ASSERT_TRUE(held.ok()) << held.error().message;
+  for (const std::string bin :
+       {"rbpf_mapper", "pose_graph_mapper", "odom_mapper", "map_fusion", "octomap_builder"}) {
+    SCOPED_TRACE(bin);
+    const auto r = testing::Run(Bin(bin) + " --url memq:// --idle-exit 1 --out " + dir);
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_NE(r.output.find("is being written by rbpf_mapper (pid "), std::string::npos)
+        << r.output;
+  }
+  std::ifstream in(dir + "/map.pgm");
+  EXPECT_EQ(std::string((std::istreambuf_iterator<char>(in)), {}), "the running mapper's");
+  EXPECT_FALSE(std::filesystem::exists(dir + "/previous"));
 }
 
 // The omni script's lists of tools and benchmarks (what `./omni NAME` accepts) match what the

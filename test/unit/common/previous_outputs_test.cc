@@ -60,5 +60,38 @@ TEST(PreviousOutputs, BadNamesAndUnmovableFilesAreErrors) {
   EXPECT_EQ(Read(dir / "map.pgm"), "x");  // left where it was
 }
 
+// One folder, one process: a second claim is refused while the first holds it (naming the holder),
+// the refused one moves nothing aside, and the folder is free again once the holder lets go.
+TEST(OutputFolderLock, ASecondClaimIsRefusedUntilTheFirstLetsGo) {
+  const fs::path dir = omni::testing::TempDir();
+  Write(dir / "map.pgm", "the running mapper's");
+  auto first = ClaimOutputFolder((dir / "new").string(), "rbpf_mapper", {"map.pgm"});
+  ASSERT_TRUE(first.ok()) << first.error().message;  // the folder is made
+  EXPECT_TRUE(fs::is_directory(dir / "new"));
+  auto held = OutputFolderLock::Take(dir.string(), "rbpf_mapper");
+  ASSERT_TRUE(held.ok()) << held.error().message;
+  const auto second = ClaimOutputFolder(dir.string(), "pose_graph_mapper", {"map.pgm"});
+  ASSERT_FALSE(second.ok());
+  EXPECT_NE(second.error().message.find("is being written by rbpf_mapper (pid "), std::string::npos)
+      << second.error().message;
+  EXPECT_EQ(Read(dir / "map.pgm"), "the running mapper's");  // not moved aside
+  EXPECT_FALSE(fs::exists(dir / "previous"));
+  held->reset();  // the holder ends
+  const auto third = ClaimOutputFolder(dir.string(), "pose_graph_mapper", {"map.pgm"});
+  ASSERT_TRUE(third.ok()) << third.error().message;
+  EXPECT_EQ(Read(dir / "previous/1/map.pgm"), "the running mapper's");
+  EXPECT_NE(Read(dir / OutputFolderLock::kFileName).find("pose_graph_mapper (pid "),
+            std::string::npos);
+}
+
+TEST(OutputFolderLock, AFolderThatCannotBeMadeIsAnError) {
+  const fs::path dir = omni::testing::TempDir();
+  Write(dir / "file", "");
+  const auto r = ClaimOutputFolder((dir / "file/sub").string(), "odom_mapper", {"x"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("cannot create output folder"), std::string::npos)
+      << r.error().message;
+}
+
 }  // namespace
 }  // namespace omni::io

@@ -50,8 +50,8 @@ class ArgReader {
 // The options every mapper process takes (rbpf_mapper, pose_graph_mapper, odom_mapper,
 // map_fusion, octomap_builder): --config FILE, --out DIR, --url LCM_URL, --idle-exit S.
 struct MapperArgs {
-  std::string config, out = "out", url;
-  double idle_exit_s = 0;  // > 0: stop this long after the last message
+  std::string config, out = "out", url;  // each mapper sets its own --out default
+  double idle_exit_s = 0;                // > 0: stop this long after the last message
 };
 // True when the current argument is one of them (its value is read into *a).
 bool ReadMapperArg(ArgReader& args, MapperArgs* a);
