@@ -16,9 +16,17 @@ namespace fwcan = omni::firmware::can;
 namespace {
 constexpr int64_t kEstopRepeatUs = 100000;
 // The parameters whose values the bridge's odometry depends on, checked at connect.
-constexpr uint16_t kGeometryParams[] = {firmware::kParamAlpha, firmware::kParamCenterToWheel,
-                                        firmware::kParamWheelRadius, firmware::kParamTicksPerRev,
-                                        firmware::kParamFeedbackPeriodMs};
+// The heartbeat period and watchdog are checked with them: a firmware beating slower than the
+// config says looked silent and "returned" at every beat (each return re-bases the encoders,
+// dropping a feedback period of motion), and a watchdog shorter than two of the bridge's send
+// periods stopped the base between commands.
+constexpr uint16_t kGeometryParams[] = {firmware::kParamAlpha,
+                                        firmware::kParamCenterToWheel,
+                                        firmware::kParamWheelRadius,
+                                        firmware::kParamTicksPerRev,
+                                        firmware::kParamFeedbackPeriodMs,
+                                        firmware::kParamHeartbeatPeriodMs,
+                                        firmware::kParamWatchdogMs};
 constexpr uint32_t kAllGeometryBits = (1u << std::size(kGeometryParams)) - 1;
 uint32_t GeometryBit(uint16_t id) {
   for (size_t i = 0; i < std::size(kGeometryParams); ++i)
@@ -32,7 +40,23 @@ BaseBridge::BaseBridge(const BaseBridgeOptions& options)
       geom_{options.alpha_rad, options.center_to_wheel_m, options.wheel_radius_m},
       node_(static_cast<uint8_t>(options.node_id)) {}
 
+void BaseBridge::FollowClock(int64_t now_us) {
+  if (clock_us_ != 0 && now_us < clock_us_) {
+    // The wall clock set back (NTP, by hand): every time kept moves back by the step, so what is
+    // measured across it (the firmware's silence, a command's age, the send period) stays what it
+    // was. Before, a firmware silent before the step looked alive for the length of the step.
+    const int64_t step = clock_us_ - now_us;
+    for (int64_t* t : {&cmd_us_, &last_estop_us_, &last_send_us_, &last_enc_us_, &last_hb_us_,
+                       &link_down_since_us_, &geometry_query_us_}) {
+      if (*t != 0) *t -= step;
+    }
+    ++counters_.clock_steps_back;
+  }
+  clock_us_ = now_us;
+}
+
 void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
+  FollowClock(now_us);
   ++counters_.commands_in;
   switch (cmd.mode) {
     case Command::kEstop:
@@ -42,6 +66,12 @@ void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
       sent_ = {};
       return;
     case Command::kClearFaults:
+      // Not kept for the link's return: sent minutes later, it would clear whatever the firmware
+      // latched meanwhile (an over-current, another ESTOP) under a commander still streaming.
+      if (!link_up_) {
+        ++counters_.clears_refused;
+        return;
+      }
       pending_clear_ = true;
       estop_latched_ = false;
       return;
@@ -77,6 +107,7 @@ void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
 }
 
 void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
+  FollowClock(now_us);
   last_tick_us_ = now_us;
   if (!link_up_) return;
   const bool fw_in_estop = have_hb_ && fw_state_ == static_cast<int8_t>(firmware::State::kEstop);
@@ -107,8 +138,11 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   }
   const int64_t period_us = static_cast<int64_t>(1e6 / o_.send_rate_hz);
   if (!PeriodDue(now_us, last_send_us_, period_us)) return;
-  // The clock set back: the step is not a period of motion.
-  int64_t dt_us = last_send_us_ == 0 || now_us < last_send_us_ ? period_us : now_us - last_send_us_;
+  const bool at_rest = sent_.vx_m_s == 0 && sent_.vy_m_s == 0 && sent_.omega_rad_s == 0;
+  // The clock set back: the step is not a period of motion. From rest (quiet since the last
+  // stop), the first step is one period's, not up to five periods' worth of acceleration.
+  int64_t dt_us =
+      last_send_us_ == 0 || now_us < last_send_us_ || at_rest ? period_us : now_us - last_send_us_;
   dt_us = std::min<int64_t>(dt_us, 5 * period_us);
   // The clock set back past the command's stamp: its age restarts from now, so it lives at most
   // one more timeout (never the length of the step).
@@ -122,7 +156,6 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   const bool fresh = have_cmd_;
   kinematics::BodyTwist<double> target;
   if (fresh) target = {cmd_.vx_m_s, cmd_.vy_m_s, cmd_.omega_rad_s};
-  const bool at_rest = sent_.vx_m_s == 0 && sent_.vy_m_s == 0 && sent_.omega_rad_s == 0;
   if (!fresh && at_rest) {
     // Nothing to say: the firmware's watchdog parks the base (motors off) after its timeout.
     sending_ = false;
@@ -148,6 +181,7 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
 }
 
 void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
+  FollowClock(now_us);
   if (fwcan::NodeOf(f.id) != node_) return;  // another node on the bus
   ++counters_.frames_in;
   bool ok = true;
@@ -165,6 +199,12 @@ void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
       have_hb_ = true;
       last_hb_us_ = now_us;
       fw_state_ = static_cast<int8_t>(hb.state);
+      // A base stopped by its firmware (fault, ESTOP, its watchdog) starts again from rest: the
+      // ramp must not resume from the speed last sent, up to the limit at once.
+      if (hb.state == static_cast<uint8_t>(firmware::State::kFault) ||
+          hb.state == static_cast<uint8_t>(firmware::State::kEstop) ||
+          hb.state == static_cast<uint8_t>(firmware::State::kStopping))
+        sent_ = {};
       fw_faults_ = hb.fault_bits;
       bus_voltage_ = hb.bus_voltage_v;
       break;
@@ -255,6 +295,13 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
       ours = o_.feedback_period_s * 1000.0;
       what = "feedback_period";
       break;
+    case firmware::kParamHeartbeatPeriodMs:
+      ours = o_.firmware_heartbeat_period_s * 1000.0;
+      what = "heartbeat_period (timing.firmware_heartbeat_period_s, ms)";
+      break;
+    case firmware::kParamWatchdogMs:
+      what = "watchdog_ms";
+      break;
     default:
       return;
   }
@@ -263,9 +310,20 @@ void BaseBridge::HandleParamReply(const firmware::can::ParamReply& r) {
   geometry_answered_ |= GeometryBit(r.id);
   geometry_checked_ = geometry_answered_ == kAllGeometryBits;
   if (r.result != fwcan::kParamOk) return;
-  if (std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours))) {
+  // The watchdog is not ours to match, only to leave room for: two send periods at least.
+  const double send_period_ms = 1000.0 / o_.send_rate_hz;
+  const bool differs = r.id == firmware::kParamWatchdogMs
+                           ? r.value < 2.0 * send_period_ms
+                           : std::fabs(r.value - ours) > 1e-4 * std::max(1.0, std::fabs(ours));
+  if (differs) {
     std::ostringstream s;
-    s << "firmware " << what << " = " << r.value << " but config says " << ours;
+    if (r.id == firmware::kParamWatchdogMs) {
+      s << "firmware watchdog_ms = " << r.value << " is under two send periods ("
+        << 2.0 * send_period_ms << " ms at timing.send_rate_hz " << o_.send_rate_hz
+        << "): the base stops between commands";
+    } else {
+      s << "firmware " << what << " = " << r.value << " but config says " << ours;
+    }
     auto [it, added] = mismatches_.insert_or_assign(r.id, s.str());
     (void)it;
     if (added) ++counters_.geometry_mismatches;  // counted once per parameter going wrong
@@ -287,6 +345,7 @@ void BaseBridge::FirmwareReturned() {
   have_enc_ = false;
   geometry_checked_ = false;
   geometry_answered_ = 0;
+  sent_ = {};  // a board that restarted is at rest: ramp up from there
 }
 
 void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t now_us) {
@@ -295,7 +354,10 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
   // board up for more than 2^15 feedback periods restarts with a sequence that looks "ahead").
   const int64_t gap_us =
       std::max<int64_t>(SilenceUs(), static_cast<int64_t>(3.0 * o_.feedback_period_s * 1e6));
-  if (have_enc_ && now_us - last_enc_us_ > gap_us) have_enc_ = false;
+  if (have_enc_ && now_us - last_enc_us_ > gap_us) {
+    have_enc_ = false;
+    mcu_time_us_ += now_us - last_enc_us_;  // the silence, by our clock (its periods are unknown)
+  }
   last_enc_us_ = now_us;
   if (have_enc_) {
     const int32_t d = fwcan::FeedbackSeqStep(last_enc_seq_, e.seq);
@@ -306,8 +368,10 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
       ++counters_.firmware_restarts_seen;
       // As after a silence: its parameters may be others now (set, not saved, before the reset).
       FirmwareReturned();
-    } else if (d > 1) {
-      counters_.feedback_frames_lost += d - 1;  // positions are absolute: odometry survives
+      mcu_time_us_ = 0;
+    } else {
+      if (d > 1) counters_.feedback_frames_lost += d - 1;  // positions are absolute: no loss
+      mcu_time_us_ += d * std::llround(o_.feedback_period_s * 1e6);
     }
   }
   if (!have_enc_) {
@@ -346,7 +410,7 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
   odom_new_ = true;
   enc_.utime = now_us;
   enc_.seq = e.seq;
-  enc_.mcu_time_us = static_cast<int64_t>(std::llround(odom_.seq * o_.feedback_period_s * 1e6));
+  enc_.mcu_time_us = mcu_time_us_;
   for (int w = 0; w < 3; ++w) {
     enc_.position_ticks[w] = ticks_[w];
     enc_.velocity_rad_s[w] = speed_[w];
@@ -356,6 +420,7 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
 }
 
 void BaseBridge::OnLinkDown(int64_t now_us) {
+  FollowClock(now_us);
   if (!link_up_) return;
   link_up_ = false;
   link_down_since_us_ = now_us;
@@ -365,10 +430,11 @@ void BaseBridge::OnLinkDown(int64_t now_us) {
   sending_ = false;
   sent_ = {};
   last_send_us_ = 0;
+  pending_clear_ = false;  // as one asked while down: not sent when the link is back
 }
 
 void BaseBridge::OnLinkUp(int64_t now_us) {
-  (void)now_us;
+  FollowClock(now_us);
   if (link_up_) return;
   link_up_ = true;
   ++counters_.reconnects;

@@ -65,6 +65,8 @@ BaseBridgeNode::BaseBridgeNode(const BaseBridgeOptions& options, bus::Bus* bus, 
   heartbeat_.AddCounter("fw_watchdog_trips", [c] { return c->firmware_watchdog_trips; });
   heartbeat_.AddCounter("fw_commands_limited", [c] { return c->firmware_commands_limited; });
   heartbeat_.AddCounter("fw_rx_overruns", [c] { return c->firmware_rx_overruns; });
+  heartbeat_.AddCounter("clock_steps_back", [c] { return c->clock_steps_back; });
+  heartbeat_.AddCounter("clears_refused", [c] { return c->clears_refused; });
   heartbeat_.AddCounter("can_tx_errors", [this] { return tx_errors_; });
   heartbeat_.AddCounter("can_rx_overruns",
                         [this] { return can_ ? can_->stats().rx_overruns : int64_t{0}; });

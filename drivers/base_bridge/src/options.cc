@@ -32,7 +32,7 @@ Result<BaseBridgeOptions> Load(Result<ConfigReader> reader) {
   t.Get("firmware_heartbeat_period_s", &o.firmware_heartbeat_period_s, Optional(),
         InRange(0.01, 5.0));
   t.Get("missed_heartbeats_for_silent", &o.missed_heartbeats_for_silent, Optional(),
-        InRange(1, 100));
+        InRange(2, 100));
   t.Get("reconnect_period_s", &o.reconnect_period_s, Optional(), InRange(0.01, 60.0));
   t.Get("status_rate_hz", &o.status_rate_hz, Optional(), InRange(0.1, 100.0));
   ConfigReader c = r.Section("odometry");

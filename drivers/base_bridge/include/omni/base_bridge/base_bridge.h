@@ -129,6 +129,8 @@ struct Counters {
   int64_t firmware_watchdog_trips = 0;  // from the firmware's second diagnostics frame
   int64_t firmware_commands_limited = 0;
   int64_t firmware_rx_overruns = 0;
+  int64_t clock_steps_back = 0;  // the wall clock went back: the bridge's own times followed it
+  int64_t clears_refused = 0;  // CLEAR_FAULTS asked while the CAN link was down: not kept for later
 };
 
 class BaseBridge {
@@ -206,6 +208,11 @@ class BaseBridge {
   bool geometry_checked_ = false;   // every geometry parameter has answered once
   uint32_t geometry_answered_ = 0;  // which have (bits in kGeometryParams' order)
   void FirmwareReturned();
+  void FollowClock(int64_t now_us);  // every entry point first: a clock set back shifts our times
+  int64_t clock_us_ = 0;             // the latest time seen
+  // The firmware's time at the latest feedback: its feedback periods counted by their numbers
+  // (lost frames included), a silence by its length here, from 0 at a restart seen.
+  int64_t mcu_time_us_ = 0;
   int64_t SilenceUs() const;  // missed_heartbeats_for_silent heartbeat periods
   int64_t geometry_query_us_ = 0;
   std::string last_mismatch_;  // the first of mismatches_, "" when all agree
