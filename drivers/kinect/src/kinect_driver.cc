@@ -155,7 +155,14 @@ void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
     return Seconds(options_.data_timeout_s) +
            (last_bad_frame_.empty() ? "" : " (last frame skipped: " + last_bad_frame_ + ")");
   };
-  if (out->has_color) ++counters_.color_frames;
+  if (out->has_color) {
+    ++counters_.color_frames;
+    color_since_us_ = now;
+    if (color_stalled_) {
+      LOG_INFO << "colour frames from " << source_->Describe() << " again";
+    }
+    color_stalled_ = false;
+  }
   if (out->has_depth) {
     ++counters_.depth_frames;
     counters_.dropped_frames += gaps_.Add(out->depth.frame_index, out->depth.device_timestamp_us);
@@ -165,6 +172,8 @@ void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
       if (ever_streamed_) ++counters_.reconnects;
       ever_streamed_ = true;
       state_ = KinectState::kStreaming;
+      color_since_us_ = now;
+      color_stalled_ = false;
       status_ = "streaming from " + source_->Describe();
       if (!warning_.empty()) status_ += "; " + warning_;
       LOG_INFO << status_;
@@ -174,6 +183,19 @@ void KinectDriver::Step(int timeout_ms, SourceFrames* out) {
   } else if (state_ == KinectState::kStreaming && now - last_data_us_ > limit) {
     Lose("no depth frame from " + source_->Describe() + " for " + silent_for());
   }
+  if (state_ == KinectState::kStreaming && options_.color && warning_.empty() && !color_stalled_ &&
+      now - color_since_us_ > limit) {
+    color_stalled_ = true;
+    ++counters_.color_stalls;
+    LOG_WARN << ColorProblem();
+  }
+}
+
+std::string KinectDriver::ColorProblem() const {
+  if (!color_stalled_ || state_ != KinectState::kStreaming) return "";
+  return "no colour frame from " + source_->Describe() + " for over " +
+         Seconds(options_.data_timeout_s) +
+         " while depth streams: the 3D map goes on without colour";
 }
 
 void KinectDriver::Shutdown() {

@@ -70,6 +70,7 @@ KinectNode::KinectNode(bus::Bus* bus, KinectDriver* driver, KinectNodeOptions op
   heartbeat_.AddCounter("reconnects", [d] { return d->counters().reconnects; });
   heartbeat_.AddCounter("connect_failures", [d] { return d->counters().connect_failures; });
   heartbeat_.AddCounter("device_errors", [d] { return d->counters().device_errors; });
+  heartbeat_.AddCounter("color_stalls", [d] { return d->counters().color_stalls; });
 }
 
 void KinectNode::RunOnce(int timeout_ms) {
@@ -94,12 +95,16 @@ void KinectNode::RunOnce(int timeout_ms) {
     ++color_seq_;
   }
   switch (driver_->state()) {
-    case KinectState::kStreaming:
-      // A warning (colour off although configured) is a degraded stream, not a healthy one.
-      heartbeat_.SetState(driver_->warning().empty() ? omni::heartbeat_t::STATE_OK
-                                                     : omni::heartbeat_t::STATE_DEGRADED,
-                          driver_->status_text());
+    case KinectState::kStreaming: {
+      // A warning (colour off although configured) or colour that stopped is a degraded stream,
+      // not a healthy one.
+      const std::string colour = driver_->ColorProblem();
+      heartbeat_.SetState(
+          driver_->warning().empty() && colour.empty() ? omni::heartbeat_t::STATE_OK
+                                                       : omni::heartbeat_t::STATE_DEGRADED,
+          colour.empty() ? driver_->status_text() : driver_->status_text() + "; " + colour);
       break;
+    }
     case KinectState::kOpening:
       // Starting while the first open since start-up waits for its first frame; once an
       // opening has failed or the device has streamed before, this is a device not streaming.

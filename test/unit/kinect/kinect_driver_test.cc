@@ -479,6 +479,41 @@ TEST(KinectNode, ColourOffIsDegradedNotOk) {
   EXPECT_EQ(r.depth.size(), 1u);
 }
 
+// Colour that stops while depth goes on (a stalled colour endpoint): the heartbeat goes
+// DEGRADED saying so, once past the data timeout, and OK again when colour comes back. Before,
+// it said OK while the 3D map was built without colour.
+TEST(KinectNode, ColourThatStopsWhileDepthGoesOnIsDegraded) {
+  Recorder r;
+  Script s;
+  ManualClock wall(1000000000), mono(1000000);
+  KinectDriver d({}, std::make_unique<FakeSource>(&s), Mono(mono));
+  ASSERT_TRUE(d.Connect().ok());
+  KinectNode node(r.bus.get(), &d, {}, &wall);
+  int64_t index = 0;
+  auto run = [&](bool colour, int frames) {
+    for (int k = 0; k < frames; ++k) {
+      s.reads.push_back(Depth(++index));
+      if (colour) s.reads.push_back(kColorStep);
+      while (!s.reads.empty()) node.RunOnce(0);
+      mono.Advance(33333);
+      wall.Advance(33333);
+    }
+    r.Drain();
+    ASSERT_FALSE(r.beats.empty());
+  };
+  run(true, 45);
+  EXPECT_EQ(r.beats.back().state, omni::heartbeat_t::STATE_OK) << r.beats.back().status_text;
+  run(false, 90);  // 3 s, past the 2 s data timeout
+  EXPECT_EQ(r.beats.back().state, omni::heartbeat_t::STATE_DEGRADED);
+  EXPECT_NE(r.beats.back().status_text.find("no colour frame"), std::string::npos)
+      << r.beats.back().status_text;
+  EXPECT_EQ(Counter(r.beats.back(), "color_stalls"), 1);
+  EXPECT_EQ(d.state(), KinectState::kStreaming) << "depth goes on: no reconnect";
+  run(true, 45);
+  EXPECT_EQ(r.beats.back().state, omni::heartbeat_t::STATE_OK) << r.beats.back().status_text;
+  EXPECT_EQ(Counter(r.beats.back(), "color_stalls"), 1);
+}
+
 TEST(KinectNode, PublishesDepthColourAndHeartbeat) {
   Recorder r;
   Script s;

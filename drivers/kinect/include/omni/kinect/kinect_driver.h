@@ -60,6 +60,7 @@ struct KinectCounters {
   int64_t reconnects = 0;        // first depth frames after a loss (the device streams again)
   int64_t connect_failures = 0;  // open attempts that failed, or gave no depth frame in time
   int64_t device_errors = 0;     // read errors and data timeouts that lost a streaming device
+  int64_t color_stalls = 0;      // colour stopped for data_timeout_s while depth went on
 };
 
 // kOpening: the source opened but has not sent a depth frame yet. Some devices open and then
@@ -107,6 +108,10 @@ class KinectDriver {
   const std::string& warning() const { return warning_; }
   // Whether any depth frame has arrived since the process started.
   bool ever_streamed() const { return ever_streamed_; }
+  // While streaming with colour on (and opened): why colour is missing ("" while it comes). A
+  // colour endpoint can stall while depth goes on (a Kinect v1 on some USB controllers); the
+  // 3D map is then built without colour, which the heartbeat must say.
+  std::string ColorProblem() const;
   const KinectCounters& counters() const { return counters_; }
   const KinectDriverOptions& options() const { return options_; }
 
@@ -125,8 +130,10 @@ class KinectDriver {
   KinectCounters counters_;
   GapCounter gaps_;
   bool ever_streamed_ = false;
-  int64_t opened_us_ = 0;        // monotonic
-  int64_t last_data_us_ = 0;     // monotonic
+  int64_t opened_us_ = 0;       // monotonic
+  int64_t last_data_us_ = 0;    // monotonic
+  int64_t color_since_us_ = 0;  // monotonic: the last colour frame, or when streaming began
+  bool color_stalled_ = false;
   int64_t next_attempt_us_ = 0;  // monotonic
 };
 
