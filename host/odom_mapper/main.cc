@@ -147,8 +147,8 @@ int main(int argc, char** argv) {
   const omni::bus::LoopEnd end = omni::bus::RunNodeLoop(
       bus, loop, [] { return 0; },
       [&] {
-        health.Report(clock.NowUtime(), c.scans_in, c.scans_no_pose, &hb,
-                      "mapping at raw odometry");
+        health.Report(clock.NowUtime(), c.scans_in, c.scans_no_pose,
+                      c.scans_too_few_beams + c.scans_bad_geometry, &hb, "mapping at raw odometry");
         hb.Tick();
         saver.Serve([&](const std::string& dir) {
           const auto map = mapper.Map();

@@ -91,7 +91,7 @@ bool OdomMapper::AddScan(const Scan& scan) {
     const float r = scan.ranges_m[i];
     if (std::isfinite(r) && r > 0.f && r >= scan.range_min_m) {
       ranges[i] = r;
-      if (r < scan.range_max_m) ++valid;
+      if (r < ScanRangeLimit(scan.range_max_m)) ++valid;
     } else if (std::isfinite(r) && r > 0.f) {
       ranges[i] = std::nanf("");  // below range_min: no return, as the SLAM mappers take it
     } else {

@@ -221,7 +221,7 @@ int main(int argc, char** argv) {
     s.scan_time_s = in.scan_time_s;
     s.odom = in.odom;
     const omni::rbpf::ScanResult r = slam.AddScan(s);
-    if (r.accepted)
+    if (r.accepted && r.in_map_frame)  // as POSE_RBPF: none before the map frame exists
       live.push_back(omni::io::MakeEntry2D(r.scan_index, omni::UtimeToSeconds(s.utime), r.pose));
     report(r);
     return !(max_scans >= 0 && ++scans >= max_scans);

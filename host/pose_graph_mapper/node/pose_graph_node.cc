@@ -343,8 +343,9 @@ void PoseGraphNode::PublishTrajectory() {
 
 void PoseGraphNode::Tick() {
   const int64_t now = clock_->NowUtime();
-  health_.Report(now, slam_.counters().scans_in, slam_.counters().scans_no_odom, &heartbeat_,
-                 "mapping");
+  const auto& c = slam_.counters();
+  health_.Report(now, c.scans_in, c.scans_no_odom, c.scans_too_few_beams + c.scans_bad_geometry,
+                 &heartbeat_, "mapping");
   heartbeat_.Tick();
   const int64_t used = slam_.counters().scans_used;
   auto due = [&](double interval_s, int64_t last_wall, int64_t used_then, int64_t interval_us) {

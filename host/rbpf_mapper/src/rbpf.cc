@@ -272,6 +272,7 @@ void RbpfSlam::Reset(const RbpfOptions& o) {
   master_rng_.seed(o.seed);
   counters_ = RbpfCounters{};
   odom_buffer_ = StampedBuffer<Pose2>(100000);
+  covered_odom_utime_ = 0;
   imu_.Reset();
   imu_bias_ = StillGyroBias(o.imu_bias_learning, o.imu_bias_rad_s);
   records_.clear();
@@ -337,6 +338,11 @@ ScanResult RbpfSlam::MaybeDecide(const ScanResult& r, bool force) {
 }
 
 bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
+  if (!StampInRange(utime)) {  // corrupt: the interpolation bracketing it would overflow
+    ++counters_.odom_in;
+    ++counters_.odom_invalid;
+    return false;
+  }
   if (!choice_.decided) {
     // Odometry with no scans (or scans that never move) must not grow the held inputs forever.
     if (prelude_.size() >= kMaxPreludeEvents)
@@ -350,11 +356,16 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
     return false;
   }
   const int64_t rebases = odom_buffer_.rebases();
+  const int64_t newest_before = odom_buffer_.newest_utime();
+  const bool had_odom = !odom_buffer_.empty();
   if (!odom_buffer_.Insert(utime, p)) {
     ++counters_.odom_out_of_order;
     return false;
   }
   counters_.time_rebases += odom_buffer_.rebases() - rebases;
+  const int64_t newest = odom_buffer_.newest_utime();
+  if (newest < newest_before || !had_odom || newest - newest_before <= kMaxOdomSpanUs)
+    covered_odom_utime_ = newest;  // (a re-based run, the first sample, or one in step)
   if (opt_.use_imu) {
     // (A re-based, older sample also restarts the estimator's still stretch.)
     imu_bias_.AddOdometry(utime, p, [this](int64_t a, int64_t b) { return ImuRawIncrement(a, b); });
@@ -366,6 +377,11 @@ bool RbpfSlam::AddOdometry(int64_t utime, const Pose2& p) {
 }
 
 bool RbpfSlam::AddImuYawRate(int64_t utime, double rate) {
+  if (!StampInRange(utime)) {
+    ++counters_.imu_in;
+    ++counters_.imu_invalid;
+    return false;
+  }
   if (!choice_.decided) {
     if (prelude_.size() >= kMaxPreludeEvents)
       (void)MaybeDecide(ScanResult{}, /*force=*/true);
@@ -441,6 +457,15 @@ Pose2 RbpfSlam::CalibratedStep(const Pose2& raw) const {
 }
 
 ScanResult RbpfSlam::AddScan(const ScanInput& scan) {
+  if (!StampInRange(scan.utime)) {
+    // Corrupt (beyond +-2^61 us): no odometry can be stamped there, and the time arithmetic on
+    // it (its last beam's stamp, its distance to the odometry) would overflow.
+    ++counters_.scans_in;
+    ++counters_.scans_no_odom;
+    ScanResult res;
+    res.scan_index = next_scan_index_++;
+    return res;
+  }
   if (choice_.decided) return AddScanImpl(scan);
   prelude_.emplace_back(scan);
   ++prelude_scans_;
@@ -484,9 +509,10 @@ ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
   }
   if (process) {
     int valid = 0;
+    const float range_max = ScanRangeLimit(scan.range_max_m);
     for (float r : scan.ranges_m) {
       if (std::isfinite(r) && r > 0.f && r >= scan.range_min_m) {
-        if (r < scan.range_max_m && r < opt_.max_range_m) ++valid;
+        if (r < range_max && r < opt_.max_range_m) ++valid;
       } else {
         ++counters_.invalid_beams;  // NaN, inf, <= 0 or below range_min
       }
@@ -508,6 +534,7 @@ ScanResult RbpfSlam::AddScanImpl(const ScanInput& scan) {
     res.pose =
         have_update_ ? ReportedPose() * CalibratedStep(last_update_odom_.Between(*odom)) : *odom;
   }
+  res.in_map_frame = have_update_;
   return res;
 }
 
@@ -536,6 +563,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, bool first) {
   }
   const Pose2 sensor_inv = scan.sensor_in_base.Inverse();
   const double last_beam = static_cast<double>(scan.ranges_m.size() - 1);
+  const float range_max = ScanRangeLimit(scan.range_max_m);
   for (size_t i = 0; i < scan.ranges_m.size(); ++i) {
     const float r = scan.ranges_m[i];
     const double a = static_cast<double>(scan.angle_min_rad) +
@@ -543,7 +571,7 @@ void RbpfSlam::Update(const ScanInput& scan, const Pose2& odom, bool first) {
     const bool finite = std::isfinite(r) && r > 0.f && r >= scan.range_min_m;
     double range = 0;
     bool is_hit = false;
-    if (finite && r < scan.range_max_m && r < opt_.max_range_m) {
+    if (finite && r < range_max && r < opt_.max_range_m) {
       range = std::min<double>(r, max_hit);
       is_hit = r <= max_hit;
     } else if (opt_.max_free_range_m > 0 && (finite || std::isnan(r) || (std::isinf(r) && r > 0))) {

@@ -7,6 +7,7 @@
 
 #include "omni/bus/convert.h"
 #include "omni/common/log.h"
+#include "omni/common/scan_checks.h"
 #include "omni/heartbeat_t.hpp"
 #include "omni/imu_t.hpp"
 #include "omni/io/grid.h"
@@ -41,8 +42,9 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
     if (!slam_.AddOdometry(m.utime, odom_restarts_.Take(m.seq, Pose2(m.x_m, m.y_m, m.yaw_rad)))) {
       ++bus_->counters().drops;
     } else {
-      // The buffer's newest, which moves back when a future-stamped sample is dropped.
-      newest_odom_utime_ = slam_.newest_odom_utime();
+      // How far the odometry covers scans: not to a lone sample stamped far ahead (it moves
+      // back when such a sample is dropped).
+      newest_odom_utime_ = slam_.covered_odom_utime();
     }
     AttachOdometry();
     if (!deferred_) Drain(false, INT32_MAX);
@@ -118,6 +120,7 @@ RbpfNode::RbpfNode(bus::Bus* bus, const RbpfOptions& options, const Clock* clock
   // Poses in the last TRAJECTORY_RBPF (thinned, see bus::ThinTrajectoryMessage).
   heartbeat_.AddCounter("trajectory_poses", [this] { return last_trajectory_poses_; });
   heartbeat_.AddCounter("poses_published", [this] { return poses_published_; });
+  heartbeat_.AddCounter("poses_before_map", [this] { return poses_before_map_; });
   heartbeat_.AddCounter("scans_queued", [this] { return static_cast<int64_t>(pending_.size()); });
   heartbeat_.AddCounter("max_scans_queued", [this] { return max_pending_seen_; });
   heartbeat_.SetState(omni::heartbeat_t::STATE_OK, "waiting for scans");
@@ -131,6 +134,12 @@ void RbpfNode::OnScan(const ScanInput& scan, int64_t seq) {
   }
   last_scan_utime_ = scan.utime;
   seq_gaps_.Add(seq);
+  if (!StampInRange(scan.utime)) {
+    // Corrupt: straight to the filter, which refuses and counts it; queued, the wait for its
+    // odometry would overflow.
+    Process(scan);
+    return;
+  }
   // A scan older than the newest is held: alone it is a late scan and is given up; five in
   // order re-base the stream and are all mapped.
   const auto rebase = [this, &scan](int64_t) {
@@ -219,6 +228,13 @@ void RbpfNode::Process(const ScanInput& scan) {
     ++bus_->counters().drops;
     return;
   }
+  if (!r.in_map_frame) {
+    // Before the first filter update (the first scans had too few returns) the pose is the raw
+    // odometry: published as "map" it sat where the odometry said, 12 m from the map's origin
+    // after a drive, and the trajectory then put the same scans near the origin.
+    ++poses_before_map_;
+    return;
+  }
   omni::pose2d_t p{};
   p.utime = scan.utime;
   p.seq = pose_seq_++;
@@ -292,8 +308,9 @@ void RbpfNode::PublishTrajectory() {
 
 void RbpfNode::Tick() {
   const int64_t now = clock_->NowUtime();
-  health_.Report(now, slam_.counters().scans_in, slam_.counters().scans_no_odom, &heartbeat_,
-                 "mapping");
+  const RbpfCounters& c = slam_.counters();
+  health_.Report(now, c.scans_in, c.scans_no_odom, c.scans_too_few_beams + c.scans_bad_geometry,
+                 &heartbeat_, "mapping");
   heartbeat_.Tick();
   if (slam_.counters().scans_processed > 0 &&
       PeriodDue(now, last_grid_utime_, static_cast<int64_t>(opt_.grid_publish_interval_s * 1e6))) {

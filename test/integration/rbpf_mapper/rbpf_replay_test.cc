@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -18,6 +19,7 @@
 #include "omni/common/time.h"
 #include "omni/eval/eval.h"
 #include "omni/heartbeat_t.hpp"
+#include "omni/imu_t.hpp"
 #include "omni/io/carmen.h"
 #include "omni/io/grid.h"
 #include "omni/io/lcm_log.h"
@@ -423,7 +425,7 @@ TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
     }
   });
   int64_t seq = 0;
-  auto step = [&](bool with_odom) {
+  auto step = [&](bool with_odom, bool covered = false, float range_max_m = 30.f) {
     clock.Advance(100000);
     const int64_t t = clock.NowUtime();
     if (with_odom) {
@@ -439,8 +441,9 @@ TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
     s.angle_min_rad = -1.5f;
     s.angle_increment_rad = 0.01f;
     s.range_min_m = 0.1f;
-    s.range_max_m = 30.f;
-    for (int i = 0; i < 300; ++i) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * i));
+    s.range_max_m = range_max_m;
+    for (int i = 0; i < 300; ++i)
+      s.ranges_m.push_back(covered ? NAN : 2.f + 0.5f * std::sin(0.05f * i));
     s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
     b.Publish("LIDAR_SCAN", s);
     while (b.HandleTimeout(0) > 0) {
@@ -457,6 +460,128 @@ TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
   for (int i = 0; i < 120; ++i) step(true);
   EXPECT_EQ(state, omni::heartbeat_t::STATE_OK) << text;
   EXPECT_GT(processed, 0);
+  // The lidar covered (every return NaN) while the base drives: nothing can be mapped, and the
+  // heartbeat says so (it said OK "mapping" while every scan had too few beams).
+  const int64_t processed_before = node.slam().counters().scans_processed;
+  for (int i = 0; i < 120; ++i) step(true, /*covered=*/true);
+  EXPECT_EQ(node.slam().counters().scans_processed, processed_before);
+  EXPECT_EQ(state, omni::heartbeat_t::STATE_DEGRADED) << text;
+  EXPECT_NE(text.find("too few valid beams"), std::string::npos) << text;
+  // A driver that gives range_max 0 (no limit, as the pose-graph mapper and odom_mapper read
+  // it): mapped, not refused as having no valid beam.
+  for (int i = 0; i < 120; ++i) step(true, false, /*range_max_m=*/0.f);
+  EXPECT_GT(node.slam().counters().scans_processed, processed_before);
+  EXPECT_EQ(state, omni::heartbeat_t::STATE_OK) << text;
+}
+
+// One odometry sample stamped an hour ahead among good ones at 20 Hz: the scans stamped while it
+// is the newest wait for the samples that bracket them (it is dropped once five good ones
+// re-base the stream) and are placed as without it. Before, they took the last good sample as
+// their odometry (the bracket to the future sample is a gap) and were mapped at once, up to
+// 0.25 s of motion off.
+TEST(RbpfMapperNode, AnOdometrySampleStampedAheadDoesNotPlaceTheScansBeforeIt) {
+  auto run = [](bool glitch) {
+    auto bus_or = bus::Bus::Create("memq://");
+    EXPECT_TRUE(bus_or.ok());
+    auto& b = **bus_or;
+    rbpf::RbpfOptions opt;
+    opt.particles = 4;
+    opt.threads = 1;
+    ManualClock clock(1000000);
+    rbpf::RbpfNode node(&b, opt, &clock);
+    std::vector<omni::pose2d_t> poses;
+    b.Subscribe<omni::pose2d_t>("POSE_RBPF",
+                                [&](const omni::pose2d_t& m, int64_t) { poses.push_back(m); });
+    for (int k = 1; k <= 120; ++k) {
+      clock.Advance(50000);
+      const int64_t t = clock.NowUtime();
+      omni::odometry_t o{};
+      o.utime = t;
+      o.seq = k;
+      o.x_m = 0.04 * k;  // 0.8 m/s
+      o.yaw_rad = 0.01 * k;
+      b.Publish("WHEEL_ODOM", o);
+      if (glitch && k == 60) {
+        o.utime = t + 3600LL * 1000000;
+        o.x_m += 0.04;
+        b.Publish("WHEEL_ODOM", o);
+      }
+      if (k % 2 == 1) {
+        omni::laser_scan_t s{};
+        s.utime = t + 20000;  // between this sample and the next
+        s.seq = k;
+        s.angle_min_rad = -1.5f;
+        s.angle_increment_rad = 0.01f;
+        s.range_min_m = 0.1f;
+        s.range_max_m = 30.f;
+        for (int i = 0; i < 300; ++i) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * i));
+        s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
+        b.Publish("LIDAR_SCAN", s);
+      }
+      while (b.HandleTimeout(0) > 0) {
+      }
+      node.ProcessReady(10);
+      while (b.HandleTimeout(0) > 0) {
+      }
+    }
+    return poses;
+  };
+  const auto clean = run(false), glitched = run(true);
+  ASSERT_GT(clean.size(), 50u);
+  ASSERT_EQ(glitched.size(), clean.size());
+  double worst = 0;
+  for (size_t i = 0; i < clean.size(); ++i) {
+    EXPECT_EQ(glitched[i].utime, clean[i].utime);
+    worst =
+        std::max(worst, std::hypot(glitched[i].x_m - clean[i].x_m, glitched[i].y_m - clean[i].y_m));
+  }
+  EXPECT_LT(worst, 1e-3);
+}
+
+// Stamps at the ends of int64 (corrupt messages) are refused and counted before any time
+// arithmetic: a scan stamped near INT64_MAX overflowed the wait for its last beam's odometry,
+// and an odometry sample at INT64_MIN every interpolation bracketing it (UBSan aborts on both).
+TEST(RbpfMapperNode, StampsAtTheEndsOfInt64AreRefused) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  rbpf::RbpfOptions opt;
+  opt.particles = 4;
+  opt.use_imu = true;
+  ManualClock clock(1000000);
+  rbpf::RbpfNode node(&b, opt, &clock);
+  omni::odometry_t o{};
+  o.utime = std::numeric_limits<int64_t>::min();
+  b.Publish("WHEEL_ODOM", o);
+  omni::imu_t imu{};
+  imu.utime = std::numeric_limits<int64_t>::max();
+  b.Publish(opt.imu_channel, imu);
+  for (int i = 1; i <= 30; ++i) {
+    o.utime = 1000000 + i * 100000;
+    o.seq = i;
+    o.x_m = 0.05 * i;
+    b.Publish("WHEEL_ODOM", o);
+    omni::laser_scan_t s{};
+    s.utime = i == 10 ? std::numeric_limits<int64_t>::max() - 5 : o.utime;
+    s.seq = i;
+    s.scan_time_s = 0.1f;
+    s.angle_min_rad = -1.5f;
+    s.angle_increment_rad = 0.01f;
+    s.range_min_m = 0.1f;
+    s.range_max_m = 30.f;
+    for (int k = 0; k < 300; ++k) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * k));
+    s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
+    b.Publish("LIDAR_SCAN", s);
+    while (b.HandleTimeout(0) > 0) {
+    }
+    node.ProcessReady(10);
+  }
+  node.Flush();
+  const rbpf::RbpfCounters& c = node.slam().counters();
+  EXPECT_EQ(c.odom_invalid, 1);
+  EXPECT_EQ(c.imu_invalid, 1);
+  EXPECT_EQ(c.scans_no_odom, 1);  // the scan at INT64_MAX: no odometry can be stamped there
+  EXPECT_GE(c.scans_processed, 2);
 }
 
 TEST(OmniSlam, WritesEveryOutputAndRejectsBadArguments) {

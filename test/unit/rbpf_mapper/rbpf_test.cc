@@ -1281,6 +1281,30 @@ TEST(RbpfSlam, ALidarAwayWhileTheBaseDroveIsNoOdometryJump) {
   }
 }
 
+// Scans before the filter's first update (the first returns were all NaN: a lidar spinning up)
+// have no map pose yet: the result says so, for the node not to publish the raw odometry as a
+// map pose (it sat 12 m from the origin the first update then set). From the first update on,
+// poses are in the map frame, anchored there.
+TEST(RbpfSlam, ScansBeforeTheFirstUpdateHaveNoMapPose) {
+  RbpfOptions o;
+  o.particles = 4;
+  o.threads = 1;
+  RbpfSlam slam(o);
+  const Pose2 odom0(12.0, -4.0, 2.0);
+  for (int k = 0; k < 10; ++k) {
+    const int64_t t = 1000000 + k * 100000;
+    ScanInput s = SyntheticScan(t, Pose2());
+    s.odom = odom0;
+    if (k < 5) std::fill(s.ranges_m.begin(), s.ranges_m.end(), NAN);
+    const ScanResult r = slam.AddScan(s);
+    ASSERT_TRUE(r.accepted) << k;
+    EXPECT_EQ(r.in_map_frame, k >= 5) << k;
+    if (k >= 5) {
+      EXPECT_LT(std::hypot(r.pose.x, r.pose.y), 0.05) << k;
+    }
+  }
+}
+
 // Resampling copies a particle's map by sharing its tiles; the steep gain resamples often, so
 // after 120 scans most tiles are shared. (With the default flat weights the filter resamples
 // rarely and 30 diverging maps share fewer: the memory that costs is in the benchmark.)

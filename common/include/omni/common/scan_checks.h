@@ -21,6 +21,12 @@ inline bool StampInRange(int64_t utime) { return utime <= kMaxStampUs && utime >
 // Beams per scan above which a scan is refused (an RPLidar gives ~2000, a Hokuyo ~1100).
 inline constexpr size_t kMaxScanBeams = 100000;
 
+// A scan's range_max as a bound on its returns: 0 (a driver that gives none) is no limit, as the
+// three mappers read it.
+inline float ScanRangeLimit(float range_max_m) {
+  return range_max_m > 0 ? range_max_m : std::numeric_limits<float>::infinity();
+}
+
 inline bool PlausibleScanGeometry(double angle_min_rad, double angle_increment_rad, size_t beams,
                                   double range_max_m, const Pose2& sensor_in_base) {
   constexpr double kTwoPi = 2.0 * M_PI;
@@ -31,7 +37,7 @@ inline bool PlausibleScanGeometry(double angle_min_rad, double angle_increment_r
   if (beams > 1 && (angle_increment_rad == 0.0 ||
                     std::abs(angle_increment_rad) * static_cast<double>(beams - 1) > kTwoPi + 1e-3))
     return false;
-  // range_max: not beyond what any 2D lidar measures (1 km); 0 leaves no beam valid.
+  // range_max: not beyond what any 2D lidar measures (1 km); 0 is no limit (ScanRangeLimit).
   if (!(range_max_m >= 0) || !(range_max_m <= 1000.0)) return false;
   // The sensor on the robot: within 10 m of the base's origin, a finite heading.
   return std::isfinite(sensor_in_base.x) && std::isfinite(sensor_in_base.y) &&

@@ -265,6 +265,9 @@ struct Particle {
 struct ScanResult {
   bool accepted = false;   // the scan has a pose (processed or placed by odometry)
   bool processed = false;  // a particle filter update ran
+  // The map frame exists (the filter has made its first update, which anchors it). Before it,
+  // `pose` is the raw odometry: the frame is not known yet, so it is no map pose to publish.
+  bool in_map_frame = false;
   int64_t scan_index = -1;
   Pose2 pose;  // best particle's estimate of the base
 };
@@ -312,6 +315,11 @@ class RbpfSlam {
   void RestartScanOrder();
   // Stamp of the newest odometry sample held (0 before the first).
   int64_t newest_odom_utime() const { return odom_buffer_.newest_utime(); }
+  // How far the odometry covers scans: the newest sample that continues the ones before it
+  // (within kMaxOdomSpanUs). A lone sample far ahead (stamped in the future, dropped once the
+  // stream re-bases) does not cover the scans stamped before it: they wait for the samples that
+  // bracket them, instead of taking the last good sample as theirs.
+  int64_t covered_odom_utime() const { return covered_odom_utime_; }
   // Gyro yaw rate about the base's z axis (rad/s, CCW).
   bool AddImuYawRate(int64_t utime, double yaw_rate_rad_s);
   // The gyro bias in use (rad/s): imu_bias_rad_s until one is learned standing still.
@@ -431,6 +439,7 @@ class RbpfSlam {
   int64_t last_raw_odom_utime_ = 0;     // ... and that scan's stamp
   Pose2 odom_correction_;               // jump-free odometry = correction * raw
   bool have_update_ = false;
+  int64_t covered_odom_utime_ = 0;  // covered_odom_utime()
   OdometryCalibrator calibrator_;
   int64_t odom_jumps_at_update_ = 0;  // counters_.odom_jumps at the last update
   int best_lineage_ = 0;              // the particle that descends from the last update's best

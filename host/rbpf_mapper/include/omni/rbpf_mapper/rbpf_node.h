@@ -93,6 +93,7 @@ class RbpfNode {
   OdometryRestartBridge odom_restarts_;  // a restarted base bridge's odometry, laid on
   SeqGaps seq_gaps_;  // scans lost between the driver and us, from their sequence numbers
   int64_t poses_published_ = 0;
+  int64_t poses_before_map_ = 0;  // scans placed before the first update: no POSE_RBPF for them
   int64_t grids_published_ = 0;
   int64_t last_grid_utime_ = 0;
   int64_t trajectories_published_ = 0;
