@@ -126,7 +126,16 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
   const long open_max = sysconf(_SC_OPEN_MAX);
   const int last_fd = open_max > 0 && open_max < INT_MAX ? static_cast<int>(open_max) - 1 : 65535;
   const pid_t parent = getpid();
+  // The stop signals wait until the child has its own dispositions: between fork and exec it has
+  // the supervisor's handlers, and a SIGTERM then (a stop right after a restart, the death signal
+  // when the supervisor dies) only set a flag in the child's copy, and the process ran on.
+  constexpr int kStopSignals[] = {SIGINT, SIGTERM, SIGQUIT, SIGHUP, SIGPIPE};
+  sigset_t stop_set, old_mask;
+  sigemptyset(&stop_set);
+  for (const int sig : kStopSignals) sigaddset(&stop_set, sig);
+  pthread_sigmask(SIG_BLOCK, &stop_set, &old_mask);
   const pid_t pid = fork();
+  if (pid != 0) pthread_sigmask(SIG_SETMASK, &old_mask, nullptr);
   if (pid < 0)
     return MakeError(ErrorCode::kUnavailable, std::string("fork: ") + std::strerror(errno));
   if (pid > 0) {
@@ -134,8 +143,21 @@ Result<int> PosixLauncher::Start(const std::vector<std::string>& command,
     running_.insert(pid);
   }
   if (pid == 0) {
-    // Child: die with the supervisor, own process group (a terminal's Ctrl-C goes to the
-    // supervisor, which stops the children in order).
+    // Child: the default action for the stop signals the supervisor handles (one ignored by
+    // whoever started the supervisor, e.g. nohup's SIGHUP, stays ignored, as exec would keep it),
+    // then any that came meanwhile is delivered.
+    for (const int sig : kStopSignals) {
+      struct sigaction cur {};
+      if (sigaction(sig, nullptr, &cur) == 0 && cur.sa_handler != SIG_IGN) {
+        struct sigaction dfl {};
+        dfl.sa_handler = SIG_DFL;
+        sigemptyset(&dfl.sa_mask);
+        sigaction(sig, &dfl, nullptr);
+      }
+    }
+    sigprocmask(SIG_SETMASK, &old_mask, nullptr);
+    // Die with the supervisor, own process group (a terminal's Ctrl-C goes to the supervisor,
+    // which stops the children in order).
     prctl(PR_SET_PDEATHSIG, SIGTERM);
     if (getppid() != parent) _exit(126);
     setpgid(0, 0);
@@ -196,10 +218,17 @@ std::optional<ExitInfo> PosixLauncher::Poll(int pid) {
   ended_.erase(it);
   if (WIFSIGNALED(status)) e.signal = WTERMSIG(status);
   if (WIFEXITED(status)) e.code = WEXITSTATUS(status);
-  // Whatever the child left running in its group goes with it. (The group's id stays taken
-  // while any member lives, so this reaches no unrelated process.)
-  kill(-pid, SIGKILL);
   return e;
+}
+
+// (A group's id stays taken while any member lives, so these reach no unrelated process.)
+bool PosixLauncher::GroupAlive(int pid) {
+  Reap();  // a worker that ended, adopted here (subreaper), is a zombie in the group until then
+  return pid > 0 && kill(-pid, 0) == 0;
+}
+
+void PosixLauncher::KillGroup(int pid) {
+  if (pid > 0) kill(-pid, SIGKILL);
 }
 
 void PosixLauncher::Signal(int pid, int sig) {
@@ -320,6 +349,7 @@ void Supervisor::Launch(size_t i, int64_t now_us) {
     return;
   }
   s.pid = *pid;
+  if (s.first_start < 0) s.first_start = next_first_start_++;
   ++s.starts;
   s.started_us = now_us;
   s.last_heartbeat_us = 0;
@@ -393,9 +423,25 @@ void Supervisor::Tick(int64_t now_us) {
     const ChildSpec& c = o_.children[i];
     ChildStatus& s = st_[i];
     if (s.pid > 0) {
-      if (auto e = launcher_->Poll(s.pid)) {
-        OnExit(i, *e, now_us);
-        continue;
+      if (s.leader_exit) {
+        // A wrapper gone on our SIGTERM: its worker (still in the group) writes its map within
+        // the stop grace; the wrapper's exit stands for both once the group has ended. Before,
+        // the group was killed as soon as the wrapper was reaped, about 50 ms into the grace.
+        if (!launcher_->GroupAlive(s.pid)) {
+          const ExitInfo e = *s.leader_exit;
+          s.leader_exit.reset();
+          OnExit(i, e, now_us);
+          continue;
+        }
+      } else if (auto e = launcher_->Poll(s.pid)) {
+        if (s.state == ChildState::kStopping && now_us < s.stop_deadline_us &&
+            launcher_->GroupAlive(s.pid)) {
+          s.leader_exit = *e;
+        } else {
+          launcher_->KillGroup(s.pid);  // what an exit not asked for leaves goes with it
+          OnExit(i, *e, now_us);
+          continue;
+        }
       }
     }
     switch (s.state) {
@@ -413,6 +459,8 @@ void Supervisor::Tick(int64_t now_us) {
       }
       case ChildState::kStopping:
         if (now_us >= s.stop_deadline_us && s.pid > 0) {
+          // (A wrapper's worker that needed it makes the stop not clean.)
+          if (s.leader_exit) s.leader_exit->signal = SIGKILL;
           launcher_->Signal(s.pid, SIGKILL);
           s.stop_deadline_us = now_us + kUs;  // and again each second until it is reaped
         }
@@ -457,16 +505,19 @@ void Supervisor::StopAll(int64_t now_us) {
 }
 
 void Supervisor::StopNext(int64_t now_us) {
-  // One at a time, newest first: each child is gone before the one started before it is asked,
-  // so a process listed early (e.g. map_fusion) still receives what the later ones (the
-  // mappers' final maps) publish as they stop.
+  // One at a time, the last first started first: each child is gone before the one started
+  // before it is asked, so a process listed early (e.g. map_fusion) still receives what the
+  // later ones (the mappers' final maps) publish as they stop, and a child that waited for
+  // another (`after`, even one listed below it) stops while what it waited for still runs.
+  // (By the config's order, a driver listed after its mapper was stopped first, and the mapper
+  // lost its input during its final optimisation.)
   for (const auto& s : st_)
     if (s.state == ChildState::kStopping) return;
-  for (size_t k = st_.size(); k-- > 0;)
-    if (st_[k].pid > 0) {
-      Stop(k, now_us, false);
-      return;
-    }
+  size_t next = st_.size();
+  for (size_t k = 0; k < st_.size(); ++k)
+    if (st_[k].pid > 0 && (next == st_.size() || st_[k].first_start > st_[next].first_start))
+      next = k;
+  if (next < st_.size()) Stop(next, now_us, false);
 }
 
 bool Supervisor::AllStopped() const {

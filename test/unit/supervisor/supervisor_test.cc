@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
@@ -62,6 +63,13 @@ class FakeLauncher final : public Launcher {
     e.code = code;
     exits[pid] = e;
   }
+  bool GroupAlive(int pid) override { return group_alive.count(pid) > 0; }
+  void KillGroup(int pid) override {
+    groups_killed.push_back(pid);
+    group_alive.erase(pid);
+  }
+  std::set<int> group_alive;  // children whose group outlives them (a wrapper's worker)
+  std::vector<int> groups_killed;
   int next_pid = 100;
   int fail_starts = 0;
   std::vector<int> started;
@@ -288,8 +296,56 @@ TEST(PosixLauncherTest, SignalsTheChildsWholeGroupAndKillsWhatItLeaves) {
   auto e = WaitExit(&l, *leaver);
   ASSERT_TRUE(e.has_value());
   EXPECT_EQ(e->code, 0);
+  EXPECT_TRUE(l.GroupAlive(*leaver));
+  l.KillGroup(*leaver);  // as the supervisor does for an exit it did not ask for
   for (int i = 0; i < 200 && Alive(orphan); ++i) usleep(10000);
   EXPECT_FALSE(Alive(orphan)) << "the child's leftover outlived it";
+}
+
+// A wrapper (`sh -c '...; mapper'`, no exec) ends at once on the stop's SIGTERM while its worker
+// writes the map: the group is left its stop grace, and the stop is clean when it ends in time.
+// Before, the group was killed as soon as the wrapper was reaped (the next tick, about 50 ms).
+// One that outlives the grace is killed and the stop counts as not clean.
+TEST(Supervisor, AWrappersWorkerIsGivenItsStopGrace) {
+  SupervisorOptions o;
+  ChildSpec mapper = Child("mapper", RestartPolicy::kAlways);
+  mapper.stop_grace_s = 30;
+  o.children = {mapper};
+  FakeLauncher l;
+  Supervisor s(o, &l);
+  s.Start(0);
+  l.group_alive.insert(100);
+  s.StopAll(kS);
+  s.Tick(kS + 50000);  // the wrapper has ended on the SIGTERM; its worker writes on
+  s.Tick(20 * kS);
+  EXPECT_FALSE(s.AllStopped());
+  EXPECT_TRUE(l.groups_killed.empty());
+  l.group_alive.erase(100);  // the worker is done
+  s.Tick(21 * kS);
+  EXPECT_TRUE(s.AllStopped());
+  EXPECT_EQ(s.children()[0].failures, 0);
+  EXPECT_EQ(std::count(l.signals.begin(), l.signals.end(), std::make_pair(100, SIGKILL)), 0);
+  // A worker that does not end within the grace: killed, and not a clean stop.
+  FakeLauncher m;
+  Supervisor t(o, &m);
+  t.Start(0);
+  m.group_alive.insert(100);
+  t.StopAll(kS);
+  t.Tick(kS + 50000);
+  t.Tick(31 * kS + 1);
+  EXPECT_EQ(std::count(m.signals.begin(), m.signals.end(), std::make_pair(100, SIGKILL)), 1);
+  m.group_alive.erase(100);  // the SIGKILL took it
+  t.Tick(32 * kS);
+  EXPECT_TRUE(t.AllStopped());
+  EXPECT_EQ(t.children()[0].failures, 1);
+  // An exit nobody asked for (a crash) takes what it leaves in its group at once.
+  FakeLauncher n;
+  Supervisor u(o, &n);
+  u.Start(0);
+  n.group_alive.insert(100);
+  n.Exit(100, 1);
+  u.Tick(kS);
+  EXPECT_EQ(n.groups_killed, std::vector<int>{100});
 }
 
 TEST(Supervisor, StopAllStopsNewestFirstAndRestartsNothing) {
@@ -388,6 +444,17 @@ TEST(Supervisor, AfterStartsAChildOnceWhatItWaitsForRuns) {
   EXPECT_EQ(l.started.size(), 5u);
   EXPECT_EQ(l.commands[104][0], "/bin/driver");
   EXPECT_TRUE(l.signals.empty());
+  // The stop goes in the reverse of the first starts: the mapper (listed first, started last)
+  // before fusion, the logger and the driver it waited for, which its restart does not move.
+  // (By the list's order the driver went first, under a mapper still writing its map.)
+  s.StopAll(5 * kS);
+  for (int k = 0; k < 10 && !s.AllStopped(); ++k) s.Tick((6 + k) * kS);
+  EXPECT_TRUE(s.AllStopped());
+  std::vector<int> order;
+  for (const auto& [pid, sig] : l.signals)
+    if (sig == SIGTERM) order.push_back(pid);
+  EXPECT_EQ(order, (std::vector<int>{103, 102, 101, 104}));
+  l.signals.clear();
   // A stop while a child still waits: it is done at once, nothing is started.
   Supervisor t(o, &l);
   t.Start(10 * kS);

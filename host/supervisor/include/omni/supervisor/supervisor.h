@@ -90,9 +90,18 @@ class Launcher {
   // Starts `command` in `working_dir` ("" = current); the child's pid.
   virtual Result<int> Start(const std::vector<std::string>& command,
                             const std::string& working_dir) = 0;
-  // The child's exit once it has ended (reaped), nullopt while it runs.
+  // The child's exit once it has ended (reaped), nullopt while it runs. What it leaves in its
+  // process group is the caller's to kill (KillGroup): after a stop was asked, a wrapper's
+  // worker may still be writing its map when the wrapper has gone.
   virtual std::optional<ExitInfo> Poll(int pid) = 0;
   virtual void Signal(int pid, int signal) = 0;
+  // Whether any process is left in the group of the child `pid` (after Poll gave its exit).
+  virtual bool GroupAlive(int pid) {
+    (void)pid;
+    return false;
+  }
+  // Kills (SIGKILL) what is left in the group of the child `pid`.
+  virtual void KillGroup(int pid) { (void)pid; }
   // Whether a heartbeat that says it comes from `reported_pid` is the child `child_pid`'s: the
   // child itself or a process in its group (a wrapper script's worker).
   virtual bool Owns(int child_pid, int reported_pid) const {
@@ -107,8 +116,9 @@ class Launcher {
 // up, e.g. the supervisor's LCM sockets, are closed before the exec). A command that cannot be
 // executed exits 127 (seen as a failure, so restarted with backoff and in the end given up).
 // Signals go to the child's whole process group, so the worker of a wrapper (`sh -c '...'`) is
-// stopped with it, and what is left of the group when the child has exited is killed (an orphan
-// would hold the serial port the restarted driver needs).
+// stopped with it, and what is left of the group when the child has exited is killed by the
+// supervisor (an orphan would hold the serial port the restarted driver needs) — after a stop
+// it asked for, once the group has ended or the stop grace has passed.
 //
 // Poll reaps every ended child of this process: the started ones (their exit kept for their
 // Poll) and those adopted as their subreaper (BecomeSubreaper), counted as orphans_reaped().
@@ -125,6 +135,8 @@ class PosixLauncher final : public Launcher {
   std::optional<ExitInfo> Poll(int pid) override;
   void Signal(int pid, int signal) override;
   bool Owns(int child_pid, int reported_pid) const override;
+  bool GroupAlive(int pid) override;
+  void KillGroup(int pid) override;
 
   // Kills (SIGKILL) and reaps every child process of this one that is not a started child
   // still running — with BecomeSubreaper, what the children left behind — and their
@@ -157,6 +169,10 @@ struct ChildStatus {
   bool restart_after_stop = false;
   bool healthy_when_stopped = false;  // running and not reporting trouble when asked to stop
   std::deque<int64_t> restart_times_us;
+  int64_t first_start = -1;  // its place in the order the children were first started
+  // Stopping: the child (a wrapper) has ended, what it started in its group has not yet; its
+  // exit is held until the group has ended or the stop grace has passed.
+  std::optional<ExitInfo> leader_exit;
 };
 
 class Supervisor {
@@ -173,8 +189,10 @@ class Supervisor {
   void OnHeartbeat(const std::string& process, int pid, int8_t state, const std::string& text,
                    int64_t now_us);
   int64_t foreign_heartbeats() const { return foreign_heartbeats_; }
-  // Stops every child, one at a time and newest first (SIGTERM, SIGKILL after its stop grace;
-  // the next once it is gone), and restarts none; keep calling Tick until AllStopped().
+  // Stops every child, one at a time, in the reverse of the order they were first started (so
+  // a child is stopped before what it waited for with `after`, and a restart does not move it;
+  // SIGTERM, SIGKILL after its stop grace; the next once it is gone), and restarts none; keep
+  // calling Tick until AllStopped().
   void StopAll(int64_t now_us);
   bool AllStopped() const;
   // Every child running and none reporting DEGRADED or ERROR in its heartbeat.
@@ -193,6 +211,7 @@ class Supervisor {
   std::string Summary() const;
 
  private:
+  int64_t next_first_start_ = 0;
   void Launch(size_t i, int64_t now_us);
   void OnExit(size_t i, const ExitInfo& e, int64_t now_us);
   void Stop(size_t i, int64_t now_us, bool restart);
