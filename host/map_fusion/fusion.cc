@@ -31,6 +31,8 @@ Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   r.Get("frame", &o.frame, Optional());
   r.Get("fuse_interval_s", &o.fuse_interval_s, Optional(), InRange(0.05, 3600.0));
   r.Get("min_maps", &o.min_maps, Optional(), InRange(1, 64));
+  r.Get("max_input_cells", &o.max_input_cells, Optional(),
+        InRange<int64_t>(10000, io::kMaxGridCells));
   r.Get("base", &o.base, Optional());
   auto a = r.Section("align");
   a.Get("enabled", &o.align.align, Optional());
@@ -48,6 +50,10 @@ Result<FusionOptions> FusionOptions::Load(ConfigReader& r) {
   if (o.grid_channels.empty()) r.AddError("grid_channels", "must list at least one channel");
   for (const auto& c : o.grid_channels)
     if (c.empty()) r.AddError("grid_channels", "must not contain an empty channel name");
+  // Its own output among its inputs: each fusion would vote for the last one, for ever.
+  if (std::find(o.grid_channels.begin(), o.grid_channels.end(), o.fused_channel) !=
+      o.grid_channels.end())
+    r.AddError("fused_channel", o.fused_channel + " is also in grid_channels");
   if (!o.base.empty() &&
       std::find(o.grid_channels.begin(), o.grid_channels.end(), o.base) == o.grid_channels.end())
     r.AddError("base", "must be one of grid_channels (or empty)");

@@ -75,6 +75,9 @@ void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_gri
     why = map.error().message;
   } else if (!o_.frame.empty() && !msg.frame.empty() && msg.frame != o_.frame) {
     why = "frame '" + msg.frame + "' is not '" + o_.frame + "'";
+  } else if (static_cast<int64_t>(map->width) * map->height > o_.max_input_cells) {
+    why = std::to_string(map->width) + " x " + std::to_string(map->height) +
+          " cells, more than max_input_cells (" + std::to_string(o_.max_input_cells) + ")";
   } else if (std::string unusable; !UsableMap(*map, &unusable)) {
     // The same checks as Fuse's: an empty grid (a mapper that restarted) must not replace the
     // channel's last good one.
@@ -87,6 +90,7 @@ void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_gri
     return;
   }
   latest_[channel] = Held{std::move(*map), msg.utime};
+  if (!msg.frame.empty()) input_frame_ = msg.frame;
   changed_ = true;
   last_current_ = false;
 }
@@ -160,8 +164,9 @@ bool MapFusionNode::CollectFusion(bool wait, std::optional<Result<FusionResult>>
   int64_t stamp = 0;
   for (size_t i = 0; i < r.sources.size() && i < job->utimes.size(); ++i)
     if (r.sources[i].used) stamp = std::max(stamp, job->utimes[i]);
+  // In the inputs' frame (`frame`, or with "" the frame they came in), not always "map".
   bus::PublishGrid(*bus_, o_.fused_channel, r.fused, stamp > 0 ? stamp : clock_->NowUtime(),
-                   "fused");
+                   "fused", !o_.frame.empty() ? o_.frame : input_frame_);
   char secs[32];
   std::snprintf(secs, sizeof(secs), "%.1f", static_cast<double>(last_fusion_ms_) * 1e-3);
   SetState(omni::heartbeat_t::STATE_OK,

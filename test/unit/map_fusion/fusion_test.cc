@@ -631,6 +631,16 @@ TEST(MapFusionOptions, ShippedConfigLoadsAndMistakesAreErrors) {
   auto t = FusionOptions::Load(*twice);
   ASSERT_FALSE(t.ok());
   EXPECT_NE(t.error().message.find("lists GRID_PG twice"), std::string::npos) << t.error().message;
+  // Its own output among its inputs would vote for the last fusion for ever; a size cap below a
+  // useful map, or above what the bus can carry, is a mistake.
+  auto own = ConfigReader::FromString(
+      "grid_channels: [GRID_PG, GRID_FUSED]\nmax_input_cells: 100\n", "o.yaml");
+  ASSERT_TRUE(own.ok());
+  auto w = FusionOptions::Load(*own);
+  ASSERT_FALSE(w.ok());
+  EXPECT_NE(w.error().message.find("GRID_FUSED is also in grid_channels"), std::string::npos)
+      << w.error().message;
+  EXPECT_NE(w.error().message.find("max_input_cells"), std::string::npos) << w.error().message;
 }
 
 omni::occupancy_grid_t GridMsg(const io::GridMap& m, int64_t utime, const std::string& source) {
@@ -923,6 +933,51 @@ TEST(MapFusionNode, AnEmptyGridIsRejectedAndTheChannelKeepsItsLastGoodOne) {
   ASSERT_TRUE(again.ok()) << again.error().message;
   EXPECT_EQ(again->maps_used, 2u);
   EXPECT_EQ(node.fusion_failures(), 0);
+}
+
+// A grid larger than max_input_cells is rejected and counted (one absurd message of 2^28 cells
+// took gigabytes in the fusion's copies); with `frame: ""` the fused grid goes out in the frame
+// its inputs came in, not always "map".
+TEST(MapFusionNode, AnOversizedGridIsRejectedAndTheOutputKeepsTheInputsFrame) {
+  auto bus_or = bus::Bus::Create("memq://");
+  ASSERT_TRUE(bus_or.ok()) << bus_or.error().message;
+  auto& b = **bus_or;
+  ManualClock clock(1700000000000000);
+  const Plan plan;
+  const io::GridMap pg = Rasterize(plan, Pose2());
+  const io::GridMap rbpf = Rasterize(plan, Pose2(0.2, 0.1, 0.03));
+  FusionOptions o;
+  o.fuse_interval_s = 1.0;
+  o.frame = "";
+  o.max_input_cells = static_cast<int64_t>(std::max(pg.cells.size(), rbpf.cells.size())) + 100;
+  MapFusionNode node(&b, o, &clock);
+  std::vector<std::string> frames;
+  b.Subscribe<omni::occupancy_grid_t>(
+      "GRID_FUSED", [&](const omni::occupancy_grid_t& g, int64_t) { frames.push_back(g.frame); });
+  auto pump = [&] {
+    while (b.HandleTimeout(0) > 0) {
+    }
+  };
+  auto in_world = [&](const io::GridMap& m, const std::string& source) {
+    omni::occupancy_grid_t g = GridMsg(m, clock.NowUtime(), source);
+    g.frame = "world";
+    return g;
+  };
+  io::GridMap big = pg;
+  big.width = static_cast<int>(o.max_input_cells / big.height) + 1;
+  big.cells.assign(static_cast<size_t>(big.width) * big.height, int8_t{0});
+  b.Publish("GRID_OCTO", in_world(big, "octomap"));
+  b.Publish("GRID_PG", in_world(pg, "posegraph"));
+  b.Publish("GRID_RBPF", in_world(rbpf, "rbpf"));
+  pump();
+  EXPECT_EQ(node.grids_rejected(), 1);
+  clock.Advance(1100000);
+  TickUntilIdle(node);
+  pump();
+  ASSERT_EQ(node.fusions(), 1);
+  EXPECT_EQ(node.last()->maps_used, 2u);
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_EQ(frames[0], "world");
 }
 
 TEST(MapFusionNode, TheFusedGridIsStampedWithTheNewestGridItUsed) {
