@@ -74,9 +74,20 @@ if [ "$BUILD" != "$ROOT/build" ] && grep -q "build/bin/" <<<"$config_lines"; the
 fi
 
 # The supervisor's worst-case orderly stop is the sum of its children's stop_grace_s (default
-# 5 s each); systemd must wait longer than that before it kills what is left.
-GRACE=$(awk '/^children:/ {c = 1} c && /^  [A-Za-z0-9_]+:/ {n++} c && /stop_grace_s:/ {
-  split($0, a, ":"); v = a[2] + 0; s += v; g++ } END { print s + 5 * (n - g) }' "$CONFIG_PATH")
+# 5 s each); systemd must wait longer than that before it kills what is left. The children are
+# the keys at the indentation of the first line under `children:`, whatever it is (two spaces
+# were assumed: a config indented by four counted no child) and whatever their names hold
+# (`can-up` was missed); a grace is read where it stands on its line (also in `{...}` form).
+GRACE=$(awk '
+  /^[[:space:]]*(#|$)/ { next }
+  /^children:/ { c = 1; next }
+  c && /^[^[:space:]]/ { c = 0 }
+  c && ind == 0 { match($0, /^[[:space:]]*/); ind = RLENGTH }
+  c { match($0, /^[[:space:]]*/)
+      if (RLENGTH == ind && $0 ~ /^[[:space:]]*[^[:space:]#-][^:]*:/) n++ }
+  c && match($0, /stop_grace_s:[[:space:]]*[0-9.]+/) {
+    v = substr($0, RSTART, RLENGTH); sub(/stop_grace_s:[[:space:]]*/, "", v); s += v; g++ }
+  END { print s + 5 * (n - g) }' "$CONFIG_PATH")
 STOP_TIMEOUT=$((GRACE + 30))
 
 unit() {

@@ -49,6 +49,33 @@ TEST(InstallService, GeneratedUnitVerifies) {
   EXPECT_NE(testing::Run("systemd-analyze verify " + path).exit_code, 0);
 }
 
+// The stop timeout counts the children of a config indented by four spaces, with a hyphen in a
+// name and a grace in flow form (the awk assumed two spaces and [A-Za-z0-9_] names, so it gave
+// 160 s for a stop of up to 170 s here and systemd killed the last mapper mid-write).
+TEST(InstallService, TheStopTimeoutCountsEveryChildOfAnyIndentation) {
+  const std::string dir = ::testing::TempDir() + "/service_indent";
+  std::filesystem::create_directories(dir);
+  const std::string config = dir + "/supervisor.yaml";
+  std::ofstream(config) << "# a hand-written config\n"
+                           "children:\n"
+                           "    can-up:\n"
+                           "        command: [/bin/true]\n"
+                           "        restart: never\n"
+                           "    rbpf_mapper:\n"
+                           "        command: [build/bin/rbpf_mapper]\n"
+                           "        stop_grace_s: 120\n"
+                           "    map_fusion: {command: [build/bin/map_fusion], stop_grace_s: 40}\n"
+                           "    odom_mapper:\n"
+                           "        command: [build/bin/odom_mapper]\n"
+                           "heartbeat_timeout_s: 5\n";
+  const auto r = testing::Run(kScript + " --print --user root --config '" + config + "' --build " +
+                              std::string(OMNI_BINARY_DIR) + " 2>/dev/null");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const size_t at = r.output.find("TimeoutStopSec=");
+  ASSERT_NE(at, std::string::npos) << r.output;
+  EXPECT_EQ(std::stoi(r.output.substr(at + 15)), 120 + 40 + 5 + 5 + 30) << r.output;
+}
+
 // A checkout whose path has a space (and a script reached through a symlink): the unit still
 // verifies (ExecStart used to be split at the space, so the stack never started at boot).
 TEST(InstallService, AUnitForACheckoutWithASpaceInItsPathVerifies) {
