@@ -83,6 +83,15 @@ Result<std::unique_ptr<OutputFolderLock>> OutputFolderLock::Take(const std::stri
       if (n > 0) holder.assign(buf, static_cast<size_t>(n));
       while (!holder.empty() && (holder.back() == '\n' || holder.back() == '\0')) holder.pop_back();
     }
+    if (err == ENOLCK || err == EOPNOTSUPP || err == ENOSYS || err == EINVAL) {
+      // A file system without locks (NFS without lockd, some FUSE mounts): mapping matters more
+      // than the lock; it says so, and runs unguarded.
+      LOG_WARN << "cannot lock '" << path << "' (" << std::strerror(err)
+               << "): this file system has no locks, so nothing keeps another process from "
+                  "writing to "
+               << dir << " too";
+      return std::unique_ptr<OutputFolderLock>(new OutputFolderLock(fd));
+    }
     ::close(fd);
     if (err != EWOULDBLOCK)
       return MakeError(ErrorCode::kIo, "cannot lock '" + path + "': " + std::strerror(err));

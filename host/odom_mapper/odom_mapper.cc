@@ -139,10 +139,10 @@ bool OdomMapper::AddScan(const Scan& scan) {
   const int64_t refused = grid_.refused_beams();
   if (beam_pose.empty()) {
     grid_.IntegrateScan(*pose * scan.sensor_in_base, ranges, scan.angle_min_rad,
-                        scan.angle_increment_rad, scan.range_max_m);
+                        scan.angle_increment_rad, ScanRangeLimit(scan.range_max_m));
   } else {
     grid_.IntegrateScan([&](size_t i) { return beam_pose[i]; }, ranges, scan.angle_min_rad,
-                        scan.angle_increment_rad, scan.range_max_m);
+                        scan.angle_increment_rad, ScanRangeLimit(scan.range_max_m));
   }
   counters_.beams_beyond_grid_cap += grid_.refused_beams() - refused;
   trajectory_.push_back({scan.utime, scan.seq, *pose});

@@ -434,8 +434,10 @@ void Supervisor::Tick(int64_t now_us) {
           continue;
         }
       } else if (auto e = launcher_->Poll(s.pid)) {
-        if (s.state == ChildState::kStopping && now_us < s.stop_deadline_us &&
-            launcher_->GroupAlive(s.pid)) {
+        // (Only a leader our SIGTERM ended, as a shell without a trap: a child that exits on it
+        // and leaves a helper that ignores it is done, as before, and the helper goes.)
+        if (s.state == ChildState::kStopping && e->signal == SIGTERM &&
+            now_us < s.stop_deadline_us && launcher_->GroupAlive(s.pid)) {
           s.leader_exit = *e;
         } else {
           launcher_->KillGroup(s.pid);  // what an exit not asked for leaves goes with it
@@ -458,9 +460,22 @@ void Supervisor::Tick(int64_t now_us) {
         break;
       }
       case ChildState::kStopping:
+        if (s.leader_exit && s.leader_exit->signal == SIGKILL &&
+            now_us >= s.group_killed_us + 3 * kUs) {
+          // A worker the SIGKILL has not ended in 3 s (stuck in the kernel on a hung disk, or a
+          // zombie whose parent lives outside the group): the stop goes on without it, or the
+          // children after it would never be stopped.
+          const ExitInfo e = *s.leader_exit;
+          s.leader_exit.reset();
+          OnExit(i, e, now_us);
+          continue;
+        }
         if (now_us >= s.stop_deadline_us && s.pid > 0) {
           // (A wrapper's worker that needed it makes the stop not clean.)
-          if (s.leader_exit) s.leader_exit->signal = SIGKILL;
+          if (s.leader_exit && s.leader_exit->signal != SIGKILL) {
+            s.leader_exit->signal = SIGKILL;
+            s.group_killed_us = now_us;
+          }
           launcher_->Signal(s.pid, SIGKILL);
           s.stop_deadline_us = now_us + kUs;  // and again each second until it is reaped
         }

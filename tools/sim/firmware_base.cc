@@ -1,5 +1,6 @@
 #include "omni/sim/firmware_base.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -15,10 +16,18 @@ firmware::sim::PlantParams PlantFor(double center_to_wheel_m, double wheel_radiu
   return p;
 }
 
-firmware::Params FirmwareFor(double center_to_wheel_m, double wheel_radius_m) {
+// The simulated board is set up as the bridge's config expects (a robot's board is set so with
+// omni base-param): its timing too, which the bridge checks at connect (--bridge-config with
+// another heartbeat period or a slow send rate ended the run "unhealthy" otherwise).
+firmware::Params FirmwareFor(const base_bridge::BaseBridgeOptions& bo) {
   firmware::Params p;
-  p.center_to_wheel_m = static_cast<float>(center_to_wheel_m);
-  p.wheel_radius_m = static_cast<float>(wheel_radius_m);
+  p.center_to_wheel_m = static_cast<float>(bo.center_to_wheel_m);
+  p.wheel_radius_m = static_cast<float>(bo.wheel_radius_m);
+  p.heartbeat_period_ms =
+      static_cast<uint32_t>(std::lround(bo.firmware_heartbeat_period_s * 1000.0));
+  p.feedback_period_ms = static_cast<uint32_t>(std::lround(bo.feedback_period_s * 1000.0));
+  p.watchdog_ms = std::max<uint32_t>(
+      p.watchdog_ms, static_cast<uint32_t>(std::ceil(2.0 * 1000.0 / bo.send_rate_hz)));
   return p;
 }
 
@@ -52,7 +61,7 @@ FirmwareBase::FirmwareBase(double center_to_wheel_m, double wheel_radius_m,
     : bo_(BridgeFor(bridge, center_to_wheel_m, wheel_radius_m)),
       plant_(PlantFor(center_to_wheel_m, wheel_radius_m)),
       hal_(&plant_),
-      fw_(&hal_, FirmwareFor(center_to_wheel_m, wheel_radius_m)),
+      fw_(&hal_, FirmwareFor(bo_)),
       bridge_(bo_) {
   hal_.UseClock(&clock_us_);
   hal_.tx_mailboxes = 3;  // as the board's bxCAN

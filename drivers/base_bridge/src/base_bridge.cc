@@ -73,6 +73,7 @@ void BaseBridge::OnCommand(const Command& cmd, int64_t now_us) {
         return;
       }
       pending_clear_ = true;
+      latched_before_clear_ = latched_before_clear_ || estop_latched_;
       estop_latched_ = false;
       return;
     case Command::kTwist:
@@ -122,6 +123,7 @@ void BaseBridge::Tick(int64_t now_us, std::vector<firmware::CanFrame>* out) {
   if (pending_clear_) {
     out->push_back(fwcan::EncodeClearFaults(node_));
     pending_clear_ = false;
+    latched_before_clear_ = false;
   }
   // Once the firmware answers, check that it uses our geometry (else odometry would be wrong);
   // while a parameter differs, ask again every 5 s so a corrected one clears the warning.
@@ -199,11 +201,11 @@ void BaseBridge::OnFrame(const firmware::CanFrame& f, int64_t now_us) {
       have_hb_ = true;
       last_hb_us_ = now_us;
       fw_state_ = static_cast<int8_t>(hb.state);
-      // A base stopped by its firmware (fault, ESTOP, its watchdog) starts again from rest: the
-      // ramp must not resume from the speed last sent, up to the limit at once.
+      // A base stopped by its firmware (a fault, ESTOP) starts again from rest: the ramp must
+      // not resume from the speed last sent, up to the limit at once. (Not its watchdog's
+      // STOPPING: the base is still moving, slowing down, and the next command resumes it.)
       if (hb.state == static_cast<uint8_t>(firmware::State::kFault) ||
-          hb.state == static_cast<uint8_t>(firmware::State::kEstop) ||
-          hb.state == static_cast<uint8_t>(firmware::State::kStopping))
+          hb.state == static_cast<uint8_t>(firmware::State::kEstop))
         sent_ = {};
       fw_faults_ = hb.fault_bits;
       bus_voltage_ = hb.bus_voltage_v;
@@ -354,10 +356,12 @@ void BaseBridge::HandleEncoders(const firmware::can::EncoderFeedback& e, int64_t
   // board up for more than 2^15 feedback periods restarts with a sequence that looks "ahead").
   const int64_t gap_us =
       std::max<int64_t>(SilenceUs(), static_cast<int64_t>(3.0 * o_.feedback_period_s * 1e6));
-  if (have_enc_ && now_us - last_enc_us_ > gap_us) {
-    have_enc_ = false;
-    mcu_time_us_ += now_us - last_enc_us_;  // the silence, by our clock (its periods are unknown)
-  }
+  if (have_enc_ && now_us - last_enc_us_ > gap_us) have_enc_ = false;
+  // Re-basing after a gap (a silence, a link outage, a firmware return seen first in its
+  // heartbeat): the gap's length by our clock goes into the firmware's time (its periods are
+  // unknown). A restart told by the numbering starts it from 0 below.
+  if (!have_enc_ && last_enc_us_ != 0 && now_us > last_enc_us_)
+    mcu_time_us_ += now_us - last_enc_us_;
   last_enc_us_ = now_us;
   if (have_enc_) {
     const int32_t d = fwcan::FeedbackSeqStep(last_enc_seq_, e.seq);
@@ -430,7 +434,14 @@ void BaseBridge::OnLinkDown(int64_t now_us) {
   sending_ = false;
   sent_ = {};
   last_send_us_ = 0;
-  pending_clear_ = false;  // as one asked while down: not sent when the link is back
+  // A clear not sent yet goes as one asked while down: not sent when the link is back, and the
+  // ESTOP it would have released is latched again.
+  if (pending_clear_) {
+    ++counters_.clears_refused;
+    estop_latched_ = estop_latched_ || latched_before_clear_;
+  }
+  pending_clear_ = false;
+  latched_before_clear_ = false;
 }
 
 void BaseBridge::OnLinkUp(int64_t now_us) {

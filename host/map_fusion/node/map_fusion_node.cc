@@ -68,6 +68,14 @@ void MapFusionNode::ShowFusing() {
 
 void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_grid_t& msg) {
   ++grids_in_;
+  if (static_cast<int64_t>(msg.width) * msg.height > o_.max_input_cells) {
+    // Before decoding: the cap is there to keep its memory from being taken.
+    ++grids_rejected_;
+    LOG_WARN << "grid on " << channel << " rejected: " << msg.width << " x " << msg.height
+             << " cells, more than max_input_cells (" << o_.max_input_cells << ")"
+             << (latest_.count(channel) ? "; keeping the previous one" : "");
+    return;
+  }
   auto map = bus::FromGridMessage(msg);
   // (A grid turned in its frame arrives resampled onto the frame's axes: FromGridMessage.)
   std::string why;
@@ -76,8 +84,10 @@ void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_gri
   } else if (!o_.frame.empty() && !msg.frame.empty() && msg.frame != o_.frame) {
     why = "frame '" + msg.frame + "' is not '" + o_.frame + "'";
   } else if (static_cast<int64_t>(map->width) * map->height > o_.max_input_cells) {
+    // (A grid turned in its frame grows when resampled onto the frame's axes.)
     why = std::to_string(map->width) + " x " + std::to_string(map->height) +
-          " cells, more than max_input_cells (" + std::to_string(o_.max_input_cells) + ")";
+          " cells once on the frame's axes, more than max_input_cells (" +
+          std::to_string(o_.max_input_cells) + ")";
   } else if (std::string unusable; !UsableMap(*map, &unusable)) {
     // The same checks as Fuse's: an empty grid (a mapper that restarted) must not replace the
     // channel's last good one.
@@ -89,8 +99,7 @@ void MapFusionNode::OnGrid(const std::string& channel, const omni::occupancy_gri
              << (latest_.count(channel) ? "; keeping the previous one" : "");
     return;
   }
-  latest_[channel] = Held{std::move(*map), msg.utime};
-  if (!msg.frame.empty()) input_frame_ = msg.frame;
+  latest_[channel] = Held{std::move(*map), msg.utime, msg.frame};
   changed_ = true;
   last_current_ = false;
 }
@@ -164,9 +173,14 @@ bool MapFusionNode::CollectFusion(bool wait, std::optional<Result<FusionResult>>
   int64_t stamp = 0;
   for (size_t i = 0; i < r.sources.size() && i < job->utimes.size(); ++i)
     if (r.sources[i].used) stamp = std::max(stamp, job->utimes[i]);
-  // In the inputs' frame (`frame`, or with "" the frame they came in), not always "map".
+  // In the inputs' frame (`frame`, or with "" the frame the base grid came in), not always "map".
+  std::string frame = o_.frame;
+  if (frame.empty()) {
+    const auto base = latest_.find(r.base);
+    frame = base != latest_.end() && !base->second.frame.empty() ? base->second.frame : "map";
+  }
   bus::PublishGrid(*bus_, o_.fused_channel, r.fused, stamp > 0 ? stamp : clock_->NowUtime(),
-                   "fused", !o_.frame.empty() ? o_.frame : input_frame_);
+                   "fused", frame);
   char secs[32];
   std::snprintf(secs, sizeof(secs), "%.1f", static_cast<double>(last_fusion_ms_) * 1e-3);
   SetState(omni::heartbeat_t::STATE_OK,

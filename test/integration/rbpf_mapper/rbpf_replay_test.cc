@@ -467,8 +467,8 @@ TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
   EXPECT_EQ(node.slam().counters().scans_processed, processed_before);
   EXPECT_EQ(state, omni::heartbeat_t::STATE_DEGRADED) << text;
   EXPECT_NE(text.find("too few valid beams"), std::string::npos) << text;
-  // A driver that gives range_max 0 (no limit, as the pose-graph mapper and odom_mapper read
-  // it): mapped, not refused as having no valid beam.
+  // A driver that gives range_max 0 (no limit, as the pose-graph mapper's matching reads it):
+  // mapped, not refused as having no valid beam.
   for (int i = 0; i < 120; ++i) step(true, false, /*range_max_m=*/0.f);
   EXPECT_GT(node.slam().counters().scans_processed, processed_before);
   EXPECT_EQ(state, omni::heartbeat_t::STATE_OK) << text;

@@ -121,6 +121,26 @@ TEST(OdomMapper, ReturnsBelowRangeMinAreNotMapped) {
   EXPECT_EQ(near, 0);
 }
 
+// A scan with range_max 0 (a driver that gives none: no limit, as the SLAM mappers read it) is
+// mapped, walls and all. It was counted mapped while the grid got nothing: its beams were
+// integrated with 0 as the limit, under which no return is a hit.
+TEST(OdomMapper, AScanWithRangeMaxZeroIsMapped) {
+  OdomMapper m(OdomMapperOptions{});
+  for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
+  Scan s;
+  s.utime = 50000;
+  s.angle_min_rad = -1.f;
+  s.angle_increment_rad = 0.01f;
+  s.range_min_m = 0.15f;
+  s.range_max_m = 0;
+  s.ranges_m.assign(200, 2.f);
+  ASSERT_TRUE(m.AddScan(s));
+  const io::GridMap g = m.Map();
+  int walls = 0;
+  for (int8_t v : g.cells) walls += v > 50 ? 1 : 0;
+  EXPECT_GT(walls, 20);  // the arc at 2 m
+}
+
 TEST(OdomMapper, ASweepBeyondTheOdometryIsMappedAsItIsAndCounted) {
   OdomMapper m(OdomMapperOptions{});
   ASSERT_TRUE(m.AddOdometry(0, Pose2(0, 0, 0)));

@@ -338,6 +338,32 @@ TEST(Supervisor, AWrappersWorkerIsGivenItsStopGrace) {
   t.Tick(32 * kS);
   EXPECT_TRUE(t.AllStopped());
   EXPECT_EQ(t.children()[0].failures, 1);
+  // One the SIGKILL does not end either (stuck on a hung disk): the stop goes on 3 s later.
+  FakeLauncher k;
+  Supervisor v(o, &k);
+  v.Start(0);
+  k.group_alive.insert(100);
+  v.StopAll(kS);
+  v.Tick(kS + 50000);
+  v.Tick(31 * kS + 1);
+  for (int64_t t_us = 32 * kS; t_us <= 34 * kS; t_us += kS) v.Tick(t_us);
+  EXPECT_FALSE(v.AllStopped());
+  v.Tick(35 * kS);
+  EXPECT_TRUE(v.AllStopped());
+  EXPECT_EQ(v.children()[0].failures, 1);
+  // A child (not a wrapper) that exits cleanly on the SIGTERM, leaving a helper that ignores it:
+  // its stop is done at once and clean, the helper killed with the group.
+  FakeLauncher x;
+  Supervisor w(o, &x);
+  w.Start(0);
+  x.group_alive.insert(100);
+  x.ignores_term[100] = true;
+  w.StopAll(kS);
+  x.Exit(100, 0);
+  w.Tick(kS + 50000);
+  EXPECT_TRUE(w.AllStopped());
+  EXPECT_EQ(w.children()[0].failures, 0);
+  EXPECT_EQ(x.groups_killed, std::vector<int>{100});
   // An exit nobody asked for (a crash) takes what it leaves in its group at once.
   FakeLauncher n;
   Supervisor u(o, &n);

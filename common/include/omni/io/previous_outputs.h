@@ -39,7 +39,8 @@ class OutputFolderLock {
 
   // Takes `dir`'s lock for `process` (created if absent; `dir` must exist). An error when another
   // open lock holds it ("'DIR' is being written by rbpf_mapper (pid 123)") or the file cannot be
-  // opened.
+  // opened. On a file system without locks (NFS without lockd: ENOLCK) it warns and returns an
+  // object that guards nothing. (NFS mounted with local locks guards only this machine.)
   static Result<std::unique_ptr<OutputFolderLock>> Take(const std::string& dir,
                                                         const std::string& process);
   static constexpr const char* kFileName = ".omni-out.lock";

@@ -172,6 +172,7 @@ class BaseBridge {
   bool have_cmd_ = false;
   bool pending_estop_ = false;
   bool pending_clear_ = false;
+  bool latched_before_clear_ = false;  // the ESTOP latch a pending CLEAR_FAULTS released
   // ESTOP is latched here too: from MODE_ESTOP until MODE_CLEAR_FAULTS twists are refused, and
   // ESTOP is sent again every kEstopRepeatUs while the firmware's heartbeat does not show it (a
   // frame lost on a full queue or a dead link, a board reset that forgot its latch).

@@ -33,10 +33,11 @@ struct FusionOptions {
   std::string frame = "map";
   double fuse_interval_s = 5.0;  // node: fuse at most this often, when a grid changed
   int min_maps = 2;              // fewer usable maps: no fusion (counted)
-  // Node: a grid with more cells is rejected (counted): the fusion holds several copies of each
-  // (about 10 of the base's size), and one corrupt or absurd message of 2^28 cells (what the bus
-  // decoder allows) took gigabytes. The mappers' own grids stop at 64 Mi cells.
-  int64_t max_input_cells = int64_t{64} << 20;
+  // Node: a grid with more cells is rejected (counted) before it is decoded. The fusion holds
+  // several copies of each (about 10 of the base's size): at the default, what the bus decoder
+  // allows (2^28 cells; octomap_builder's projection may be that large), one absurd grid takes
+  // gigabytes; a PC with little memory sets it lower (the 2D mappers' grids stop at 64 Mi).
+  int64_t max_input_cells = io::kMaxGridCells;
   // The map the others are aligned onto and whose grid the result uses: a name from
   // grid_channels (node) or an input's name (offline); "" = the first usable input (the node
   // passes its maps in grid_channels order, so the pose-graph map by default). Not "the map

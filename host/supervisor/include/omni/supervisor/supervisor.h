@@ -173,6 +173,7 @@ struct ChildStatus {
   // Stopping: the child (a wrapper) has ended, what it started in its group has not yet; its
   // exit is held until the group has ended or the stop grace has passed.
   std::optional<ExitInfo> leader_exit;
+  int64_t group_killed_us = 0;  // when the SIGKILL went to such a group (waited 3 s at most)
 };
 
 class Supervisor {

@@ -109,9 +109,9 @@ class MapFusionNode {
   struct Held {
     io::GridMap map;
     int64_t utime = 0;
+    std::string frame;  // as it came ("" if the message named none)
   };
   std::map<std::string, Held> latest_;  // by channel
-  std::string input_frame_ = "map";     // the frame of the last grid accepted (with `frame` "")
   bool changed_ = false;                // a grid was accepted since the last fusion started
   bool last_current_ = false;           // last_ fused the grids held now
   int64_t last_fuse_utime_ = 0;
