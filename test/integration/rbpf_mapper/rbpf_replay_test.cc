@@ -402,6 +402,22 @@ TEST(RbpfMapperNode, FollowsAClockSetBack) {
             0.3);
 }
 
+// A 300-beam scan of a wavy wall about 2 m away (every return NaN when `covered`).
+omni::laser_scan_t WavyScan(int64_t utime, int64_t seq, float range_max_m = 30.f,
+                            bool covered = false) {
+  omni::laser_scan_t s{};
+  s.utime = utime;
+  s.seq = seq;
+  s.angle_min_rad = -1.5f;
+  s.angle_increment_rad = 0.01f;
+  s.range_min_m = 0.1f;
+  s.range_max_m = range_max_m;
+  for (int i = 0; i < 300; ++i)
+    s.ranges_m.push_back(covered ? NAN : 2.f + 0.5f * std::sin(0.05f * i));
+  s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
+  return s;
+}
+
 // Scans without odometry (the base bridge stopped): DEGRADED with the reason in the heartbeat,
 // not "waiting for scans" while every scan is dropped (review finding 2026-12-06); OK again once
 // odometry comes back.
@@ -435,17 +451,7 @@ TEST(RbpfMapperNode, ScansWithoutOdometryMakeTheHeartbeatDegraded) {
       o.x_m = 0.02 * static_cast<double>(seq);
       b.Publish("WHEEL_ODOM", o);
     }
-    omni::laser_scan_t s{};
-    s.utime = t;
-    s.seq = ++seq;
-    s.angle_min_rad = -1.5f;
-    s.angle_increment_rad = 0.01f;
-    s.range_min_m = 0.1f;
-    s.range_max_m = range_max_m;
-    for (int i = 0; i < 300; ++i)
-      s.ranges_m.push_back(covered ? NAN : 2.f + 0.5f * std::sin(0.05f * i));
-    s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
-    b.Publish("LIDAR_SCAN", s);
+    b.Publish("LIDAR_SCAN", WavyScan(t, ++seq, range_max_m, covered));
     while (b.HandleTimeout(0) > 0) {
     }
     node.ProcessReady(10);
@@ -507,16 +513,7 @@ TEST(RbpfMapperNode, AnOdometrySampleStampedAheadDoesNotPlaceTheScansBeforeIt) {
         b.Publish("WHEEL_ODOM", o);
       }
       if (k % 2 == 1) {
-        omni::laser_scan_t s{};
-        s.utime = t + 20000;  // between this sample and the next
-        s.seq = k;
-        s.angle_min_rad = -1.5f;
-        s.angle_increment_rad = 0.01f;
-        s.range_min_m = 0.1f;
-        s.range_max_m = 30.f;
-        for (int i = 0; i < 300; ++i) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * i));
-        s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
-        b.Publish("LIDAR_SCAN", s);
+        b.Publish("LIDAR_SCAN", WavyScan(t + 20000, k));  // between this sample and the next
       }
       while (b.HandleTimeout(0) > 0) {
       }
@@ -561,16 +558,8 @@ TEST(RbpfMapperNode, StampsAtTheEndsOfInt64AreRefused) {
     o.seq = i;
     o.x_m = 0.05 * i;
     b.Publish("WHEEL_ODOM", o);
-    omni::laser_scan_t s{};
-    s.utime = i == 10 ? std::numeric_limits<int64_t>::max() - 5 : o.utime;
-    s.seq = i;
+    omni::laser_scan_t s = WavyScan(i == 10 ? std::numeric_limits<int64_t>::max() - 5 : o.utime, i);
     s.scan_time_s = 0.1f;
-    s.angle_min_rad = -1.5f;
-    s.angle_increment_rad = 0.01f;
-    s.range_min_m = 0.1f;
-    s.range_max_m = 30.f;
-    for (int k = 0; k < 300; ++k) s.ranges_m.push_back(2.f + 0.5f * std::sin(0.05f * k));
-    s.num_ranges = static_cast<int32_t>(s.ranges_m.size());
     b.Publish("LIDAR_SCAN", s);
     while (b.HandleTimeout(0) > 0) {
     }

@@ -95,16 +95,22 @@ TEST(OdomMapper, AScanWithAbsurdGeometryIsRefusedAndCounted) {
 
 // Returns below range_min (a mast 0.10 m from a lidar whose range_min is 0.15 m) are no walls:
 // the map once had them as an obstacle beside the robot (review finding).
-TEST(OdomMapper, ReturnsBelowRangeMinAreNotMapped) {
-  OdomMapper m(OdomMapperOptions{});
-  for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
+// An arc of 200 returns at 2 m, seen from the origin at 50 ms (range_min 0.15 m).
+Scan ArcScan(float range_max_m) {
   Scan s;
   s.utime = 50000;
   s.angle_min_rad = -1.f;
   s.angle_increment_rad = 0.01f;
   s.range_min_m = 0.15f;
-  s.range_max_m = 20;
+  s.range_max_m = range_max_m;
   s.ranges_m.assign(200, 2.f);
+  return s;
+}
+
+TEST(OdomMapper, ReturnsBelowRangeMinAreNotMapped) {
+  OdomMapper m(OdomMapperOptions{});
+  for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
+  Scan s = ArcScan(20);
   for (int b = 0; b < 10; ++b) s.ranges_m[b] = 0.10f;
   ASSERT_TRUE(m.AddScan(s));
   const io::GridMap g = m.Map();
@@ -127,14 +133,7 @@ TEST(OdomMapper, ReturnsBelowRangeMinAreNotMapped) {
 TEST(OdomMapper, AScanWithRangeMaxZeroIsMapped) {
   OdomMapper m(OdomMapperOptions{});
   for (int k = 0; k <= 10; ++k) ASSERT_TRUE(m.AddOdometry(10000 * k, Pose2(0, 0, 0)));
-  Scan s;
-  s.utime = 50000;
-  s.angle_min_rad = -1.f;
-  s.angle_increment_rad = 0.01f;
-  s.range_min_m = 0.15f;
-  s.range_max_m = 0;
-  s.ranges_m.assign(200, 2.f);
-  ASSERT_TRUE(m.AddScan(s));
+  ASSERT_TRUE(m.AddScan(ArcScan(0)));
   const io::GridMap g = m.Map();
   int walls = 0;
   for (int8_t v : g.cells) walls += v > 50 ? 1 : 0;
